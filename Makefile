@@ -1,0 +1,45 @@
+# The README's two commands: `make run` (the main job) and `make test`.
+# Both create what they need on first use: .venv from requirements.txt and the
+# colcon build of src/ into install/.
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+STAMP_VENV := $(VENV)/.installed
+STAMP_BUILD := install/.built
+PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
+RUN_ARGS ?= --sim --duration 30 --record runs
+
+.PHONY: run test build venv clean bench help
+
+help:
+	@echo "make run   - simulated swing-up with the default controllers, recorded and summarised"
+	@echo "make test  - build and run the whole test suite"
+	@echo "make build - (re)build the colcon workspace"
+	@echo "make clean - remove build/, install/, log/ (keeps .venv)"
+
+venv: $(STAMP_VENV)
+$(STAMP_VENV): requirements.txt
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found (Python 3.11+ is needed); set PYTHON=..." >&2; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements.txt
+	touch $@
+
+build: $(STAMP_BUILD)
+# --symlink-install links the sources (needs the venv's default setuptools 65.x),
+# so editing Python needs no rebuild; package metadata changes do.
+$(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
+	source ./env.sh --no-overlay && flock .build.lock colcon build --symlink-install \
+	    --event-handlers console_cohesion- summary- status- --base-paths src
+	touch $@
+
+test: $(STAMP_BUILD)
+	source ./env.sh && python -m pytest -q
+
+run: $(STAMP_BUILD)
+	source ./env.sh && cartpole run $(RUN_ARGS)
+
+bench: $(STAMP_BUILD)
+	source ./env.sh && cartpole bench all
+
+clean:
+	rm -rf build install log

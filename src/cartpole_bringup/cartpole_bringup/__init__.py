@@ -1,0 +1,1 @@
+"""The `cartpole` command: starts the node graph, records bags, analyses runs, benchmarks."""

@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = 'cartpole_control'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='cartpole maintainers',
+    maintainer_email='maintainers@cartpole.invalid',
+    description='Controller manager with swing-up and stabiliser plugins, catch trigger and friction feedforward.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'controller_manager = cartpole_control.manager_node:main',
+        ],
+    },
+)

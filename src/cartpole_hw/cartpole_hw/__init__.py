@@ -1,0 +1,1 @@
+"""Serial bridge to the Arduino Due rig (Joint protocol), device emulator and firmware support."""

@@ -1,0 +1,238 @@
+"""The simulated rig around the model: actuator, end stops, encoders, sampling.
+
+Signal path (Figure 2.2, section 4.5): a force command F* [N] is held over each
+sample period (zero-order hold), turned into a current reference
+i* = F* / (k_t / r), passed through the current loop H(s) = b / (s + a) (4.4)
+with the amplifier's saturation (+11 A / -12 A, Appendix C), and applied to the
+cart as F = (k_t / r) i (2.1). The cart is held in its travel by two stiff
+spring-damper end stops (section 4.5). The encoders count quadrature ticks
+(2.3)/(2.4) in 16-bit counters that wrap (section 2.3).
+
+The mechanics (4.18) are integrated with fixed-step RK4 at ``integration_step``
+(1 ms by default); the current loop, whose pole at -1.058e4 1/s would make
+explicit RK4 unstable at that step, is integrated exactly over each step (it is
+linear), and the force used in the step is the exact mean of the current over it.
+
+Deterministic: the same parameters, scenario (seed included) and inputs give
+the same trajectory bit for bit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .model import CartPoleParameters, accelerations
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Initial state and uncertainties of one simulated run.
+
+    The default is the thesis procedure (Appendix H, section 10.1): cart at
+    the left end stop, pendulum hanging at rest, encoders reset there.
+    """
+
+    x0: float = 0.0
+    """Initial cart position [m] from the left end stop."""
+    theta0: float = math.pi
+    """Initial pendulum angle [rad]; pi is hanging."""
+    x_dot0: float = 0.0
+    theta_dot0: float = 0.0
+    tip_mass: float | None = None
+    """Tip mass m_p [kg] of the plant; None keeps the parameters' value."""
+    friction_scale: float = 1.0
+    """Multiplies every cart and pendulum friction coefficient of the plant."""
+    encoder_offset: float = 0.0
+    """Pendulum angle minus pi when the encoders were reset [rad] (Appendix H):
+    the measured angle is biased by minus this much."""
+    noise: bool = False
+    """Add Gaussian measurement noise before quantisation."""
+    noise_std_cart: float = 1.0e-4
+    """Cart position noise [m] (about one tick)."""
+    noise_std_pendulum: float = 1.5e-3
+    """Pendulum angle noise [rad] (about half a tick)."""
+    seed: int = 0
+
+    def plant_parameters(self, nominal: CartPoleParameters) -> CartPoleParameters:
+        """The plant's true parameters under this scenario."""
+        return nominal.with_scenario(self.tip_mass, self.friction_scale)
+
+    def initial_state(self) -> tuple[float, float, float, float]:
+        return (float(self.x0), float(self.theta0), float(self.x_dot0), float(self.theta_dot0))
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One encoder sample, as the decoders see it."""
+
+    t: float
+    """Sample time [s] since the plant's reset."""
+    cart_ticks: int
+    """Raw 16-bit signed cart counter."""
+    pendulum_ticks: int
+    """Raw 16-bit signed pendulum counter."""
+    x: float
+    """Cart position [m] from the unwrapped count."""
+    theta: float
+    """Pendulum angle [rad] from the unwrapped count, pi hanging after reset."""
+
+
+def wrap_counter(ticks: int, bits: int = 16) -> int:
+    """A count as a ``bits``-wide two's complement counter shows it."""
+    half = 1 << (bits - 1)
+    return ((ticks + half) % (1 << bits)) - half
+
+
+@dataclass
+class CounterUnwrapper:
+    """Rebuilds a continuous count from a wrapping signed counter.
+
+    Correct as long as the counter moves less than half its range between two
+    reads (16 revolutions of the pendulum in 5 ms is far beyond the rig).
+    """
+
+    bits: int = 16
+    _last: int | None = None
+    _total: int = 0
+
+    def update(self, raw: int) -> int:
+        if self._last is None:
+            self._total = raw
+        else:
+            self._total += wrap_counter(raw - self._last, self.bits)
+        self._last = raw
+        return self._total
+
+    def reset(self) -> None:
+        self._last = None
+        self._total = 0
+
+
+@dataclass
+class Plant:
+    """The simulated rig: call :meth:`step` with a force command, read :meth:`measure`.
+
+    ``params`` are the nominal parameters; the scenario's tip mass and
+    friction scale make the true ones (:attr:`true_params`).
+    """
+
+    params: CartPoleParameters = field(default_factory=CartPoleParameters)
+    scenario: Scenario = field(default_factory=Scenario)
+    integration_step: float = 0.001
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.integration_step <= self.params.sample_time):
+            raise ValueError('integration_step must be in (0, sample_time]')
+        self.true_params = self.scenario.plant_parameters(self.params)
+        self.reset()
+
+    # -- state -------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the scenario's initial state; encoders reset, noise re-seeded."""
+        self.t = 0.0
+        self.state = list(self.scenario.initial_state())
+        self.current = 0.0
+        self.force_command = 0.0
+        self.end_stop_contact = False
+        self._rng = np.random.default_rng(self.scenario.seed)
+        self._unwrap_cart = CounterUnwrapper(self.params.counter_bits)
+        self._unwrap_pend = CounterUnwrapper(self.params.counter_bits)
+        # Encoders are zeroed at the left stop and with the pendulum at
+        # pi + encoder_offset (Appendix H).
+        self._theta_at_reset = math.pi + self.scenario.encoder_offset
+
+    @property
+    def force(self) -> float:
+        """The force the actuator currently applies to the cart [N]."""
+        return self.current * self.true_params.force_per_ampere
+
+    def in_end_stop(self) -> bool:
+        return self.state[0] < 0.0 or self.state[0] > self.true_params.travel
+
+    # -- actuator (4.4) and saturation (Appendix C) -------------------------------
+    def _current_target(self, force_command: float) -> float:
+        p = self.true_params
+        i_ref = force_command / p.force_per_ampere
+        i_ss = p.actuator_gain / p.actuator_pole * i_ref
+        return min(max(i_ss, p.current_min), p.current_max)
+
+    # -- integration ----------------------------------------------------------------
+    def _end_stop_force(self, x: float, x_dot: float) -> float:
+        p = self.true_params
+        if x < 0.0:
+            return max(0.0, -p.end_stop_stiffness * x - p.end_stop_damping * x_dot)
+        if x > p.travel:
+            return min(0.0, -p.end_stop_stiffness * (x - p.travel) - p.end_stop_damping * x_dot)
+        return 0.0
+
+    def _derivative(self, s: list[float], force: float) -> tuple[float, float, float, float]:
+        x, theta, x_dot, theta_dot = s
+        total = force + self._end_stop_force(x, x_dot)
+        x_ddot, theta_ddot = accelerations(x, theta, x_dot, theta_dot, total, self.true_params)
+        return x_dot, theta_dot, x_ddot, theta_ddot
+
+    def _rk4(self, h: float, force: float) -> None:
+        s = self.state
+        k1 = self._derivative(s, force)
+        s2 = [s[i] + 0.5 * h * k1[i] for i in range(4)]
+        k2 = self._derivative(s2, force)
+        s3 = [s[i] + 0.5 * h * k2[i] for i in range(4)]
+        k3 = self._derivative(s3, force)
+        s4 = [s[i] + h * k3[i] for i in range(4)]
+        k4 = self._derivative(s4, force)
+        self.state = [s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+                      for i in range(4)]
+
+    def step(self, force_command: float, duration: float | None = None) -> None:
+        """Advance by ``duration`` (one sample period by default) holding ``force_command``.
+
+        The command is held (ZOH); the current follows it through (4.4)
+        exactly; the mechanics advance with RK4 at :attr:`integration_step`.
+        """
+        if not math.isfinite(force_command):
+            force_command = 0.0
+        duration = self.params.sample_time if duration is None else duration
+        n = max(1, int(round(duration / self.integration_step)))
+        h = duration / n
+        p = self.true_params
+        i_target = self._current_target(force_command)
+        decay = math.exp(-p.actuator_pole * h)
+        # Mean of i(t) = i_target + (i0 - i_target) e^{-a t} over one step.
+        mean_factor = (1.0 - decay) / (p.actuator_pole * h)
+        self.force_command = force_command
+        for _ in range(n):
+            i0 = self.current
+            mean_current = i_target + (i0 - i_target) * mean_factor
+            self._rk4(h, mean_current * p.force_per_ampere)
+            self.current = i_target + (i0 - i_target) * decay
+            self.t += h
+            if not self.end_stop_contact and self.in_end_stop():
+                self.end_stop_contact = True
+
+    # -- encoders (2.3), (2.4) ----------------------------------------------------------
+    def encoder_counts(self) -> tuple[int, int]:
+        """The raw 16-bit counters (cart, pendulum) now, noise included if enabled."""
+        p = self.params
+        x = self.state[0]
+        theta = self.state[1] - self._theta_at_reset
+        if self.scenario.noise:
+            x += self._rng.normal(0.0, self.scenario.noise_std_cart)
+            theta += self._rng.normal(0.0, self.scenario.noise_std_pendulum)
+        cart = math.floor(x / p.cart_resolution + 0.5)
+        pend = math.floor(theta / p.pendulum_resolution + 0.5)
+        return wrap_counter(cart, p.counter_bits), wrap_counter(pend, p.counter_bits)
+
+    def measure(self) -> Measurement:
+        """Sample the encoders: raw counters and the positions they stand for."""
+        p = self.params
+        cart_raw, pend_raw = self.encoder_counts()
+        cart = self._unwrap_cart.update(cart_raw)
+        pend = self._unwrap_pend.update(pend_raw)
+        return Measurement(t=self.t, cart_ticks=cart_raw, pendulum_ticks=pend_raw,
+                           x=cart * p.cart_resolution,
+                           theta=math.pi + pend * p.pendulum_resolution)
+
+    def true_state(self) -> np.ndarray:
+        return np.array(self.state)
