@@ -1,0 +1,48 @@
+"""Test isolation for the whole workspace (package tests and test/).
+
+Every test session gets its own ROS_DOMAIN_ID and localhost-only discovery, so
+concurrent runs on one machine (and the network) never see each other. Set
+before any rclpy import and inherited by every subprocess a test starts.
+"""
+import os
+import time
+
+import pytest
+
+os.environ['ROS_DOMAIN_ID'] = str(os.environ.get('CARTPOLE_TEST_DOMAIN_ID')
+                                  or 1 + os.getpid() % 200)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
+os.environ.setdefault('MPLBACKEND', 'Agg')
+
+
+@pytest.fixture
+def ros_context():
+    """An initialised rclpy Context, shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture
+def spin_until():
+    """spin_until(executor, predicate, timeout) -> bool: spin until predicate() holds.
+
+    Waits on the executor (work arrives as events), never on a bare sleep; the
+    timeout only bounds a failing test.
+    """
+    def _spin_until(executor, predicate, timeout=30.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            executor.spin_once(timeout_sec=min(0.1, remaining))
+        return True
+    return _spin_until
