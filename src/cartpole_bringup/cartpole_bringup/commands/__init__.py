@@ -1,0 +1,1 @@
+"""One module a `cartpole` subcommand: ``add_arguments(parser)`` and ``main(args)``."""

@@ -1,0 +1,81 @@
+"""The run summary of SPEC section 5, from time series.
+
+One module for every consumer: ``cartpole offline``, ``cartpole analyze`` and
+the benchmarks compute the same numbers from the same code. Inputs are the
+ground truth (simulation) or the estimate (hardware).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+UPRIGHT_DEG = 10.0
+"""Requirement 3.1.2-1: within +/-10 deg of upright."""
+THETA_AMP_LIMIT_DEG = 2.0
+"""Requirement 3.1.2-3: oscillations below +/-2 deg when stabilised."""
+X_ERR_LIMIT_M = 0.10
+"""Requirement 3.1.2-4: cart within 10 cm of x*."""
+WINDOW_S = 10.0
+"""The thesis's table 10.2 measures the last 10 s."""
+
+SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
+                'mse_x', 'mse_theta', 'end_stop_contact', 'success')
+
+
+def wrap(theta: np.ndarray) -> np.ndarray:
+    """theta_w, wrapped to (-pi, pi] (vectorised ``cartpole_sim.model.wrap_angle``)."""
+    w = np.mod(np.asarray(theta, dtype=float) + math.pi, 2.0 * math.pi)
+    w = np.where(w <= 0.0, w + 2.0 * math.pi, w)
+    return w - math.pi
+
+
+def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
+              x_ref: float, catch_time: float | None, end_stop_contact: bool,
+              window: float = WINDOW_S) -> dict[str, Any]:
+    """The SPEC section 5 summary of one run from hanging rest.
+
+    Parameters
+    ----------
+    t, x, theta
+        Sample times [s], cart position [m], pendulum angle [rad] (any
+        unwrapping; it is wrapped here).
+    x_ref
+        The cart reference x* [m].
+    catch_time
+        Time of the first switch to the stabiliser, or None.
+    end_stop_contact
+        Whether the cart touched an end stop.
+    window
+        Length of the final window for the amplitude, error and MSE figures.
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    theta_w = wrap(theta)
+    if t.size == 0:
+        raise ValueError('no samples to summarise')
+    upright = np.nonzero(np.abs(theta_w) <= math.radians(UPRIGHT_DEG))[0]
+    last = t >= t[-1] - window
+    theta_amp = float(np.degrees(np.max(np.abs(theta_w[last]))))
+    x_err = x[last] - x_ref
+    x_err_max = float(np.max(np.abs(x_err)))
+    long_enough = t[-1] - t[0] >= window
+    success = bool(catch_time is not None and long_enough and theta_amp < THETA_AMP_LIMIT_DEG
+                   and x_err_max <= X_ERR_LIMIT_M and not end_stop_contact)
+    return {
+        'catch_time_s': None if catch_time is None else float(catch_time),
+        'upright_time_s': float(t[upright[0]]) if upright.size else None,
+        'theta_amp_deg': theta_amp,
+        'x_err_max_m': x_err_max,
+        'mse_x': float(np.mean(x_err ** 2)),
+        'mse_theta': float(np.mean(theta_w[last] ** 2)),
+        'end_stop_contact': bool(end_stop_contact),
+        'success': success,
+    }
+
+
+def end_stop_touched(x: Sequence[float], travel: float) -> bool:
+    """Ground truth contact: the cart left [0, travel] at any sample."""
+    x = np.asarray(x, dtype=float)
+    return bool(np.any(x < 0.0) or np.any(x > travel))

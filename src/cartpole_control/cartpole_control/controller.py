@@ -1,0 +1,187 @@
+"""The controller plugin contract: what a swing-up law or a stabiliser provides.
+
+A controller is loaded by its type string from a Python entry-point group
+(:mod:`cartpole_control.registry`), configured from parameters, activated from
+the current state (bumpless, like ros2_control's
+``set_current_state_as_first_setpoint``), updated once per control cycle and
+deactivated. It returns the *raw* force of its law; the controller manager adds
+the cart friction feedforward (6.12), saturates to what the actuator can give
+and guards the rail.
+
+The contract carries a version number (:data:`API_VERSION`); the registry
+refuses plugins written for another major version.
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping, Sequence
+
+from cartpole_sim.model import CartPoleParameters, wrap_angle
+
+API_VERSION = 1
+"""Version of this contract. Bump on any incompatible change."""
+
+SWINGUP = 'swingup'
+STABILIZER = 'stabilizer'
+KINDS = (SWINGUP, STABILIZER)
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One tunable of a controller, declared as the ROS parameter ``<name>.<spec.name>``.
+
+    ``default`` fixes the type: float, int, bool, str or a tuple of floats
+    (a double array). ``low``/``high`` bound numbers (and every element of a
+    double array); ``length`` fixes the length of a double array.
+    """
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    length: int | None = None
+    choices: tuple[str, ...] | None = None
+
+    def validate(self, value: Any) -> Any:
+        """Return ``value`` converted to this parameter's type, or raise ValueError with the reason."""
+        d = self.default
+        if isinstance(d, bool):
+            if not isinstance(value, bool):
+                raise ValueError(f'{self.name} must be a bool, got {value!r}')
+            return value
+        if isinstance(d, str):
+            if not isinstance(value, str):
+                raise ValueError(f'{self.name} must be a string, got {value!r}')
+            if self.choices is not None and value not in self.choices:
+                raise ValueError(f'{self.name} must be one of {list(self.choices)}, got {value!r}')
+            return value
+        if isinstance(d, (tuple, list)):
+            if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+                raise ValueError(f'{self.name} must be a list of numbers, got {value!r}')
+            values = tuple(self._number(v) for v in value)
+            if self.length is not None and len(values) != self.length:
+                raise ValueError(f'{self.name} needs {self.length} numbers, got {len(values)}')
+            return values
+        number = self._number(value)
+        if isinstance(d, int):
+            if number != int(number):
+                raise ValueError(f'{self.name} must be an integer, got {value!r}')
+            return int(number)
+        return number
+
+    def _number(self, value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f'{self.name} must be a number, got {value!r}')
+        value = float(value)
+        if not math.isfinite(value):
+            raise ValueError(f'{self.name} must be finite, got {value!r}')
+        if self.low is not None and value < self.low:
+            raise ValueError(f'{self.name} = {value:g} is below its minimum {self.low:g}')
+        if self.high is not None and value > self.high:
+            raise ValueError(f'{self.name} = {value:g} is above its maximum {self.high:g}')
+        return value
+
+
+@dataclass(frozen=True)
+class ControllerState:
+    """The estimated state a controller acts on (from the EKF), at time ``t``.
+
+    ``theta`` may be unwrapped; laws that need the wrapped angle use
+    :attr:`theta_w`. ``x_ddot``/``theta_ddot`` are the model accelerations at
+    the estimate under the last applied force (what (7.10) needs).
+    """
+
+    t: float
+    x: float
+    theta: float
+    x_dot: float
+    theta_dot: float
+    x_ddot: float = 0.0
+    theta_ddot: float = 0.0
+
+    @property
+    def theta_w(self) -> float:
+        """theta wrapped to (-pi, pi]."""
+        return wrap_angle(self.theta)
+
+
+@dataclass(frozen=True)
+class ControlContext:
+    """What every controller may know about the loop it runs in."""
+
+    plant: CartPoleParameters
+    """The controller's model of the plant (nominal parameters, not the truth)."""
+    x_ref: float
+    """Cart reference x* [m]."""
+    sample_time: float
+    """Control period Ts [s]."""
+
+
+class Controller(ABC):
+    """Base class of every swing-up law and stabiliser plugin.
+
+    Subclasses set :attr:`kind` and :attr:`name`, list their tunables in
+    :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
+    ``configure`` (any time, between updates), ``activate`` (bumpless, from
+    the current state), ``update`` once per cycle, ``deactivate``.
+    """
+
+    api_version: ClassVar[int] = API_VERSION
+    kind: ClassVar[str] = ''
+    name: ClassVar[str] = ''
+    parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+
+    def __init__(self) -> None:
+        self.gains: dict[str, Any] = {spec.name: spec.default for spec in self.parameters}
+        self.context: ControlContext | None = None
+        self.active = False
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        return {spec.name: spec.default for spec in cls.parameters}
+
+    @classmethod
+    def validate_gains(cls, gains: Mapping[str, Any]) -> dict[str, Any]:
+        """Validated copy of ``gains`` (a subset is fine); raise ValueError with the reason."""
+        specs = {spec.name: spec for spec in cls.parameters}
+        out = {}
+        for key, value in gains.items():
+            if key not in specs:
+                raise ValueError(f'{cls.name} has no parameter {key!r}; it has {sorted(specs)}')
+            out[key] = specs[key].validate(value)
+        return out
+
+    def configure(self, gains: Mapping[str, Any], context: ControlContext) -> None:
+        """Take new gains (validated first; nothing changes on error) and the loop context.
+
+        Subclasses recompute derived quantities in :meth:`on_configure`,
+        which may also raise ValueError to refuse a combination of gains.
+        """
+        new = dict(self.gains)
+        new.update(self.validate_gains(gains))
+        old_gains, old_context = self.gains, self.context
+        self.gains, self.context = new, context
+        try:
+            self.on_configure()
+        except Exception:
+            self.gains, self.context = old_gains, old_context
+            if old_context is not None:
+                self.on_configure()
+            raise
+
+    def on_configure(self) -> None:
+        """Recompute derived quantities from :attr:`gains` and :attr:`context`."""
+
+    def activate(self, state: ControllerState) -> None:
+        """Start from ``state`` without a bump (reset integrators, filters)."""
+        self.active = True
+
+    @abstractmethod
+    def update(self, state: ControllerState) -> float:
+        """The law's raw force [N] for ``state`` (before feedforward and saturation)."""
+
+    def deactivate(self) -> None:
+        self.active = False

@@ -1,0 +1,479 @@
+"""Extended Kalman Filter of the cart-pendulum state from the two encoders (chapter 5).
+
+The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34) from the
+quantised cart position and pendulum angle, with the model of
+:mod:`cartpole_sim.model` discretised by forward Euler (5.6)-(5.9), a
+numerical Jacobian (5.20)/(5.21), the Kalman gain (5.12) and the Joseph form
+of the covariance update (5.14).
+
+One call of :meth:`ExtendedKalmanFilter.update` per sample does the time
+update from the previous sample to this one under the force applied in that
+interval, (5.15)/(5.16), then the measurement update, (5.10)-(5.14). The
+thesis writes the same two steps in the other order (correction, then
+prediction for the next sample, (5.17)); the result is identical.
+
+Noise covariances. The thesis tuned, on the rig, ``R = diag(0.01, 0.1)``
+(9.1) and ``Q = diag(1, 1, 50, 50)`` (9.2), and uses them as the discrete
+``Q_k``/``R_k`` of (5.6)/(5.7), added once per sample period (5.16). Here Q
+is exactly that: the covariance added per nominal period ``Ts``; a step of
+another length ``h`` (a missed sample, jitter) adds ``Q h / Ts``, i.e. Q is
+treated as a random walk whose intensity is ``Q / Ts`` per second. R is the
+covariance of one measurement.
+
+Friction in the filter's model. The plant's Coulomb friction uses
+``tanh(k v)`` with ``k = 1000`` (a near step). Its slope at rest,
+``c_c k / m_c`` = 716 1/s for the cart, makes the forward-Euler prediction
+at ``Ts`` = 5 ms unstable (|1 - Ts 716| > 1) and the Jacobian meaningless
+near zero velocity. The filter uses its own, smaller steepness
+(:attr:`EkfConfig.friction_steepness`, 20 s/m and s/rad by default, chosen by
+the velocity error on the free-swing test of Figure 5.2, see
+``docs/readme/estimation.md``).
+
+No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline
+closed loop both use this module. Deterministic: the same inputs give the
+same estimates bit for bit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cartpole_sim.model import CartPoleParameters, accelerations, wrap_angle
+
+__all__ = ['EkfConfig', 'StateEstimate', 'ExtendedKalmanFilter']
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in value)
+    except TypeError as exc:
+        raise ValueError(f'{name} must be a sequence of {length} numbers, got {value!r}') from exc
+    if len(values) != length:
+        raise ValueError(f'{name} must have {length} entries, got {len(values)}')
+    if not all(math.isfinite(v) and v > 0.0 for v in values):
+        raise ValueError(f'{name} entries must be finite and > 0, got {values}')
+    return values
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Tuning and safety limits of the EKF (section 5.2, 9.2.1).
+
+    Every field is validated on construction; a bad value raises
+    :class:`ValueError` naming it.
+    """
+
+    q_diag: tuple[float, float, float, float] = (1.0, 1.0, 50.0, 50.0)
+    """Diagonal of Q_k (9.2): covariance added to the state per nominal sample
+    period Ts, in m^2, rad^2, (m/s)^2, (rad/s)^2. A step of length h adds
+    Q h / Ts."""
+    r_diag: tuple[float, float] = (0.01, 0.1)
+    """Diagonal of R_k (9.1): measurement covariance of x [m^2] and theta [rad^2]."""
+    p0_diag: tuple[float, float, float, float] = (1.0e-6, 1.0e-5, 1.0, 1.0)
+    """Diagonal of P_0|0 after an (re)initialisation from a measurement:
+    positions about one encoder tick, velocities (1 m/s)^2 and (1 rad/s)^2."""
+    jacobian_step: float = 1.0e-6
+    """epsilon of the forward difference (5.21)."""
+    friction_steepness: float = 20.0
+    """k of tanh(k v) in the filter's Coulomb friction of cart [s/m] and
+    pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000."""
+    sample_time: float | None = None
+    """Nominal Ts [s]; None takes ``params.sample_time`` (5 ms)."""
+    max_dt: float = 0.25
+    """Largest gap between two samples that is bridged by prediction [s];
+    a longer gap (or a clock jump backwards by more than this) re-initialises
+    the filter from the measurement."""
+    innovation_sigma: float = 6.0
+    """N: an innovation beyond N standard deviations of (5.12)'s
+    H P H^T + R counts as an outlier."""
+    innovation_count: int = 5
+    """M: this many consecutive outlier samples re-initialise the filter."""
+    max_innovation: tuple[float, float] = (0.05, 1.0)
+    """An innovation of x [m] / wrapped theta [rad] larger than this in one
+    sample (10 m/s resp. 200 rad/s over Ts) is an outlier whatever P says."""
+    max_covariance: float = 1.0e6
+    """Any diagonal entry of P above this (or non-finite) re-initialises."""
+    max_speed: tuple[float, float] = (20.0, 200.0)
+    """|x_dot| [m/s] / |theta_dot| [rad/s] above which the estimate is
+    considered diverged and re-initialised."""
+    max_position_excursion: float = 1.0
+    """The estimate of x may leave [0, travel] by at most this [m]."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'q_diag', _positive_tuple('q_diag', self.q_diag, 4))
+        object.__setattr__(self, 'r_diag', _positive_tuple('r_diag', self.r_diag, 2))
+        object.__setattr__(self, 'p0_diag', _positive_tuple('p0_diag', self.p0_diag, 4))
+        object.__setattr__(self, 'max_innovation',
+                           _positive_tuple('max_innovation', self.max_innovation, 2))
+        object.__setattr__(self, 'max_speed', _positive_tuple('max_speed', self.max_speed, 2))
+        for name in ('jacobian_step', 'friction_steepness', 'max_dt', 'innovation_sigma',
+                     'max_covariance', 'max_position_excursion'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value) or value <= 0.0:
+                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+        if self.sample_time is not None and not (
+                isinstance(self.sample_time, (int, float)) and math.isfinite(self.sample_time)
+                and self.sample_time > 0.0):
+            raise ValueError(f'sample_time must be None or a finite number > 0, '
+                             f'got {self.sample_time!r}')
+        if not isinstance(self.innovation_count, int) or self.innovation_count < 1:
+            raise ValueError(f'innovation_count must be an integer >= 1, '
+                             f'got {self.innovation_count!r}')
+
+    def replace(self, **changes) -> 'EkfConfig':
+        """Return a copy with ``changes`` applied (validated again)."""
+        import dataclasses
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, slots=True)
+class StateEstimate:
+    """The filter's output for one sample (all SI units).
+
+    ``theta`` is continuous (not wrapped); ``theta_w`` is it wrapped to
+    (-pi, pi]. ``x_ddot``/``theta_ddot`` are the model accelerations
+    f(x_hat) + g(x_hat) u (4.40) at the corrected estimate under the force
+    that was applied in the interval ending at this sample, what (7.10)
+    needs.
+    """
+
+    t: float
+    x: float
+    theta: float
+    x_dot: float
+    theta_dot: float
+    theta_w: float
+    x_ddot: float
+    theta_ddot: float
+    covariance_diagonal: tuple[float, float, float, float]
+    """Diagonal of P_k|k (5.14)."""
+    innovation: tuple[float, float]
+    """y_k - h(x_hat_k|k-1) (5.11): x [m] and theta [rad] (wrapped); zeros
+    after an initialisation."""
+    dt: float
+    """Time since the previous accepted sample [s]; 0 on an initialisation."""
+    missed_samples: int = 0
+    """Samples missing in the interval that ended here (round(dt / Ts) - 1)."""
+    missed_samples_total: int = 0
+    """Missed samples since the filter was made."""
+    reset: bool = False
+    """The filter was (re)initialised from this sample's measurement."""
+    reset_reason: str = ''
+    """Why: 'initialisation', 'non-finite ...', 'innovation ...', 'covariance ...',
+    'state ...', 'gap ...', 'clock jumped back ...', 'requested'; '' otherwise."""
+    resets: int = 0
+    """Re-initialisations since the filter was made (the first one excluded)."""
+    rejected: str = ''
+    """Non-empty if this sample was refused (stamp not increasing or not
+    finite): the estimate is the previous one, unchanged."""
+    valid: bool = True
+    """False only while no finite measurement has been seen yet."""
+
+    def as_array(self) -> np.ndarray:
+        """The state [x, theta, x_dot, theta_dot] (4.34)."""
+        return np.array([self.x, self.theta, self.x_dot, self.theta_dot])
+
+
+@dataclass
+class ExtendedKalmanFilter:
+    """The EKF of section 5.2 on the model of section 4.4.
+
+    Parameters
+    ----------
+    params
+        The filter's model of the plant (nominal parameters). Its Coulomb
+        friction steepness is replaced by ``config.friction_steepness``.
+    config
+        Q, R, limits; see :class:`EkfConfig`.
+
+    Notes
+    -----
+    Use :meth:`update` once per sample with the measured positions and the
+    force command that was held during the interval that ended at this
+    sample. The first update (and every re-initialisation) sets the state to
+    the measurement with zero velocities.
+    """
+
+    params: CartPoleParameters = field(default_factory=CartPoleParameters)
+    config: EkfConfig = field(default_factory=EkfConfig)
+
+    def __post_init__(self) -> None:
+        self.resets = 0
+        self.missed_samples_total = 0
+        self.rejected_samples = 0
+        self._configure()
+        self.reset()
+
+    # -- configuration ---------------------------------------------------------------
+    def _configure(self) -> None:
+        cfg = self.config
+        k = cfg.friction_steepness
+        self.model = self.params.replace(friction_steepness_cart=k,
+                                         friction_steepness_pendulum=k)
+        self.sample_time = cfg.sample_time if cfg.sample_time is not None \
+            else self.params.sample_time
+        self._q = np.diag(cfg.q_diag)
+        self._r = np.diag(cfg.r_diag)
+        self._r_x, self._r_theta = cfg.r_diag
+        self._p0 = np.diag(cfg.p0_diag)
+
+    def set_noise(self, q_diag=None, r_diag=None) -> None:
+        """Change Q (9.2) and/or R (9.1) between two updates; validated first.
+
+        Raises :class:`ValueError` (nothing changed) on a wrong length or a
+        non-positive entry.
+        """
+        changes = {}
+        if q_diag is not None:
+            changes['q_diag'] = q_diag
+        if r_diag is not None:
+            changes['r_diag'] = r_diag
+        if changes:
+            self.config = self.config.replace(**changes)
+            self._configure()
+
+    # -- state -------------------------------------------------------------------------
+    def reset(self, x0=None) -> None:
+        """Forget the estimate; the next :meth:`update` initialises from its measurement.
+
+        With ``x0`` (a 4-vector) the state is set to it instead, with P_0|0 =
+        diag(p0_diag), and the next update predicts from it (its time is the
+        next sample's minus Ts).
+        """
+        self._t: float | None = None
+        self._outliers = 0
+        self._last: StateEstimate | None = None
+        self._pending_reason = ''
+        if x0 is None:
+            self._s: list[float] | None = None
+            self._p = self._p0.copy()
+            return
+        s = [float(v) for v in np.asarray(x0, dtype=float).reshape(4)]
+        if not all(math.isfinite(v) for v in s):
+            raise ValueError(f'x0 must be finite, got {s}')
+        self._s = s
+        self._p = self._p0.copy()
+
+    def request_reset(self) -> None:
+        """Re-initialise from the next measurement, reported as 'requested'."""
+        self.reset()
+        self.resets += 1
+        self._pending_reason = 'requested'
+
+    @property
+    def initialised(self) -> bool:
+        return self._t is not None
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """P_k|k (5.14), a copy."""
+        return self._p.copy()
+
+    @property
+    def last_estimate(self) -> StateEstimate | None:
+        return self._last
+
+    # -- the filter ----------------------------------------------------------------------
+    def _predict(self, h: float, force: float) -> None:
+        """One forward-Euler step of length h, (5.8), (5.15), (5.16), (5.19)-(5.21)."""
+        x, th, xd, thd = self._s
+        m = self.model
+        eps = self.config.jacobian_step
+        a0, b0 = accelerations(x, th, xd, thd, force, m)
+        # Forward differences (5.21) of the accelerations; the first two rows
+        # of f are the velocities, whose derivatives are exact.
+        a1, b1 = accelerations(x + eps, th, xd, thd, force, m)
+        a2, b2 = accelerations(x, th + eps, xd, thd, force, m)
+        a3, b3 = accelerations(x, th, xd + eps, thd, force, m)
+        a4, b4 = accelerations(x, th, xd, thd + eps, force, m)
+        g = h / eps
+        f_k = np.array([
+            [1.0, 0.0, h, 0.0],
+            [0.0, 1.0, 0.0, h],
+            [(a1 - a0) * g, (a2 - a0) * g, 1.0 + (a3 - a0) * g, (a4 - a0) * g],
+            [(b1 - b0) * g, (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g],
+        ])
+        self._s = [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0]
+        p = f_k @ self._p @ f_k.T
+        p += self._q * (h / self.sample_time)
+        self._p = p
+
+    def _correct(self, y_x: float, y_theta: float) -> tuple[float, float, float, float]:
+        """Measurement update (5.10)-(5.14) with H = [I 0] (5.18).
+
+        Returns the innovation (5.11), theta's wrapped to (-pi, pi] so that
+        a 2 pi jump of the measured angle is not taken for motion, and the
+        innovation variances (H P H^T + R)_ii.
+        """
+        s = self._s
+        p = self._p
+        nu_x = y_x - s[0]
+        nu_t = y_theta - s[1]
+        if not -math.pi < nu_t <= math.pi:
+            nu_t = wrap_angle(nu_t)
+        s11 = p[0, 0] + self._r_x
+        s12 = p[0, 1]
+        s22 = p[1, 1] + self._r_theta
+        det = s11 * s22 - s12 * s12
+        # K = P H^T S^-1 (5.12), S^-1 in closed form.
+        s_inv = np.array([[s22 / det, -s12 / det], [-s12 / det, s11 / det]])
+        k = p[:, :2] @ s_inv
+        dx = k @ np.array([nu_x, nu_t])
+        self._s = [s[0] + dx[0], s[1] + dx[1], s[2] + dx[2], s[3] + dx[3]]
+        # Joseph form (5.14): (I - K H) P (I - K H)^T + K R K^T.
+        a = np.eye(4)
+        a[:, :2] -= k
+        p = a @ p @ a.T + (k * self.config.r_diag) @ k.T
+        self._p = 0.5 * (p + p.T)
+        return nu_x, nu_t, s11, s22
+
+    def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
+                    reason: str) -> StateEstimate:
+        """Set the state to the measurement, velocities zero, P = P_0|0."""
+        if self._t is not None or self._last is not None or reason not in ('initialisation',):
+            pass
+        self._s = [y_x, y_theta, 0.0, 0.0]
+        self._p = self._p0.copy()
+        self._t = t
+        self._outliers = 0
+        return self._estimate(t, force, (0.0, 0.0), 0.0, 0, True, reason)
+
+    def _reinitialise(self, t: float, y_x: float, y_theta: float, force: float,
+                      reason: str) -> StateEstimate:
+        self.resets += 1
+        return self._initialise(t, y_x, y_theta, force, reason)
+
+    def _estimate(self, t: float, force: float, innovation: tuple[float, float], dt: float,
+                  missed: int, reset: bool, reason: str) -> StateEstimate:
+        x, th, xd, thd = self._s
+        x_ddot, theta_ddot = accelerations(x, th, xd, thd, force, self.model)
+        p = self._p
+        est = StateEstimate(
+            t=t, x=x, theta=th, x_dot=xd, theta_dot=thd, theta_w=wrap_angle(th),
+            x_ddot=x_ddot, theta_ddot=theta_ddot,
+            covariance_diagonal=(float(p[0, 0]), float(p[1, 1]), float(p[2, 2]), float(p[3, 3])),
+            innovation=innovation, dt=dt, missed_samples=missed,
+            missed_samples_total=self.missed_samples_total, reset=reset, reset_reason=reason,
+            resets=self.resets)
+        self._last = est
+        return est
+
+    def _refuse(self, t: float, reason: str) -> StateEstimate:
+        self.rejected_samples += 1
+        if self._last is None:
+            return StateEstimate(
+                t=t if math.isfinite(t) else 0.0, x=0.0, theta=math.pi, x_dot=0.0,
+                theta_dot=0.0, theta_w=math.pi, x_ddot=0.0, theta_ddot=0.0,
+                covariance_diagonal=tuple(self.config.p0_diag), innovation=(0.0, 0.0), dt=0.0,
+                missed_samples_total=self.missed_samples_total, resets=self.resets,
+                rejected=reason, valid=False)
+        last = self._last
+        return StateEstimate(
+            t=last.t, x=last.x, theta=last.theta, x_dot=last.x_dot, theta_dot=last.theta_dot,
+            theta_w=last.theta_w, x_ddot=last.x_ddot, theta_ddot=last.theta_ddot,
+            covariance_diagonal=last.covariance_diagonal, innovation=last.innovation,
+            dt=0.0, missed_samples_total=self.missed_samples_total, resets=self.resets,
+            rejected=reason, valid=last.valid)
+
+    def update(self, t: float, x_meas: float, theta_meas: float, force: float) -> StateEstimate:
+        """Process one sample: time update over [t_prev, t], then measurement update.
+
+        Parameters
+        ----------
+        t
+            Sample time [s]; must increase from sample to sample.
+        x_meas, theta_meas
+            Measured cart position [m] and pendulum angle [rad] (continuous,
+            pi hanging after reset), the y_k of (5.7).
+        force
+            The force command [N] held during the interval that ended at
+            this sample, u_{k-1}, the input of the prediction (5.8)/(5.15).
+
+        Returns
+        -------
+        StateEstimate
+            Never carries NaN. ``reset``/``reset_reason`` report a
+            (re)initialisation from this sample's measurement, ``rejected`` a
+            refused sample (the previous estimate is returned unchanged).
+        """
+        t = float(t)
+        y_x = float(x_meas)
+        y_theta = float(theta_meas)
+        force = float(force)
+        if not math.isfinite(t):
+            return self._refuse(t, f'non-finite stamp {t!r}')
+        if not (math.isfinite(y_x) and math.isfinite(y_theta)):
+            # Nothing to initialise from: forget the state, wait for a good sample.
+            had_state = self._t is not None
+            self.reset()
+            if had_state:
+                self.resets += 1
+            self._pending_reason = f'non-finite measurement ({y_x!r}, {y_theta!r})'
+            refused = self._refuse(t, self._pending_reason)
+            return refused
+        if self._t is None:
+            reason = self._pending_reason or 'initialisation'
+            self._pending_reason = ''
+            if self._s is not None and reason == 'initialisation':
+                # reset(x0): predict one nominal period from the given state.
+                self._t = t - self.sample_time
+            else:
+                return self._initialise(t, y_x, y_theta, 0.0 if not math.isfinite(force)
+                                        else force, reason)
+        if not math.isfinite(force):
+            return self._reinitialise(t, y_x, y_theta, 0.0, f'non-finite force {force!r}')
+        dt = t - self._t
+        ts = self.sample_time
+        if dt <= 0.0:
+            if dt < -self.config.max_dt:
+                return self._reinitialise(t, y_x, y_theta, force,
+                                          f'clock jumped back by {-dt:.3f} s')
+            return self._refuse(t, f'stamp not increasing (dt = {dt:.6f} s)')
+        if dt > self.config.max_dt:
+            return self._reinitialise(t, y_x, y_theta, force, f'gap of {dt:.3f} s')
+        # Time update (5.15)/(5.16) over the real dt, in Euler steps of about Ts.
+        n = max(1, int(round(dt / ts)))
+        missed = n - 1
+        self.missed_samples_total += missed
+        h = dt / n
+        for _ in range(n):
+            self._predict(h, force)
+        nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta)
+        self._t = t
+        reason = self._check(nu_x, nu_t, s11, s22)
+        if reason:
+            return self._reinitialise(t, y_x, y_theta, force, reason)
+        return self._estimate(t, force, (nu_x, nu_t), dt, missed, False, '')
+
+    def _check(self, nu_x: float, nu_t: float, s11: float, s22: float) -> str:
+        """Divergence tests: state, covariance, innovation; '' if all is well."""
+        cfg = self.config
+        x, th, xd, thd = self._s
+        if not (math.isfinite(x) and math.isfinite(th) and math.isfinite(xd)
+                and math.isfinite(thd)):
+            return 'state not finite'
+        p = self._p
+        diag = (p[0, 0], p[1, 1], p[2, 2], p[3, 3])
+        for value in diag:
+            if not (math.isfinite(value) and value <= cfg.max_covariance) or value < 0.0:
+                return f'covariance blow-up (diag P = {tuple(float(d) for d in diag)})'
+        if abs(xd) > cfg.max_speed[0] or abs(thd) > cfg.max_speed[1]:
+            return f'state out of bounds (x_dot = {xd:.3g} m/s, theta_dot = {thd:.3g} rad/s)'
+        if x < -cfg.max_position_excursion or x > self.params.travel + cfg.max_position_excursion:
+            return f'state out of bounds (x = {x:.3g} m)'
+        n2 = cfg.innovation_sigma * cfg.innovation_sigma
+        outlier = (nu_x * nu_x > n2 * s11 or nu_t * nu_t > n2 * s22
+                   or abs(nu_x) > cfg.max_innovation[0] or abs(nu_t) > cfg.max_innovation[1])
+        if outlier:
+            self._outliers += 1
+            if self._outliers >= cfg.innovation_count:
+                return (f'innovation beyond bounds for {self._outliers} samples '
+                        f'(x {nu_x:.3g} m, theta {nu_t:.3g} rad)')
+        else:
+            self._outliers = 0
+        return ''

@@ -1,0 +1,338 @@
+"""The simulator node ``sim``: the plant of :mod:`cartpole_sim.plant` on ROS.
+
+Publishes the encoder samples on ``/joint_states`` (quantised, at 1/Ts =
+200 Hz), the ground truth on ``/cartpole/true_state`` and, in lockstep mode,
+``/clock``; applies the latest ``/cartpole/force_command`` with zero-order
+hold. All numerical work is in :class:`~cartpole_sim.plant.Plant`, wrapped by
+:class:`~cartpole_sim.sim_runner.SimRunner`; this module only wires ROS.
+
+Real time (``lockstep:=false``): a steady wall timer at Ts steps the plant and
+publishes; stamps are the node clock.
+
+Lockstep (``lockstep:=true``): stamps are simulated time k Ts, also published on
+``/clock``. After sample k the node waits for the force command whose
+``header.stamp`` equals sample k's stamp; its arrival (a subscription
+callback, no polling) steps the plant by Ts and publishes sample k + 1. If no
+such command arrives within ``lockstep_timeout`` wall seconds, the node steps
+with the held command (zero once the watchdog tripped), so a missing
+controller cannot hang the graph. Until the first matching command arrives
+(``lockstep_startup_wait``), sample 0 is re-published every 0.1 s wall and the
+timeout does not apply, so a graph whose controller starts slowly still starts
+from the same sample and runs the same way every time.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from .model import CartPoleParameters
+from .plant import Scenario
+from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
+
+STARTUP_REPUBLISH_PERIOD = 0.1
+"""Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
+
+SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'friction_scale',
+                       'encoder_offset', 'noise', 'seed', 'plant_params_file',
+                       'integration_step')
+"""Parameters that take effect at the next reset (service ``~/reset``)."""
+
+
+def _float_range(low: float, high: float) -> list[FloatingPointRange]:
+    return [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
+
+
+def load_plant_parameters(path: str) -> CartPoleParameters:
+    """The nominal plant parameters: the thesis values, or a YAML file's."""
+    if not path:
+        return CartPoleParameters()
+    if not Path(path).is_file():
+        raise ValueError(f'plant_params_file {path!r} does not exist')
+    return CartPoleParameters.from_yaml(path)
+
+
+class SimNode(Node):
+    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('sim', **kwargs)
+        self._declare_parameters()
+        self.rejected_commands = 0
+        """Force commands without a finite effort for ``cart`` (ignored)."""
+        self.stale_commands = 0
+        """Lockstep: commands whose stamp is not the awaited sample's (ignored)."""
+        self.lockstep_timeouts = 0
+
+        values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
+        params, scenario = self._scenario_from(values)  # raises on a bad start-up value
+        self._runner = SimRunner(params, scenario,
+                                 integration_step=values['integration_step'],
+                                 command_timeout=self.get_parameter('command_timeout').value)
+        self._lockstep = bool(self.get_parameter('lockstep').value)
+        self._loop_established = not (self._lockstep
+                                      and self.get_parameter('lockstep_startup_wait').value)
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+
+        self._pub_joints = self.create_publisher(JointState, '/joint_states', 10)
+        self._pub_truth = self.create_publisher(JointState, '/cartpole/true_state', 10)
+        self._pub_clock = None
+        self.create_subscription(JointState, '/cartpole/force_command', self._on_command, 10)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self._step_timer = None
+        self._timeout_timer = None
+        self._startup_timer = None
+        period = params.sample_time
+        if self._lockstep:
+            self._pub_clock = self.create_publisher(
+                ClockMsg, '/clock', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            self._timeout_timer = self._make_timeout_timer()
+            if not self._loop_established:
+                self._startup_timer = self.create_timer(
+                    STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
+            self._publish(self._runner.sample)
+        else:
+            self._step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall)
+        self.get_logger().info(
+            f'sim: {"lockstep" if self._lockstep else "real time"}, Ts = {period * 1e3:g} ms, '
+            f'x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad')
+
+    # -- parameters ------------------------------------------------------------------
+    def _declare_parameters(self) -> None:
+        declare = self.declare_parameter
+        declare('lockstep', False, ParameterDescriptor(
+            description='Lockstep: advance one Ts per force command echoing the sample stamp, '
+                        'publish /clock; false: real time on a wall timer.', read_only=True))
+        declare('lockstep_startup_wait', True, ParameterDescriptor(
+            description='Lockstep: until the first matching command, re-publish sample 0 every '
+                        '0.1 s wall and do not apply lockstep_timeout.', read_only=True))
+        declare('lockstep_timeout', 1.0, ParameterDescriptor(
+            description='Lockstep: wall seconds to wait for the awaited command before stepping '
+                        'with the held one [s].', floating_point_range=_float_range(0.001, 3600.0)))
+        declare('command_timeout', 0.05, ParameterDescriptor(
+            description='Watchdog: zero force when no command arrived for this much simulated '
+                        'time [s].', floating_point_range=_float_range(0.0, 10.0)))
+        declare('x0', 0.0, ParameterDescriptor(
+            description='Initial cart position from the left end stop [m]; within the travel.',
+            floating_point_range=_float_range(0.0, 10.0)))
+        declare('theta0', math.pi, ParameterDescriptor(
+            description='Initial pendulum angle [rad]; 0 upright, pi hanging.',
+            floating_point_range=_float_range(-20.0, 20.0)))
+        declare('x_dot0', 0.0, ParameterDescriptor(
+            description='Initial cart velocity [m/s].', floating_point_range=_float_range(-5.0, 5.0)))
+        declare('theta_dot0', 0.0, ParameterDescriptor(
+            description='Initial pendulum angular velocity [rad/s].',
+            floating_point_range=_float_range(-50.0, 50.0)))
+        declare('tip_mass', 0.0, ParameterDescriptor(
+            description='Tip mass of the plant [kg]; 0 keeps the nominal m_p (0.251 kg).',
+            floating_point_range=_float_range(0.0, 10.0)))
+        declare('friction_scale', 1.0, ParameterDescriptor(
+            description='Multiplies every cart and pendulum friction coefficient.',
+            floating_point_range=_float_range(0.0, 10.0)))
+        declare('encoder_offset', 0.0, ParameterDescriptor(
+            description='Pendulum angle minus pi when the encoders were reset [rad] '
+                        '(Appendix H); biases the measured angle.',
+            floating_point_range=_float_range(-math.pi, math.pi)))
+        declare('noise', False, ParameterDescriptor(
+            description='Add Gaussian measurement noise before quantisation.'))
+        declare('seed', 0, ParameterDescriptor(
+            description='Seed of the measurement noise.',
+            integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)]))
+        declare('plant_params_file', '', ParameterDescriptor(
+            description="YAML of CartPoleParameters; '' = the thesis values."))
+        declare('integration_step', 0.001, ParameterDescriptor(
+            description='RK4 step of the plant [s]; at most the sample time.',
+            floating_point_range=_float_range(1e-5, 0.005)))
+
+    @staticmethod
+    def _scenario_from(values: dict) -> tuple[CartPoleParameters, Scenario]:
+        """Nominal parameters and scenario from parameter values; ValueError if invalid."""
+        params = load_plant_parameters(values['plant_params_file'])
+        x0 = float(values['x0'])
+        if not 0.0 <= x0 <= params.travel:
+            raise ValueError(f'x0 = {x0:g} m is outside the travel [0, {params.travel:g}] m')
+        tip_mass = float(values['tip_mass'])
+        if not (tip_mass >= 0.0 and math.isfinite(tip_mass)):
+            raise ValueError(f'tip_mass must be 0 (nominal) or a positive mass, got {tip_mass!r}')
+        step = float(values['integration_step'])
+        if not 0.0 < step <= params.sample_time:
+            raise ValueError(f'integration_step = {step:g} s must be in (0, sample_time = '
+                             f'{params.sample_time:g} s]')
+        scenario = Scenario(
+            x0=x0, theta0=float(values['theta0']), x_dot0=float(values['x_dot0']),
+            theta_dot0=float(values['theta_dot0']),
+            tip_mass=tip_mass if tip_mass > 0.0 else None,
+            friction_scale=float(values['friction_scale']),
+            encoder_offset=float(values['encoder_offset']),
+            noise=bool(values['noise']), seed=int(values['seed']))
+        scenario.plant_parameters(params)  # validates the scenario's plant (e.g. masses)
+        return params, scenario
+
+    def _validate_parameters(self, changed: list[Parameter]) -> SetParametersResult:
+        """Refuse a change that would make an invalid scenario; nothing changes then."""
+        values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
+        touched = False
+        for parameter in changed:
+            if parameter.name in values:
+                values[parameter.name] = parameter.value
+                touched = True
+        if not touched:
+            return SetParametersResult(successful=True)
+        try:
+            params, _ = self._scenario_from(values)
+        except (ValueError, TypeError, OSError) as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        if params.sample_time != self._runner.params.sample_time:
+            return SetParametersResult(
+                successful=False,
+                reason=f'plant_params_file changes sample_time to {params.sample_time:g} s; '
+                       'it is fixed while the node runs')
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, changed: list[Parameter]) -> None:
+        """Act on accepted changes: timeouts now, scenario at the next reset."""
+        for parameter in changed:
+            if parameter.name == 'command_timeout':
+                self._runner.command_timeout = float(parameter.value)
+            elif parameter.name == 'lockstep_timeout' and self._timeout_timer is not None:
+                self.destroy_timer(self._timeout_timer)
+                self._timeout_timer = self._make_timeout_timer()
+
+    # -- publishing ----------------------------------------------------------------------
+    def _stamp(self, sample: Sample):
+        if self._lockstep:
+            return Time(nanoseconds=sample.stamp_ns).to_msg()
+        return self.get_clock().now().to_msg()
+
+    def _publish(self, sample: Sample) -> None:
+        stamp = self._stamp(sample)
+        if self._pub_clock is not None:
+            self._pub_clock.publish(ClockMsg(clock=stamp))
+        meas = sample.measurement
+        joints = JointState()
+        joints.header.stamp = stamp
+        joints.name = [CART_JOINT, PENDULUM_JOINT]
+        joints.position = [meas.x, meas.theta]
+        self._pub_joints.publish(joints)
+        x, theta, x_dot, theta_dot = sample.true_state
+        truth = JointState()
+        truth.header.stamp = stamp
+        truth.name = [CART_JOINT, PENDULUM_JOINT]
+        truth.position = [x, theta]
+        truth.velocity = [x_dot, theta_dot]
+        truth.effort = [sample.actuator_force, 0.0]
+        self._pub_truth.publish(truth)
+
+    # -- stepping ---------------------------------------------------------------------------
+    def _on_step_timer(self) -> None:
+        """Real time: hold the latest command over [t_k, t_k + Ts), publish sample k + 1."""
+        self._publish(self._runner.advance())
+
+    def _make_timeout_timer(self):
+        return self.create_timer(float(self.get_parameter('lockstep_timeout').value),
+                                 self._on_lockstep_timeout, clock=self._wall)
+
+    def _lockstep_advance(self) -> None:
+        self._publish(self._runner.advance())
+        self._timeout_timer.reset()
+
+    def _on_lockstep_timeout(self) -> None:
+        if not self._loop_established:
+            return
+        self.lockstep_timeouts += 1
+        self.get_logger().warn(
+            f'lockstep: no force command for sample {self._runner.index} within '
+            f'{self.get_parameter("lockstep_timeout").value:g} s; stepping with the held one',
+            throttle_duration_sec=5.0)
+        self._lockstep_advance()
+
+    def _republish(self) -> None:
+        """Lockstep start-up: re-publish the current sample until a controller answers."""
+        if self._loop_established:
+            self.destroy_timer(self._startup_timer)
+            self._startup_timer = None
+            return
+        self._publish(self._runner.sample)
+
+    def _on_command(self, msg: JointState) -> None:
+        force = force_from_command(msg.name, msg.effort)
+        if force is None:
+            self.rejected_commands += 1
+            self.get_logger().warn(
+                f'ignored force command without a finite effort for {CART_JOINT!r} '
+                f'({self.rejected_commands} so far)', throttle_duration_sec=5.0)
+            return
+        if not self._lockstep:
+            self._runner.command(force)
+            return
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if stamp_ns != self._runner.stamp_ns:
+            self.stale_commands += 1
+            return
+        self._runner.command(force)
+        if not self._loop_established:
+            self._loop_established = True
+            if self._startup_timer is not None:
+                self.destroy_timer(self._startup_timer)
+                self._startup_timer = None
+        self._lockstep_advance()
+
+    # -- reset service --------------------------------------------------------------------------
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """Plant back to the scenario's initial state, with the scenario parameters now set."""
+        values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
+        try:
+            params, scenario = self._scenario_from(values)
+            sample = self._runner.reset(params=params, scenario=scenario,
+                                        integration_step=float(values['integration_step']))
+        except ValueError as error:
+            response.success = False
+            response.message = f'reset refused: {error}'
+            return response
+        if self._lockstep:
+            self._publish(sample)
+            self._timeout_timer.reset()
+        response.success = True
+        response.message = (f'reset: x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad, '
+                            f'sample {sample.index}')
+        self.get_logger().info(response.message)
+        return response
+
+    # -- introspection for tests and bringup ----------------------------------------------------
+    @property
+    def runner(self) -> SimRunner:
+        """The ROS-free simulation this node drives (read it, do not step it)."""
+        return self._runner
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

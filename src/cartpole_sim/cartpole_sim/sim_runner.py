@@ -1,0 +1,160 @@
+"""The simulator's sampling logic without ROS: sample clock, held command, watchdog.
+
+:class:`SimRunner` wraps a :class:`~cartpole_sim.plant.Plant` the way the
+simulator node drives it: the plant is sampled every Ts (5 ms, section 9.2),
+the latest force command is held over the next period (zero-order hold), and a
+watchdog in simulated time sets zero force when no command has arrived for
+``command_timeout`` (SPEC section 4: 50 ms). All numerical work stays in the
+plant; this class only counts samples and decides which force is held.
+
+The sample clock never goes backwards: a reset puts the plant back to its
+initial state but the sample index (hence the stamps and ``/clock``) keeps
+counting, so nodes on ``use_sim_time`` see no time jump.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+from .model import CartPoleParameters
+from .plant import Measurement, Plant, Scenario
+
+CART_JOINT = 'cart'
+PENDULUM_JOINT = 'pendulum'
+
+
+def force_from_command(names: Sequence[str], efforts: Sequence[float]) -> float | None:
+    """The force [N] of a ``/cartpole/force_command`` message, or None if it has none.
+
+    The contract (docs/architecture.md) is ``name=['cart']``, ``effort=[F]``;
+    a message without a finite effort for the joint ``cart`` is not a command.
+    """
+    try:
+        index = list(names).index(CART_JOINT)
+    except ValueError:
+        return None
+    if index >= len(efforts):
+        return None
+    force = float(efforts[index])
+    return force if math.isfinite(force) else None
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One published sample: index, stamp and what the plant shows then."""
+
+    index: int
+    stamp_ns: int
+    measurement: Measurement
+    true_state: tuple[float, float, float, float]
+    actuator_force: float
+
+
+class SimRunner:
+    """Plant plus sample clock, held command and command watchdog.
+
+    Parameters
+    ----------
+    params : CartPoleParameters
+        Nominal plant parameters (``sample_time`` is Ts).
+    scenario : Scenario
+        Initial state and uncertainties of the run.
+    integration_step : float
+        RK4 step of the plant [s].
+    command_timeout : float
+        Simulated seconds after the last command at which the held force
+        falls to zero (watchdog).
+    """
+
+    def __init__(self, params: CartPoleParameters, scenario: Scenario,
+                 integration_step: float = 0.001, command_timeout: float = 0.05) -> None:
+        self.plant = Plant(params=params, scenario=scenario, integration_step=integration_step)
+        self.sample_period_ns = int(round(params.sample_time * 1e9))
+        self.command_timeout = float(command_timeout)
+        self.index = 0
+        self.steps = 0
+        self.watchdog_trips = 0
+        self._held_force = 0.0
+        self._command_index: int | None = None
+        self._watchdog_tripped = False
+        self._sample = self._take_sample()
+
+    # -- clock ---------------------------------------------------------------------
+    @property
+    def params(self) -> CartPoleParameters:
+        return self.plant.params
+
+    @property
+    def stamp_ns(self) -> int:
+        """Simulated time of the current sample [ns]: index x Ts."""
+        return self.index * self.sample_period_ns
+
+    @property
+    def sample(self) -> Sample:
+        """The current sample (taken once, so the encoders' noise is drawn once)."""
+        return self._sample
+
+    # -- commands ------------------------------------------------------------------
+    def command(self, force: float) -> None:
+        """Hold ``force`` [N] from now on (received while the current sample is out)."""
+        self._held_force = float(force) if math.isfinite(force) else 0.0
+        self._command_index = self.index
+        self._watchdog_tripped = False
+
+    def held_force(self) -> float:
+        """The force command applied over the next period, after the watchdog."""
+        if self._command_index is None:
+            return 0.0
+        age = (self.index - self._command_index) * self.params.sample_time
+        if age > self.command_timeout + 1e-12:
+            if not self._watchdog_tripped:
+                self._watchdog_tripped = True
+                self.watchdog_trips += 1
+            return 0.0
+        return self._held_force
+
+    @property
+    def watchdog_tripped(self) -> bool:
+        return self._watchdog_tripped
+
+    # -- stepping ------------------------------------------------------------------
+    def advance(self) -> Sample:
+        """Step the plant one Ts with the held command and sample it (index + 1)."""
+        self.plant.step(self.held_force())
+        self.index += 1
+        self.steps += 1
+        self._sample = self._take_sample()
+        return self._sample
+
+    def reset(self, params: CartPoleParameters | None = None,
+              scenario: Scenario | None = None,
+              integration_step: float | None = None) -> Sample:
+        """Plant back to the scenario's initial state (new parameters if given).
+
+        The held command is dropped (zero force) and the sample index moves on
+        by one, so the reset state is a new sample with a later stamp.
+        """
+        if params is not None or scenario is not None or integration_step is not None:
+            new_params = self.plant.params if params is None else params
+            if int(round(new_params.sample_time * 1e9)) != self.sample_period_ns:
+                raise ValueError('sample_time cannot change at a reset')
+            self.plant = Plant(
+                params=new_params,
+                scenario=self.plant.scenario if scenario is None else scenario,
+                integration_step=(self.plant.integration_step if integration_step is None
+                                  else integration_step))
+        else:
+            self.plant.reset()
+        self._held_force = 0.0
+        self._command_index = None
+        self._watchdog_tripped = False
+        self.index += 1
+        self._sample = self._take_sample()
+        return self._sample
+
+    def _take_sample(self) -> Sample:
+        return Sample(index=self.index, stamp_ns=self.stamp_ns,
+                      measurement=self.plant.measure(),
+                      true_state=tuple(float(v) for v in self.plant.state),
+                      actuator_force=self.plant.force)
