@@ -20,5 +20,17 @@ setup(
         'console_scripts': [
             'controller_manager = cartpole_control.manager_node:main',
         ],
+        # Controller plugins: the entry-point name is the type string users
+        # choose with `ros2 param set /controller_manager swingup <name>`.
+        'cartpole_control.swingup': [
+            'full_energy = cartpole_control.controllers.full_energy:FullEnergySwingUp',
+            'pendulum_energy = cartpole_control.controllers.pendulum_energy:PendulumEnergySwingUp',
+            'sign_based = cartpole_control.controllers.sign_based:SignBasedSwingUp',
+        ],
+        'cartpole_control.stabilizer': [
+            'lqg = cartpole_control.controllers.lqg:LqgStabilizer',
+            'pid = cartpole_control.controllers.pid:PidStabilizer',
+            'smc = cartpole_control.controllers.smc:SlidingModeStabilizer',
+        ],
     },
 )

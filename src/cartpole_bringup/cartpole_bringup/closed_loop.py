@@ -7,6 +7,7 @@ same run bit for bit.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -54,14 +55,16 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     duration: float = 30.0,
                     manager_parameters: Mapping[str, Any] | None = None,
                     ekf_config: EkfConfig | None = None,
-                    integration_step: float = 0.001) -> RunResult:
+                    integration_step: float = 0.001,
+                    profile: dict[str, float] | None = None) -> RunResult:
     """Run the closed loop for ``duration`` simulated seconds and summarise it (SPEC 5).
 
     ``nominal`` are the parameters the EKF and the controllers use; the plant
     is ``scenario`` applied to them (tip mass, friction scale, start, noise).
     ``manager_parameters`` are the controller manager's parameters (e.g.
     ``{'swingup': 'full_energy', 'lqg.q': [...]}``); a refused one raises
-    ValueError with the manager's reason.
+    ValueError with the manager's reason. With ``profile`` (a dict) the wall
+    time spent in each stage (``plant``, ``ekf``, ``controller``) is added to it.
     """
     nominal = nominal or CartPoleParameters()
     scenario = scenario or Scenario()
@@ -79,10 +82,23 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     events: list[tuple[float, str]] = []
     force = 0.0
     true_params = plant.true_params
+    clock = time.perf_counter if profile is not None else None
+    t_plant = t_ekf = t_ctrl = 0.0
     for k in range(steps):
+        if clock:
+            t0 = clock()
         meas = plant.measure()
+        if clock:
+            t1 = clock()
         est = ekf.update(meas.t, meas.x, meas.theta, force)
+        if clock:
+            t2 = clock()
         out = manager.update(ControllerState(est.t, est.x, est.theta, est.x_dot, est.theta_dot))
+        if clock:
+            t3 = clock()
+            t_plant += t1 - t0
+            t_ekf += t2 - t1
+            t_ctrl += t3 - t2
         force = out.force
         s = plant.state
         rows[k] = (meas.t, s[0], s[1], s[2], s[3], est.x, est.theta, est.x_dot, est.theta_dot, force)
@@ -90,7 +106,16 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         if out.event:
             events.append((meas.t, out.event))
         if k + 1 < steps:
-            plant.step(force)
+            if clock:
+                t0 = clock()
+                plant.step(force)
+                t_plant += clock() - t0
+            else:
+                plant.step(force)
+    if profile is not None:
+        for key, value in (('plant', t_plant), ('ekf', t_ekf), ('controller', t_ctrl)):
+            profile[key] = profile.get(key, 0.0) + value
+        profile['steps'] = profile.get('steps', 0) + steps
     energy = np.array([pendulum_energy(th, thd, true_params) for th, thd in zip(rows[:, 2], rows[:, 4])])
     catch_time = next((t for t, e in events if e == 'catch'), None)
     run = RunResult(t=rows[:, 0], x=rows[:, 1], theta=rows[:, 2], x_dot=rows[:, 3],

@@ -78,7 +78,7 @@ class EkfConfig:
     positions about one encoder tick, velocities (1 m/s)^2 and (1 rad/s)^2."""
     jacobian_step: float = 1.0e-6
     """epsilon of the forward difference (5.21)."""
-    friction_steepness: float = 20.0
+    friction_steepness: float = 200.0
     """k of tanh(k v) in the filter's Coulomb friction of cart [s/m] and
     pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000."""
     sample_time: float | None = None
@@ -170,9 +170,13 @@ class StateEstimate:
     """Re-initialisations since the filter was made (the first one excluded)."""
     rejected: str = ''
     """Non-empty if this sample was refused (stamp not increasing or not
-    finite): the estimate is the previous one, unchanged."""
+    finite, measurement not finite): the estimate is the previous one,
+    unchanged (its ``t`` is the previous sample's)."""
+    warning: str = ''
+    """A repaired input, e.g. a non-finite force taken as 0 N."""
     valid: bool = True
-    """False only while no finite measurement has been seen yet."""
+    """False when no finite measurement backs this estimate (none seen yet,
+    or the state was dropped after a non-finite measurement)."""
 
     def as_array(self) -> np.ndarray:
         """The state [x, theta, x_dot, theta_dot] (4.34)."""
@@ -206,6 +210,7 @@ class ExtendedKalmanFilter:
         self.resets = 0
         self.missed_samples_total = 0
         self.rejected_samples = 0
+        self.input_faults = 0
         self._configure()
         self.reset()
 
@@ -218,8 +223,8 @@ class ExtendedKalmanFilter:
         self.sample_time = cfg.sample_time if cfg.sample_time is not None \
             else self.params.sample_time
         self._q = np.diag(cfg.q_diag)
-        self._r = np.diag(cfg.r_diag)
         self._r_x, self._r_theta = cfg.r_diag
+        self._r_diag = np.array(cfg.r_diag)
         self._p0 = np.diag(cfg.p0_diag)
 
     def set_noise(self, q_diag=None, r_diag=None) -> None:
@@ -286,12 +291,13 @@ class ExtendedKalmanFilter:
         eps = self.config.jacobian_step
         a0, b0 = accelerations(x, th, xd, thd, force, m)
         # Forward differences (5.21) of the accelerations; the first two rows
-        # of f are the velocities, whose derivatives are exact.
+        # of f_k are x + h x_dot and theta + h theta_dot, whose derivatives are exact.
         a1, b1 = accelerations(x + eps, th, xd, thd, force, m)
         a2, b2 = accelerations(x, th + eps, xd, thd, force, m)
         a3, b3 = accelerations(x, th, xd + eps, thd, force, m)
         a4, b4 = accelerations(x, th, xd, thd + eps, force, m)
         g = h / eps
+        # F_k = I + h df/dx (5.19).
         f_k = np.array([
             [1.0, 0.0, h, 0.0],
             [0.0, 1.0, 0.0, h],
@@ -299,86 +305,99 @@ class ExtendedKalmanFilter:
             [(b1 - b0) * g, (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g],
         ])
         self._s = [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0]
-        p = f_k @ self._p @ f_k.T
-        p += self._q * (h / self.sample_time)
-        self._p = p
+        q = self._q if h == self.sample_time else self._q * (h / self.sample_time)
+        self._p = f_k @ self._p @ f_k.T + q
 
     def _correct(self, y_x: float, y_theta: float) -> tuple[float, float, float, float]:
         """Measurement update (5.10)-(5.14) with H = [I 0] (5.18).
 
         Returns the innovation (5.11), theta's wrapped to (-pi, pi] so that
         a 2 pi jump of the measured angle is not taken for motion, and the
-        innovation variances (H P H^T + R)_ii.
+        innovation variances (H P H^T + R)_ii. Scalar code where H's
+        structure makes it cheaper than matrix products.
         """
         s = self._s
-        p = self._p
         nu_x = y_x - s[0]
         nu_t = y_theta - s[1]
         if not -math.pi < nu_t <= math.pi:
             nu_t = wrap_angle(nu_t)
-        s11 = p[0, 0] + self._r_x
-        s12 = p[0, 1]
-        s22 = p[1, 1] + self._r_theta
-        det = s11 * s22 - s12 * s12
-        # K = P H^T S^-1 (5.12), S^-1 in closed form.
-        s_inv = np.array([[s22 / det, -s12 / det], [-s12 / det, s11 / det]])
-        k = p[:, :2] @ s_inv
-        dx = k @ np.array([nu_x, nu_t])
-        self._s = [s[0] + dx[0], s[1] + dx[1], s[2] + dx[2], s[3] + dx[3]]
+        (p00, p01), (p10, p11), (p20, p21), (p30, p31) = self._p[:, :2].tolist()
+        # S = H P H^T + R and its inverse in closed form.
+        s00 = p00 + self._r_x
+        s11 = p11 + self._r_theta
+        s01 = 0.5 * (p01 + p10)
+        det = s00 * s11 - s01 * s01
+        i00 = s11 / det
+        i01 = -s01 / det
+        i11 = s00 / det
+        # K = P H^T S^-1 (5.12).
+        k00 = p00 * i00 + p01 * i01
+        k01 = p00 * i01 + p01 * i11
+        k10 = p10 * i00 + p11 * i01
+        k11 = p10 * i01 + p11 * i11
+        k20 = p20 * i00 + p21 * i01
+        k21 = p20 * i01 + p21 * i11
+        k30 = p30 * i00 + p31 * i01
+        k31 = p30 * i01 + p31 * i11
+        # x_k|k = x_k|k-1 + K y~ (5.13).
+        self._s = [s[0] + k00 * nu_x + k01 * nu_t, s[1] + k10 * nu_x + k11 * nu_t,
+                   s[2] + k20 * nu_x + k21 * nu_t, s[3] + k30 * nu_x + k31 * nu_t]
         # Joseph form (5.14): (I - K H) P (I - K H)^T + K R K^T.
-        a = np.eye(4)
-        a[:, :2] -= k
-        p = a @ p @ a.T + (k * self.config.r_diag) @ k.T
-        self._p = 0.5 * (p + p.T)
-        return nu_x, nu_t, s11, s22
+        a = np.array([[1.0 - k00, -k01, 0.0, 0.0],
+                      [-k10, 1.0 - k11, 0.0, 0.0],
+                      [-k20, -k21, 1.0, 0.0],
+                      [-k30, -k31, 0.0, 1.0]])
+        k = np.array([[k00, k01], [k10, k11], [k20, k21], [k30, k31]])
+        self._p = a @ self._p @ a.T + (k * self._r_diag) @ k.T
+        return nu_x, nu_t, s00, s11
 
     def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
-                    reason: str) -> StateEstimate:
+                    reason: str, warning: str = '') -> StateEstimate:
         """Set the state to the measurement, velocities zero, P = P_0|0."""
-        if self._t is not None or self._last is not None or reason not in ('initialisation',):
-            pass
         self._s = [y_x, y_theta, 0.0, 0.0]
         self._p = self._p0.copy()
         self._t = t
         self._outliers = 0
-        return self._estimate(t, force, (0.0, 0.0), 0.0, 0, True, reason)
+        return self._estimate(t, force, (0.0, 0.0), 0.0, 0, True, reason, warning)
 
     def _reinitialise(self, t: float, y_x: float, y_theta: float, force: float,
-                      reason: str) -> StateEstimate:
+                      reason: str, warning: str = '') -> StateEstimate:
         self.resets += 1
-        return self._initialise(t, y_x, y_theta, force, reason)
+        return self._initialise(t, y_x, y_theta, force, reason, warning)
 
     def _estimate(self, t: float, force: float, innovation: tuple[float, float], dt: float,
-                  missed: int, reset: bool, reason: str) -> StateEstimate:
+                  missed: int, reset: bool, reason: str, warning: str = '') -> StateEstimate:
         x, th, xd, thd = self._s
         x_ddot, theta_ddot = accelerations(x, th, xd, thd, force, self.model)
-        p = self._p
         est = StateEstimate(
             t=t, x=x, theta=th, x_dot=xd, theta_dot=thd, theta_w=wrap_angle(th),
             x_ddot=x_ddot, theta_ddot=theta_ddot,
-            covariance_diagonal=(float(p[0, 0]), float(p[1, 1]), float(p[2, 2]), float(p[3, 3])),
+            covariance_diagonal=tuple(self._p.diagonal().tolist()),
             innovation=innovation, dt=dt, missed_samples=missed,
             missed_samples_total=self.missed_samples_total, reset=reset, reset_reason=reason,
-            resets=self.resets)
+            resets=self.resets, warning=warning)
         self._last = est
         return est
 
-    def _refuse(self, t: float, reason: str) -> StateEstimate:
+    def _refuse(self, t: float, reason: str, reset: bool = False) -> StateEstimate:
+        """The previous estimate, unchanged, marked as refused (never NaN)."""
         self.rejected_samples += 1
-        if self._last is None:
+        last = self._last
+        if last is None:
             return StateEstimate(
                 t=t if math.isfinite(t) else 0.0, x=0.0, theta=math.pi, x_dot=0.0,
                 theta_dot=0.0, theta_w=math.pi, x_ddot=0.0, theta_ddot=0.0,
                 covariance_diagonal=tuple(self.config.p0_diag), innovation=(0.0, 0.0), dt=0.0,
-                missed_samples_total=self.missed_samples_total, resets=self.resets,
-                rejected=reason, valid=False)
-        last = self._last
+                missed_samples_total=self.missed_samples_total, reset=reset,
+                reset_reason=reason if reset else '', resets=self.resets, rejected=reason,
+                valid=False)
         return StateEstimate(
             t=last.t, x=last.x, theta=last.theta, x_dot=last.x_dot, theta_dot=last.theta_dot,
             theta_w=last.theta_w, x_ddot=last.x_ddot, theta_ddot=last.theta_ddot,
             covariance_diagonal=last.covariance_diagonal, innovation=last.innovation,
-            dt=0.0, missed_samples_total=self.missed_samples_total, resets=self.resets,
-            rejected=reason, valid=last.valid)
+            dt=0.0, missed_samples_total=self.missed_samples_total, reset=reset,
+            reset_reason=reason if reset else '', resets=self.resets, rejected=reason,
+            valid=last.valid and not reset)
 
     def update(self, t: float, x_meas: float, theta_meas: float, force: float) -> StateEstimate:
         """Process one sample: time update over [t_prev, t], then measurement update.
@@ -408,14 +427,26 @@ class ExtendedKalmanFilter:
         if not math.isfinite(t):
             return self._refuse(t, f'non-finite stamp {t!r}')
         if not (math.isfinite(y_x) and math.isfinite(y_theta)):
-            # Nothing to initialise from: forget the state, wait for a good sample.
+            # Nothing to correct with: forget the state, re-initialise from the
+            # next finite measurement; meanwhile hand out the last estimate,
+            # marked invalid.
+            reason = f'non-finite measurement ({y_x!r}, {y_theta!r})'
+            last = self._last
             had_state = self._t is not None
             self.reset()
             if had_state:
                 self.resets += 1
-            self._pending_reason = f'non-finite measurement ({y_x!r}, {y_theta!r})'
-            refused = self._refuse(t, self._pending_reason)
-            return refused
+                self._pending_reason = 'recovery after non-finite measurement'
+            self._last = last
+            est = self._refuse(t, reason, reset=had_state)
+            self._last = est
+            return est
+        warning = ''
+        if not math.isfinite(force):
+            # What the plant and the hardware bridge apply instead (zero force).
+            warning = f'non-finite force {force!r} taken as 0 N'
+            force = 0.0
+            self.input_faults += 1
         if self._t is None:
             reason = self._pending_reason or 'initialisation'
             self._pending_reason = ''
@@ -423,10 +454,7 @@ class ExtendedKalmanFilter:
                 # reset(x0): predict one nominal period from the given state.
                 self._t = t - self.sample_time
             else:
-                return self._initialise(t, y_x, y_theta, 0.0 if not math.isfinite(force)
-                                        else force, reason)
-        if not math.isfinite(force):
-            return self._reinitialise(t, y_x, y_theta, 0.0, f'non-finite force {force!r}')
+                return self._initialise(t, y_x, y_theta, force, reason, warning)
         dt = t - self._t
         ts = self.sample_time
         if dt <= 0.0:
@@ -447,8 +475,8 @@ class ExtendedKalmanFilter:
         self._t = t
         reason = self._check(nu_x, nu_t, s11, s22)
         if reason:
-            return self._reinitialise(t, y_x, y_theta, force, reason)
-        return self._estimate(t, force, (nu_x, nu_t), dt, missed, False, '')
+            return self._reinitialise(t, y_x, y_theta, force, reason, warning)
+        return self._estimate(t, force, (nu_x, nu_t), dt, missed, False, '', warning)
 
     def _check(self, nu_x: float, nu_t: float, s11: float, s22: float) -> str:
         """Divergence tests: state, covariance, innovation; '' if all is well."""

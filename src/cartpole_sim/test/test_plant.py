@@ -164,11 +164,14 @@ def test_unwrapper_rebuilds_count_across_wraps_synthetic():
 
 
 def test_spinning_pendulum_wraps_the_counter_and_is_unwrapped():
-    # 40 rad/s for 3 s is ~19 revolutions = 38,000 ticks > 32,767: the raw counter wraps.
-    plant = Plant(FRICTIONLESS, Scenario(x0=FRICTIONLESS.x_middle, theta_dot0=40.0))
+    # ~35 rad/s for 4 s is ~20 revolutions = 40,000 ticks > 32,767: the raw counter wraps.
+    # The cart starts with the opposite momentum so that it stays mid-rail.
+    p = FRICTIONLESS
+    x_dot0 = -p.m_p * p.l * 40.0 / (p.m_c + p.m_p)
+    plant = Plant(p, Scenario(x0=p.x_middle, theta_dot0=40.0, x_dot0=x_dot0))
     wrapped = False
     previous = plant.measure().pendulum_ticks
-    for _ in range(600):
+    for _ in range(800):
         plant.step(0.0)
         m = plant.measure()
         assert -32768 <= m.pendulum_ticks <= 32767
@@ -177,6 +180,7 @@ def test_spinning_pendulum_wraps_the_counter_and_is_unwrapped():
         previous = m.pendulum_ticks
         assert abs(m.theta - plant.state[1]) <= FRICTIONLESS.pendulum_resolution / 2 + 1e-12
     assert wrapped
+    assert not plant.end_stop_contact
     assert (plant.state[1] - math.pi) / (2 * math.pi) > 16.4
 
 

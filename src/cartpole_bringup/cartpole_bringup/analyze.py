@@ -1,0 +1,250 @@
+"""Run analysis from recorded bags (no ROS): time series, the SPEC 5 summary, plots.
+
+:class:`SeriesBuilder` turns the graph's messages (from a bag here, or live in
+``cartpole run``) into a :class:`~cartpole_bringup.plots.RunSeries` and the
+summary of :func:`cartpole_bringup.metrics.summarize` -- the very function
+``cartpole offline`` uses, so both report the same numbers for the same
+trajectory.
+
+What is taken from where:
+
+- states: the ground truth ``/cartpole/true_state`` when present (simulator),
+  else the estimate ``/cartpole/state`` (hardware);
+- time: the messages' ``header.stamp``; t = 0 is simulated time zero when the
+  run was in lockstep (``/clock`` recorded, or ``lockstep=true`` in the bag's
+  custom_data), else the first sample;
+- catch time: the first ``/cartpole/controller_status`` whose ``event`` is
+  ``catch`` or whose ``mode`` is the stabilising one, at its ``state_stamp``
+  (the sample the switch was computed from) or else its header stamp;
+- end-stop contact: the true cart position outside [0, travel] (simulator);
+  on hardware, any limit flag in ``/cartpole/hw/health`` (a value whose key
+  contains ``limit`` and reads true or non-zero); with neither, the estimate
+  outside [0, travel];
+- x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
+  the travel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from cartpole_sim.model import CartPoleParameters
+
+from . import metrics
+from .bag import bag_custom_data
+from .plots import RunSeries
+
+TRUE_STATE = '/cartpole/true_state'
+STATE = '/cartpole/state'
+FORCE = '/cartpole/force_command'
+STATUS = '/cartpole/controller_status'
+HW_HEALTH = '/cartpole/hw/health'
+JOINTS = '/joint_states'
+CLOCK = '/clock'
+
+CATCH_EVENT = 'catch'
+
+
+def is_stabilising(mode: str) -> bool:
+    """The controller status mode of the stabiliser (``stabilising``/``stabilizing``)."""
+    return mode.strip().lower().startswith('stabili')
+
+
+def _truthy(text: str) -> bool:
+    text = text.strip().lower()
+    if text in ('true', 'yes', 'on'):
+        return True
+    try:
+        return float(text) != 0.0
+    except ValueError:
+        return False
+
+
+@dataclass
+class SeriesBuilder:
+    """Accumulates the messages of one run; :meth:`build` makes the series.
+
+    Feed it with :meth:`joint_state` (any JointState topic), :meth:`status`
+    (controller status key/values) and :meth:`hw_health`.
+    """
+
+    states: dict[str, list[tuple[int, float, float, float, float]]] = field(
+        default_factory=lambda: {TRUE_STATE: [], STATE: []})
+    forces: list[tuple[int, float]] = field(default_factory=list)
+    catch_ns: int | None = None
+    controllers: dict[str, str] = field(default_factory=dict)
+    """swingup / stabilizer names from the last status."""
+    limit_flag: bool = False
+    hw_health_seen: bool = False
+    status_count: int = 0
+
+    def joint_state(self, topic: str, stamp_ns: int, position: Sequence[float],
+                    velocity: Sequence[float], effort: Sequence[float]) -> None:
+        if topic in self.states and len(position) >= 2 and len(velocity) >= 2:
+            self.states[topic].append((stamp_ns, float(position[0]), float(position[1]),
+                                       float(velocity[0]), float(velocity[1])))
+        elif topic == FORCE and len(effort) >= 1:
+            self.forces.append((stamp_ns, float(effort[0])))
+
+    def status(self, stamp_ns: int, values: Mapping[str, str]) -> None:
+        self.status_count += 1
+        for key in ('swingup', 'stabilizer'):
+            if values.get(key):
+                self.controllers[key] = values[key]
+        if self.catch_ns is not None:
+            return
+        if values.get('event', '') == CATCH_EVENT or is_stabilising(values.get('mode', '')):
+            self.catch_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
+
+    def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
+        self.hw_health_seen = True
+        if any('limit' in key.lower() and _truthy(v) for key, v in values.items()):
+            self.limit_flag = True
+
+    @property
+    def source(self) -> str | None:
+        """The state topic the series is built from (truth first), None if none."""
+        for topic in (TRUE_STATE, STATE):
+            if self.states[topic]:
+                return topic
+        return None
+
+    def build(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
+              label: str = '') -> tuple[RunSeries, bool]:
+        """The run's series and its end-stop contact flag.
+
+        Raises ValueError when no state was recorded.
+        """
+        source = self.source
+        if source is None:
+            raise ValueError(f'no {TRUE_STATE} or {STATE} messages: nothing to analyse')
+        rows = np.array(sorted(self.states[source]), dtype=float)
+        t0 = 0.0 if lockstep else rows[0, 0]
+        t = (rows[:, 0] - t0) * 1e-9
+        forces = np.array(sorted(self.forces), dtype=float).reshape(-1, 2)
+        catch = None if self.catch_ns is None else (self.catch_ns - t0) * 1e-9
+        series = RunSeries.from_states(t, rows[:, 1:], forces[:, 1], params=params, x_ref=x_ref,
+                                       catch_time=catch, t_force=(forces[:, 0] - t0) * 1e-9,
+                                       label=label)
+        if source == TRUE_STATE:
+            contact = metrics.end_stop_touched(series.x, params.travel)
+        elif self.hw_health_seen:
+            contact = self.limit_flag
+        else:
+            contact = metrics.end_stop_touched(series.x, params.travel)
+        return series, contact
+
+
+def _stamp_value_ns(text: str | None, fallback_ns: int) -> int:
+    """A ``state_stamp`` value (seconds as a float, or ``sec.nanosec``) in ns."""
+    if text:
+        try:
+            return int(round(float(text) * 1e9))
+        except ValueError:
+            pass
+    return fallback_ns
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+@dataclass
+class BagAnalysis:
+    """The analysis of one bag."""
+
+    path: Path
+    series: RunSeries
+    summary: dict[str, Any]
+    source: str
+    """State topic used (ground truth or estimate)."""
+    topics: dict[str, int]
+    """Messages per topic in the bag."""
+    controllers: dict[str, str]
+
+
+def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
+    """Feed every relevant message of a bag into a :class:`SeriesBuilder`."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    if not (path / 'metadata.yaml').is_file() and not path.is_file():
+        raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml)')
+    builder = SeriesBuilder()
+    wanted = {TRUE_STATE, STATE, FORCE, STATUS, HW_HEALTH}
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        topics = {c.topic: c.msgcount for c in reader.connections}
+        connections = [c for c in reader.connections if c.topic in wanted]
+        for connection, _, raw in reader.messages(connections=connections):
+            msg = reader.deserialize(raw, connection.msgtype)
+            stamp = _stamp_ns(msg.header.stamp)
+            if connection.topic == STATUS or connection.topic == HW_HEALTH:
+                for status in msg.status:
+                    values = {kv.key: kv.value for kv in status.values}
+                    if connection.topic == STATUS:
+                        builder.status(stamp, values)
+                    else:
+                        builder.hw_health(stamp, values)
+            else:
+                builder.joint_state(connection.topic, stamp, msg.position, msg.velocity,
+                                    msg.effort)
+    return builder, topics
+
+
+def analyze_bag(path: str | Path, *, x_ref: float | None = None,
+                params: CartPoleParameters | None = None, label: str = '') -> BagAnalysis:
+    """Series and SPEC 5 summary of one recorded run.
+
+    Parameters
+    ----------
+    path
+        The bag directory (``metadata.yaml`` and the MCAP file).
+    x_ref
+        x* [m]; default: the bag's custom_data ``x_ref``, else mid-travel.
+    params
+        Nominal plant parameters (travel for the end-stop test, l, g, E*).
+    """
+    path = Path(path)
+    params = params or CartPoleParameters()
+    custom = bag_custom_data(path)
+    if x_ref is None:
+        x_ref = float(custom['x_ref']) if 'x_ref' in custom else params.x_middle
+    builder, topics = read_bag(path)
+    lockstep = CLOCK in topics or custom.get('lockstep', '').lower() == 'true'
+    series, contact = builder.build(params=params, x_ref=x_ref, lockstep=lockstep,
+                                    label=label or run_label(path))
+    summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
+                                catch_time=series.catch_time, end_stop_contact=contact)
+    return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
+                       topics=topics, controllers=dict(builder.controllers))
+
+
+def run_label(path: Path) -> str:
+    """A short name of a bag: its directory name, or its parent's for ``.../bag``."""
+    path = Path(path).resolve()
+    return path.parent.name if path.name == 'bag' else path.name
+
+
+def comparison_table(analyses: Iterable[BagAnalysis]) -> list[str]:
+    """Rows of a side-by-side table: one row a summary key, one column a bag."""
+    analyses = list(analyses)
+    labels = [a.series.label for a in analyses]
+    key_width = max(len(k) for k in metrics.SUMMARY_KEYS)
+    widths = [max(len(label), 10) for label in labels]
+
+    def cell(value) -> str:
+        if isinstance(value, bool) or value is None:
+            return 'null' if value is None else str(value)
+        if isinstance(value, float):
+            return f'{value:.4g}'
+        return str(value)
+
+    rows = [' '.join([f'{"":<{key_width}}'] + [f'{lb:>{w}}' for lb, w in zip(labels, widths)])]
+    for key in metrics.SUMMARY_KEYS:
+        cells = [f'{cell(a.summary.get(key)):>{w}}' for a, w in zip(analyses, widths)]
+        rows.append(' '.join([f'{key:<{key_width}}'] + cells))
+    return rows

@@ -1,0 +1,134 @@
+"""The recorder node ``recorder``: every topic of the graph into a rosbag2 bag.
+
+Subscribes the topics of docs/architecture.md (:data:`cartpole_bringup.bag.TOPICS`)
+with ``raw=True``, so rclpy hands over the serialized CDR bytes, and writes
+them unchanged into an MCAP bag (metadata version 9, readable by
+``ros2 bag info``, Foxglove and ``rosbags``). Log time = the message's own
+stamp (simulated time in lockstep); see :mod:`cartpole_bringup.bag`.
+
+Run alone next to a graph started otherwise::
+
+    ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag
+
+The bag is closed (``metadata.yaml`` written) when the node is destroyed,
+on Ctrl-C and on SIGTERM alike.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import sys
+from pathlib import Path
+
+import rclpy
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from .bag import TOPICS, BagWriter
+
+
+def _import_type(name: str):
+    """The rclpy message class of ``pkg/msg/Type``."""
+    import importlib
+    package, _, type_name = name.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), type_name)
+
+
+def default_output() -> str:
+    """``recording_<UTC timestamp>`` in the working directory."""
+    return 'recording_' + _dt.datetime.now(_dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+
+
+def parse_custom_data(items) -> dict[str, str]:
+    """``['key=value', ...]`` -> dict; ValueError on an item without '='."""
+    out = {}
+    for item in items:
+        key, sep, value = str(item).partition('=')
+        if not sep or not key:
+            raise ValueError(f"custom_data item {item!r} is not 'key=value'")
+        out[key] = value
+    return out
+
+
+class RecorderNode(Node):
+    """Records the graph's topics into an MCAP bag (node name ``recorder``)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('recorder', **kwargs)
+        self.declare_parameter('output', '', ParameterDescriptor(
+            description="Bag directory to create (must not exist); '' = "
+                        'recording_<UTC timestamp> in the working directory.', read_only=True))
+        self.declare_parameter('topics', list(TOPICS), ParameterDescriptor(
+            description='Topics to record; each must be one of the graph topics of '
+                        'docs/architecture.md.', read_only=True))
+        self.declare_parameter('custom_data', [''], ParameterDescriptor(
+            description="'key=value' strings stored in the bag's custom_data "
+                        '(x_ref, controllers, scenario).', read_only=True))
+        self.declare_parameter('log_time', 'stamp', ParameterDescriptor(
+            description="Log time of each message: 'stamp' (its header stamp; simulated time "
+                        "in lockstep) or 'receive' (the node clock when it arrived).",
+            read_only=True))
+        self.declare_parameter('queue_depth', 200, ParameterDescriptor(
+            description='Subscription queue depth (reliable QoS).', read_only=True,
+            integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
+
+        topics = [str(t) for t in self.get_parameter('topics').value]
+        unknown = sorted(set(topics) - set(TOPICS))
+        if unknown:
+            raise ValueError(f'cannot record {unknown}: known topics are {sorted(TOPICS)}')
+        custom = parse_custom_data(c for c in self.get_parameter('custom_data').value if c)
+        output = self.get_parameter('output').value or default_output()
+        self._bag = BagWriter(Path(output), {t: TOPICS[t] for t in topics}, custom,
+                              log_time=str(self.get_parameter('log_time').value))
+        qos = QoSProfile(depth=int(self.get_parameter('queue_depth').value),
+                         reliability=ReliabilityPolicy.RELIABLE)
+        for topic in topics:
+            self.create_subscription(_import_type(TOPICS[topic]), topic,
+                                     self._writer_for(topic), qos, raw=True)
+        self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
+
+    def _writer_for(self, topic: str):
+        def write(data: bytes) -> None:
+            if not self._bag.closed:
+                self._bag.write(topic, data, self.get_clock().now().nanoseconds)
+        return write
+
+    @property
+    def bag_path(self) -> Path:
+        """The bag directory being written."""
+        return self._bag.path
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, per topic."""
+        return dict(self._bag.counts)
+
+    def close(self) -> None:
+        """Close the bag now (``metadata.yaml`` written); later messages are dropped."""
+        self._bag.close()
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = RecorderNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as error:  # bad parameter, existing bag: say so, exit 1
+        print(f'recorder: {error}', file=sys.stderr)
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

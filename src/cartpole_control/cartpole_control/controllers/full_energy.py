@@ -1,0 +1,114 @@
+"""Full energy swing-up with integral action, (7.27), and its singularity guard (7.28)-(7.30).
+
+With the energy of the whole system (7.11)
+``E = 1/2 q_dot^T M(theta) q_dot + m_p g l (cos theta + 1)``, whose rate is
+``dE/dt = x_dot u`` (7.13) for a force ``u`` on the cart (cart friction
+compensated by the feedforward (6.12)), the function (7.14)
+``V_2 = k_e/2 (E* - E)^2 + k_v/2 x_dot^2 + k_x/2 (x* - x)^2`` decreases as
+``-k_d x_dot^2`` (7.21) under (7.20). Section 7.3.1 adds integral action:
+
+    u = (-k_d x_dot + k_x (x* - x) - k_v beta(theta, theta_dot))
+        / (-k_e (E* - E) + k_v alpha(theta))
+        + theta_dot cos theta k_i int_0^t (E* - E) dt                 (7.27)
+
+    alpha = 1 / (m_c + m_p sin^2 theta)                                (7.17)
+    beta  = m_p sin theta (-l theta_dot^2 + g cos theta) / (m_c + m_p sin^2 theta)   (7.18)
+
+so that x_ddot = alpha u + beta (4.40). ``u`` is a force [N].
+
+Singularity guard (7.28)-(7.30). The denominator
+``D = k_v alpha - k_e (E* - E)`` must never reach zero. ``E >= 0`` (M is
+positive definite and the potential is zero hanging), so ``E* - E <= E*`` and
+``alpha >= 1 / (m_c + m_p)``; hence ``D > 0`` for every state if and only if
+``k_v / k_e > E* (m_c + m_p)`` (8.238 J kg for the nominal rig; the thesis's
+(7.30) and its k_v = 8.3 leave a margin of 0.75 %). :meth:`on_configure`
+refuses gains (or a plant model, e.g. a heavier tip mass) that break it, since
+a denominator that changes sign reverses the cart term and drives the cart into
+an end stop (SPEC section 7). E is always computed with the controller's own
+model, so the guard holds whatever the true tip mass is.
+
+Near the hanging rest the denominator is small (D = k_v/m_c - k_e E* = 0.10
+for the thesis gains) and the law is a very stiff position loop; the
+parameter ``d_min`` floors D to soften that (``d_min = 0`` is the thesis law).
+The integral is clamped to ``+-i_max`` (anti-windup, not in the thesis).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cartpole_sim.model import system_energy
+
+from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
+from . import StepClock
+
+
+class FullEnergySwingUp(Controller):
+    """Swing-up law (7.27): Lyapunov redesign on the full energy, with integral action."""
+
+    kind = SWINGUP
+    name = 'full_energy'
+    parameters = (
+        ParameterSpec('k_x', 12.0, 'cart position gain k_x of (7.14)/(7.27) [N^2/J per m]; '
+                      'thesis 12', low=0.0, high=1000.0),
+        ParameterSpec('k_d', 1.0, 'cart velocity damping k_d of (7.19)/(7.27); thesis 1',
+                      low=0.0, high=1000.0),
+        ParameterSpec('k_v', 8.3, 'velocity weight k_v of (7.14)/(7.27) [J kg]; must satisfy '
+                      'k_v/k_e > E*(m_c+m_p) (7.28)-(7.30); thesis 8.3',
+                      low=1e-6, high=1000.0),
+        ParameterSpec('k_e', 1.0, 'energy weight k_e of (7.14)/(7.27) [1/J]; thesis 1',
+                      low=0.0, high=1000.0),
+        ParameterSpec('k_i', 0.15, 'integral gain k_i on the energy error of (7.27) '
+                      '[N per (J s rad/s)]; thesis 0.012 (needs > 30 s to swing up on this '
+                      'model, tuned 0.15)', low=0.0, high=10.0),
+        ParameterSpec('i_max', 20.0, 'anti-windup: bound of int (E* - E) dt [J s] '
+                      '(not in the thesis)', low=0.0, high=1000.0),
+        ParameterSpec('d_min', 0.0, 'floor of the denominator of (7.27) [kg^-1]; 0 is the '
+                      'thesis law (not in the thesis)', low=0.0, high=10.0),
+    )
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.integral = 0.0
+        """int_0^t (E* - E) dt [J s] since activation."""
+        self._clock = StepClock()
+        self.denominator_min = 0.0
+        """Smallest possible denominator of (7.27) over all states, k_v/(m_c+m_p) - k_e E*."""
+
+    def on_configure(self) -> None:
+        """Check the singularity guard (7.28)-(7.30) for the gains and the plant model."""
+        g, p = self.gains, self.context.plant
+        bound = p.upright_energy * (p.m_c + p.m_p)
+        if g['k_e'] > 0.0 and not g['k_v'] / g['k_e'] > bound:
+            raise ValueError(
+                f'full_energy: k_v/k_e = {g["k_v"] / g["k_e"]:.4g} must exceed '
+                f'E*(m_c + m_p) = {bound:.4g} J kg (7.28)-(7.30), or the denominator of (7.27) '
+                f'changes sign and drives the cart into an end stop; raise k_v or lower k_e')
+        self.denominator_min = g['k_v'] / (p.m_c + p.m_p) - g['k_e'] * p.upright_energy
+
+    def activate(self, state: ControllerState) -> None:
+        """Start a new swing-up: the energy integral starts from zero now."""
+        super().activate(state)
+        self.integral = 0.0
+        self._clock.reset(state.t)
+
+    def energy_error(self, state: ControllerState) -> float:
+        """E* - E with E the full system energy (7.11) [J]."""
+        p = self.context.plant
+        e = system_energy(np.array([state.x, state.theta, state.x_dot, state.theta_dot]), p)
+        return p.upright_energy - e
+
+    def update(self, state: ControllerState) -> float:
+        g, p = self.gains, self.context.plant
+        error = self.energy_error(state)
+        dt = self._clock.step(state.t, self.context.sample_time)
+        self.integral = max(-g['i_max'], min(g['i_max'], self.integral + error * dt))
+        s, c = math.sin(state.theta), math.cos(state.theta)
+        d = p.m_c + p.m_p * s * s
+        alpha = 1.0 / d                                                       # (7.17)
+        beta = p.m_p * s * (-p.l * state.theta_dot ** 2 + p.g * c) / d          # (7.18)
+        numerator = (-g['k_d'] * state.x_dot + g['k_x'] * (self.context.x_ref - state.x)
+                     - g['k_v'] * beta)
+        denominator = max(-g['k_e'] * error + g['k_v'] * alpha, g['d_min'], 1e-9)
+        return numerator / denominator + state.theta_dot * c * g['k_i'] * self.integral

@@ -1,0 +1,134 @@
+"""The firmware's command handling as a pure state machine (Python mirror).
+
+This is the logic of ``firmware/cartpole_bridge/joint_protocol.cpp``
+(``JpDevice``): the emulator runs it, so the emulator answers exactly as the
+sketch does. Time is an argument (device ``micros()``, uint32, wrapping), so
+every behaviour is a pure function of the inputs and testable without a clock.
+
+Rules (SPEC section 4):
+
+- ``E,1`` enables the amplifier with a zero setpoint and restarts the
+  watchdog; ``E,0`` disables it (zero current, DAC at ``dac_zero``).
+- ``U,<s>`` sets the setpoint, clamped to the DAC range, feeds the watchdog
+  and clears a tripped watchdog.
+- Watchdog: enabled and no ``U`` for :data:`WATCHDOG_US` -> zero current,
+  flag bit 1 and one ``!,16,watchdog`` until the next ``U``.
+- ``R`` zeroes the counters; refused (``!,9``) while enabled: the position
+  reference must not move under a running controller.
+- ``P`` answers ``V,1,<name>``; ``L,1``/``L,0`` start/stop streaming.
+- A refused line is answered ``!,<code>,<reason>`` (codes 1..8, one a
+  :data:`~cartpole_hw.protocol.DECODE_REASONS` entry).
+- Limit switches: current towards a closed limit switch is inhibited
+  (directional, as motion controllers do), so the cart resting at the left
+  stop after homing can still be driven right; a switch that closes while
+  enabled is reported once as ``!,17,limit <side>``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from . import protocol as jp
+
+WATCHDOG_US = 50_000
+"""Device watchdog: longest time without ``U`` while enabled [us] (SPEC 4)."""
+
+
+def elapsed_us(now_us: int, then_us: int) -> int:
+    """``now - then`` on the wrapping uint32 ``micros()`` clock."""
+    return (now_us - then_us) % jp.UINT32
+
+
+@dataclass
+class DeviceLogic:
+    """Command handling, watchdog and flags of the I/O bridge firmware."""
+
+    name: str = 'cartpole_bridge'
+    dac_zero: int = 1953
+    dac_max: int = 4095
+    watchdog_us: int = WATCHDOG_US
+    positive_setpoint_drives_right: bool = True
+
+    enabled: bool = False
+    streaming: bool = False
+    watchdog_tripped: bool = False
+    setpoint: int = 0
+    last_u_us: int = 0
+    seq: int = 0
+    _limit_left: bool = False
+    _limit_right: bool = False
+
+    # -- commands -----------------------------------------------------------------
+    def handle_line(self, line: bytes, now_us: int) -> tuple[list[bytes], bool]:
+        """Act on one received line; returns (reply lines, reset the counters)."""
+        message = jp.decode_line(line, direction='host')
+        if isinstance(message, jp.DecodeError):
+            return [self.error(jp.ERROR_CODES[message.reason], message.reason)], False
+        if isinstance(message, jp.Ping):
+            return [jp.encode(jp.Version(jp.PROTOCOL_VERSION, self.name))], False
+        if isinstance(message, jp.Enable):
+            self.enabled = message.on
+            self.setpoint = 0
+            self.watchdog_tripped = False
+            self.last_u_us = now_us
+            return [], False
+        if isinstance(message, jp.Stream):
+            self.streaming = message.on
+            return [], False
+        if isinstance(message, jp.ResetCounters):
+            if self.enabled:
+                return [self.error(jp.ERROR_CODES['refused'], 'reset refused while enabled')], False
+            return [], True
+        # Setpoint
+        self.setpoint = min(max(message.value, -self.dac_zero), self.dac_max - self.dac_zero)
+        self.last_u_us = now_us
+        self.watchdog_tripped = False
+        return [], False
+
+    @staticmethod
+    def error(code: int, text: str) -> bytes:
+        return jp.encode(jp.DeviceError(code, text))
+
+    # -- periodic ------------------------------------------------------------------------
+    def tick(self, now_us: int, limit_left: bool, limit_right: bool) -> list[bytes]:
+        """Run the watchdog and the limit switches at ``now_us``; returns lines to send."""
+        out: list[bytes] = []
+        if self.enabled and not self.watchdog_tripped and \
+                elapsed_us(now_us, self.last_u_us) >= self.watchdog_us:
+            self.watchdog_tripped = True
+            out.append(self.error(jp.ERROR_CODES['watchdog'], 'watchdog'))
+        if self.enabled and limit_left and not self._limit_left:
+            out.append(self.error(jp.ERROR_CODES['limit'], 'limit left'))
+        if self.enabled and limit_right and not self._limit_right:
+            out.append(self.error(jp.ERROR_CODES['limit'], 'limit right'))
+        self._limit_left, self._limit_right = limit_left, limit_right
+        return out
+
+    def output_setpoint(self) -> int:
+        """The setpoint the DAC outputs now: 0 unless enabled, watchdog quiet and
+        not pushing towards a closed limit switch."""
+        if not self.enabled or self.watchdog_tripped:
+            return 0
+        s = self.setpoint
+        rightwards = s > 0 if self.positive_setpoint_drives_right else s < 0
+        leftwards = s < 0 if self.positive_setpoint_drives_right else s > 0
+        if (rightwards and self._limit_right) or (leftwards and self._limit_left):
+            return 0
+        return s
+
+    def dac_value(self) -> int:
+        """12-bit DAC value written: dac_zero + output setpoint (Appendix A)."""
+        return min(max(self.dac_zero + self.output_setpoint(), 0), self.dac_max)
+
+    def flags(self) -> int:
+        return ((jp.FLAG_ENABLED if self.enabled else 0)
+                | (jp.FLAG_WATCHDOG if self.watchdog_tripped else 0)
+                | (jp.FLAG_LIMIT_LEFT if self._limit_left else 0)
+                | (jp.FLAG_LIMIT_RIGHT if self._limit_right else 0))
+
+    def sample_line(self, now_us: int, cart_ticks: int, pend_ticks: int) -> bytes | None:
+        """The ``S`` line of this sample if streaming (seq counts every sample period)."""
+        seq = self.seq
+        self.seq = (self.seq + 1) % jp.UINT32
+        if not self.streaming:
+            return None
+        return jp.encode(jp.Sample(seq, now_us % jp.UINT32, cart_ticks, pend_ticks, self.flags()))

@@ -1,0 +1,399 @@
+"""Device emulator: the simulated plant behind the Joint protocol on a pseudo-terminal.
+
+The emulator is the rig as the host sees it over USB: ``cartpole_sim.plant.Plant``
+(actuator (4.4), saturation, end stops, 16-bit encoders) driven through the
+firmware's command logic (:class:`~cartpole_hw.device.DeviceLogic`, the mirror
+of ``joint_protocol.cpp``) and the DAC (setpoint clamped to 0..4095 around
+1953, F = setpoint / 56.744, (A.3)). It runs in simulated real time: one 5 ms
+sample per period on a ``time.monotonic`` deadline schedule (deadlines are
+``t0 + k Ts``, so there is no drift; a late period is caught up, a lag of
+more than 0.2 s resynchronises and is counted in ``overruns``).
+
+Per sample period: read the limit switches (cart within ``limit_margin`` of a
+stop or in it), run the watchdog, send ``S`` if streaming, then hold the DAC
+output over the next 5 ms of the plant (zero-order hold).
+
+Faults (for testing the bridge):
+
+- ``drop``: each outgoing line is lost with this probability;
+- ``corrupt``: each outgoing line gets one random byte replaced (never by ``\\n``);
+- stall: the USB link freezes for N ms: nothing is read (host bytes wait in
+  the pty and arrive late) and the lines produced meanwhile are lost; the
+  device itself keeps running (its watchdog zeroes the current);
+- disconnect: the USB cable is pulled: the pty is closed (the slave device
+  vanishes, the host's reads fail) and the ``--link`` symlink is removed; the
+  device stays powered (counters and enable state kept, the watchdog zeroes
+  the current). After the given time a new pty is opened and the symlink
+  points at it again, so a host that reopens the link path reconnects.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+import select
+import signal
+import sys
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+
+from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.plant import Plant, Scenario, wrap_counter
+
+from . import protocol as jp
+from .device import DeviceLogic
+
+
+@dataclass
+class FaultConfig:
+    """Fault injection of the emulated link (see the module docstring)."""
+
+    drop: float = 0.0
+    corrupt: float = 0.0
+    stalls: list[tuple[float, float]] = field(default_factory=list)
+    """(device time [s], duration [ms]) of link stalls."""
+    disconnects: list[tuple[float, float]] = field(default_factory=list)
+    """(device time [s], duration [s]) of disconnects."""
+
+    def __post_init__(self) -> None:
+        for name in ('drop', 'corrupt'):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f'{name} must be a probability in [0, 1], got {value!r}')
+
+
+class Emulator:
+    """The emulated rig on a pty. ``open()``, then ``run()`` (or ``start()`` a thread)."""
+
+    def __init__(self, scenario: Scenario | None = None, params: CartPoleParameters | None = None,
+                 link: str | None = None, name: str = 'cartpole_emulator',
+                 faults: FaultConfig | None = None, limit_margin: float = 0.003,
+                 seed: int = 0) -> None:
+        self.params = params or CartPoleParameters()
+        self.scenario = scenario or Scenario()
+        self.plant = Plant(self.params, self.scenario)
+        self.calibration = jp.Calibration.from_parameters(self.params)
+        self.device = DeviceLogic(name=name, dac_zero=self.calibration.dac_zero,
+                                  dac_max=self.calibration.dac_max)
+        self.link = link
+        self.faults = faults or FaultConfig()
+        self.limit_margin = float(limit_margin)
+        self._rng = random.Random(seed)
+        self._splitter = jp.LineSplitter()
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.port: str | None = None
+        self._offset = (0, 0)       # raw counts at the last R (HCTL RST)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._stall_until = -1.0
+        self._reconnect_at: float | None = None
+        self._pending_disconnect: float | None = None
+        self.t_us = 0
+        self.samples = 0
+        self.overruns = 0
+        self.lines_in = 0
+        self.lines_out = 0
+        self.tx_dropped = 0
+        self.disconnect_count = 0
+        self.received: list[bytes] = []   # last host lines, for tests and debugging
+        self.on_port_change = None        # callback(path) after (re)opening a pty
+
+    # -- pty management --------------------------------------------------------------
+    def open(self) -> str:
+        """Open a new pseudo-terminal; returns the slave path (and points the link at it)."""
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        self.port = os.ttyname(slave)
+        self._splitter.reset()
+        if self.link:
+            tmp = f'{self.link}.tmp{os.getpid()}'
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            os.symlink(self.port, tmp)
+            os.replace(tmp, self.link)
+        if self.on_port_change:
+            self.on_port_change(self.port)
+        return self.port
+
+    def close(self) -> None:
+        """Close the pty (the slave device vanishes) and remove the link."""
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+        if self.link and os.path.islink(self.link):
+            try:
+                os.unlink(self.link)
+            except FileNotFoundError:
+                pass
+
+    @property
+    def connected(self) -> bool:
+        return self._master is not None
+
+    # -- fault requests (thread-safe) ----------------------------------------------------
+    def disconnect(self, duration: float) -> None:
+        """Pull the cable for ``duration`` seconds (done by the emulator's loop)."""
+        with self._lock:
+            self._pending_disconnect = float(duration)
+
+    def stall(self, duration_ms: float) -> None:
+        with self._lock:
+            self._stall_until = time.monotonic() + duration_ms / 1000.0
+
+    def set_faults(self, drop: float | None = None, corrupt: float | None = None) -> None:
+        with self._lock:
+            if drop is not None:
+                self.faults.drop = float(drop)
+            if corrupt is not None:
+                self.faults.corrupt = float(corrupt)
+
+    # -- I/O ---------------------------------------------------------------------------------
+    def _send(self, line: bytes) -> None:
+        if self._master is None or time.monotonic() < self._stall_until:
+            self.tx_dropped += 1
+            return
+        with self._lock:
+            drop, corrupt = self.faults.drop, self.faults.corrupt
+        if drop and self._rng.random() < drop:
+            self.tx_dropped += 1
+            return
+        if corrupt and self._rng.random() < corrupt and len(line) > 1:
+            data = bytearray(line)
+            i = self._rng.randrange(len(data) - 1)
+            choices = [b for b in range(256) if b not in (0x0A, data[i])]
+            data[i] = self._rng.choice(choices)
+            line = bytes(data)
+        try:
+            os.write(self._master, line)
+            self.lines_out += 1
+        except (BlockingIOError, OSError):
+            self.tx_dropped += 1   # nobody reads the pty: its buffer is full
+
+    def _receive(self) -> None:
+        if self._master is None or time.monotonic() < self._stall_until:
+            return
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            return
+        for item in self._splitter.feed(data):
+            if isinstance(item, jp.DecodeError):
+                self._send(self.device.error(jp.ERROR_CODES[item.reason], item.reason))
+                continue
+            self.lines_in += 1
+            self.received.append(item)
+            del self.received[:-200]
+            replies, reset = self.device.handle_line(item, self.t_us)
+            if reset:
+                self._offset = self.plant.encoder_counts()
+            for reply in replies:
+                self._send(reply)
+
+    # -- one sample period ---------------------------------------------------------------
+    def limits(self) -> tuple[bool, bool]:
+        """Limit switches: the cart within ``limit_margin`` of an end stop or in it."""
+        x = self.plant.state[0]
+        return x <= self.limit_margin, x >= self.plant.true_params.travel - self.limit_margin
+
+    def counters(self) -> tuple[int, int]:
+        """The HCTL-2021 counters: raw plant counts since the last ``R``, 16-bit."""
+        cart, pend = self.plant.encoder_counts()
+        bits = self.params.counter_bits
+        return (wrap_counter(cart - self._offset[0], bits), wrap_counter(pend - self._offset[1], bits))
+
+    def sample_period(self) -> None:
+        """One 5 ms period of the firmware loop, then the plant over it (ZOH)."""
+        left, right = self.limits()
+        for line in self.device.tick(self.t_us, left, right):
+            self._send(line)
+        cart, pend = self.counters()
+        line = self.device.sample_line(self.t_us, cart, pend)
+        if line is not None:
+            self._send(line)
+        force = self.calibration.setpoint_to_force(self.device.output_setpoint())
+        self.plant.step(force)
+        self.samples += 1
+        self.t_us = (self.t_us + int(round(self.params.sample_time * 1e6))) % jp.UINT32
+
+    def _scheduled_faults(self, t: float) -> None:
+        for at, ms in list(self.faults.stalls):
+            if t >= at:
+                self.faults.stalls.remove((at, ms))
+                self.stall(ms)
+        for at, duration in list(self.faults.disconnects):
+            if t >= at:
+                self.faults.disconnects.remove((at, duration))
+                self.disconnect(duration)
+
+    # -- main loop -------------------------------------------------------------------------
+    def run(self, duration: float | None = None) -> None:
+        """Serve until :meth:`stop` (or ``duration`` seconds), in simulated real time."""
+        if self._master is None and self._reconnect_at is None:
+            self.open()
+        ts = self.params.sample_time
+        t0 = time.monotonic()
+        k = 0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if duration is not None and now - t0 >= duration:
+                break
+            with self._lock:
+                pending, self._pending_disconnect = self._pending_disconnect, None
+            if pending is not None and self._master is not None:
+                self.close()
+                self.disconnect_count += 1
+                self._reconnect_at = now + pending
+            if self._reconnect_at is not None and now >= self._reconnect_at:
+                self._reconnect_at = None
+                self.open()
+            deadline = t0 + k * ts
+            if now >= deadline:
+                self._receive()
+                self._scheduled_faults(k * ts)
+                self.sample_period()
+                k += 1
+                if now - (t0 + k * ts) > 0.2:      # far behind (suspended?): resynchronise
+                    self.overruns += 1
+                    k = int((now - t0) / ts) + 1
+                continue
+            timeout = min(deadline - now, 0.05)
+            if self._master is not None:
+                try:
+                    ready, _, _ = select.select([self._master], [], [], timeout)
+                except (OSError, ValueError):
+                    ready = []
+                if ready:
+                    self._receive()
+            else:
+                self._stop.wait(timeout)
+
+    def start(self) -> str:
+        """Open the pty and run the loop on a daemon thread; returns the port path."""
+        port = self.open()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self.run, name='cartpole-emulator', daemon=True)
+        self._thread.start()
+        return port
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        self.close()
+
+    def __enter__(self) -> 'Emulator':
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+# -- command line -------------------------------------------------------------------------------
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = text.split(':')
+        a_f, b_f = float(a), float(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected AT:VALUE (two numbers), got {text!r}')
+    if not (math.isfinite(a_f) and math.isfinite(b_f) and a_f >= 0 and b_f > 0):
+        raise argparse.ArgumentTypeError(f'expected AT >= 0 and VALUE > 0, got {text!r}')
+    return a_f, b_f
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f'a probability must be in [0, 1], got {value}')
+    return value
+
+
+def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=prog,
+        description='Emulate the Arduino Due rig (plant behind the Joint protocol) on a new '
+                    'pseudo-terminal and print its path.')
+    p.add_argument('--link', metavar='PATH',
+                   help='symlink pointing at the current pty (stable across disconnects), '
+                        'e.g. /tmp/cartpole-emu; give this path to the bridge')
+    p.add_argument('--name', default='cartpole_emulator', help='firmware name in the V answer')
+    p.add_argument('--duration', type=float, default=None, metavar='S', help='exit after S seconds')
+    p.add_argument('--tip-mass', type=float, default=None, metavar='KG')
+    p.add_argument('--friction-scale', type=float, default=1.0, metavar='F')
+    p.add_argument('--theta0', type=float, default=math.pi, metavar='RAD',
+                   help='initial pendulum angle (default pi, hanging)')
+    p.add_argument('--x0', type=float, default=0.0, metavar='M',
+                   help='initial cart position from the left stop (default 0)')
+    p.add_argument('--noise', action='store_true', help='encoder noise before quantisation')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--params', metavar='FILE.yaml', help='plant parameters (CartPoleParameters YAML)')
+    p.add_argument('--limit-margin', type=float, default=0.003, metavar='M',
+                   help='limit switches close this close to a stop (default 3 mm)')
+    p.add_argument('--drop', type=_probability, default=0.0, help='probability of losing a line')
+    p.add_argument('--corrupt', type=_probability, default=0.0,
+                   help='probability of corrupting one byte of a line')
+    p.add_argument('--stall', type=_pair, action='append', default=[], metavar='AT:MS',
+                   help='freeze the link for MS milliseconds at device time AT seconds (repeatable)')
+    p.add_argument('--disconnect', type=_pair, action='append', default=[], metavar='AT:S',
+                   help='pull the cable at AT seconds for S seconds (repeatable)')
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``cartpole emulate`` / ``emulator``: run until Ctrl-C (or ``--duration``)."""
+    args = build_parser().parse_args(argv)
+    try:
+        params = CartPoleParameters.from_yaml(args.params) if args.params else CartPoleParameters()
+        scenario = Scenario(x0=args.x0, theta0=args.theta0, tip_mass=args.tip_mass,
+                            friction_scale=args.friction_scale, noise=args.noise, seed=args.seed)
+        faults = FaultConfig(drop=args.drop, corrupt=args.corrupt, stalls=list(args.stall),
+                             disconnects=list(args.disconnect))
+        emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
+                            limit_margin=args.limit_margin, seed=args.seed)
+    except (ValueError, OSError) as exc:
+        print(f'cartpole emulate: error: {exc}', file=sys.stderr)
+        return 2
+
+    def announce(port: str) -> None:
+        print(f'port: {port}' + (f'  link: {args.link}' if args.link else ''), flush=True)
+
+    emulator.on_port_change = announce
+
+    def _stop(signum, frame):  # noqa: ARG001
+        emulator._stop.set()
+
+    previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        emulator.open()
+        emulator.run(args.duration)
+    finally:
+        emulator.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print(f'emulator: {emulator.samples} samples, {emulator.lines_in} lines in, '
+          f'{emulator.lines_out} lines out, {emulator.tx_dropped} dropped, '
+          f'{emulator.overruns} overruns', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

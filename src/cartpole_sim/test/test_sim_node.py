@@ -1,0 +1,316 @@
+"""The simulator node on ROS: the installed executable, lockstep, parameters, reset.
+
+Every wait is on an event with a timeout (the timeout only bounds a failing test).
+"""
+import math
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+TS_NS = 5_000_000
+
+
+def stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class Probe:
+    """A test node: records /joint_states, /cartpole/true_state, /clock; sends commands."""
+
+    def __init__(self, context, echo_force=None):
+        from rclpy.node import Node
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+
+        self.node = Node('sim_probe', context=context)
+        self.joints, self.truth, self.clock = [], [], []
+        self.echo_force = echo_force
+        self.commands_sent = 0
+        self.max_commands = None
+        self._last_echoed = None
+        self.pub = self.node.create_publisher(JointState, '/cartpole/force_command', 10)
+        self.node.create_subscription(JointState, '/joint_states', self._on_joints, 10)
+        self.node.create_subscription(JointState, '/cartpole/true_state', self.truth.append, 10)
+        self.node.create_subscription(
+            Clock, '/clock', self.clock.append,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+
+    def stamps(self):
+        """Distinct /joint_states stamps in arrival order."""
+        out = []
+        for msg in self.joints:
+            s = stamp_ns(msg.header.stamp)
+            if not out or out[-1] != s:
+                out.append(s)
+        return out
+
+    def send(self, force, stamp=None, names=('cart',)):
+        from sensor_msgs.msg import JointState
+        msg = JointState()
+        if stamp is not None:
+            msg.header.stamp = stamp
+        msg.name = list(names)
+        msg.effort = [] if force is None else [float(force)]
+        self.pub.publish(msg)
+
+    def _on_joints(self, msg):
+        self.joints.append(msg)
+        s = stamp_ns(msg.header.stamp)
+        if self.echo_force is None or s == self._last_echoed:
+            return
+        if self.max_commands is not None and self.commands_sent >= self.max_commands:
+            return
+        self._last_echoed = s
+        self.commands_sent += 1
+        force = self.echo_force(msg) if callable(self.echo_force) else self.echo_force
+        self.send(force, msg.header.stamp)
+
+
+@pytest.fixture
+def graph(ros_context):
+    """graph(**overrides) -> (sim node, probe, executor); all destroyed afterwards."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from cartpole_sim.sim_node import SimNode
+
+    made = []
+    executor = SingleThreadedExecutor(context=ros_context)
+
+    def make(echo_force=None, **overrides):
+        sim = SimNode(context=ros_context, parameter_overrides=[
+            Parameter(name, value=value) for name, value in overrides.items()])
+        probe = Probe(ros_context, echo_force)
+        made.extend([sim, probe.node])
+        executor.add_node(sim)
+        executor.add_node(probe.node)
+        return sim, probe, executor
+
+    try:
+        yield make
+    finally:
+        for node in made:
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown()
+
+
+# -- the installed executable in real time ---------------------------------------------------------
+def test_installed_executable_publishes_joint_states_in_real_time(ros_context, spin_until):
+    from ament_index_python.packages import get_package_prefix
+    from rclpy.executors import SingleThreadedExecutor
+
+    exe = os.path.join(get_package_prefix('cartpole_sim'), 'lib', 'cartpole_sim', 'sim_node')
+    assert os.access(exe, os.X_OK), exe
+    proc = subprocess.Popen([exe, '--ros-args', '-p', 'lockstep:=false'],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=os.environ.copy())
+    probe = Probe(ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe.node)
+    try:
+        assert spin_until(executor, lambda: len(probe.joints) >= 400, timeout=30.0), \
+            f'{len(probe.joints)} samples received'
+        msgs = probe.joints
+        assert all(list(m.name) == ['cart', 'pendulum'] for m in msgs)
+        # Default scenario: cart at the left stop, pendulum hanging (SPEC 1a).
+        assert all(abs(m.position[0]) < 1e-3 for m in msgs)
+        assert all(abs(m.position[1] - math.pi) < 0.01 for m in msgs)
+        # 200 samples per second of header time (generous: a loaded machine drops timer ticks).
+        span = (stamp_ns(msgs[-1].header.stamp) - stamp_ns(msgs[0].header.stamp)) * 1e-9
+        rate = (len(msgs) - 1) / span
+        assert 100.0 < rate < 230.0, rate
+        assert len(probe.truth) > 0 and list(probe.truth[-1].effort) == [0.0, 0.0]
+        assert probe.clock == []  # /clock only in lockstep
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=15.0)
+        assert code in (0, -signal.SIGINT, 130), proc.stdout.read().decode(errors='replace')
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        proc.stdout.close()
+        executor.remove_node(probe.node)
+        probe.node.destroy_node()
+        executor.shutdown()
+
+
+# -- lockstep ----------------------------------------------------------------------------------------
+def test_lockstep_does_not_advance_without_commands(graph, spin_until):
+    sim, probe, executor = graph(lockstep=True, lockstep_timeout=30.0)
+    # Sample 0 is re-published every 0.1 s while the controller is missing.
+    assert spin_until(executor, lambda: len(probe.joints) >= 2, timeout=10.0)
+    assert probe.stamps() == [0]
+    # An event that must not happen: a second distinct stamp within 1 s.
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 2, timeout=1.0)
+    assert sim.runner.steps == 0
+    # A command for another stamp, or without a finite effort for 'cart', does not step it.
+    from builtin_interfaces.msg import Time
+    probe.send(5.0, stamp=Time(sec=7))
+    probe.send(None, stamp=Time(sec=0))
+    probe.send(float('nan'), stamp=Time(sec=0))
+    probe.send(5.0, stamp=Time(sec=0), names=('pendulum',))
+    assert spin_until(executor, lambda: sim.rejected_commands == 3 and sim.stale_commands == 1,
+                      timeout=10.0)
+    assert sim.runner.steps == 0
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 2, timeout=0.3)
+    # The awaited command (stamp 0) steps it exactly once.
+    probe.send(5.0, stamp=Time(sec=0))
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 2, timeout=10.0)
+    assert probe.stamps() == [0, TS_NS]
+    assert sim.runner.steps == 1
+
+
+@pytest.mark.parametrize('force,x0', [(10.0, 0.2), (-10.0, 0.5)])
+def test_lockstep_steps_once_per_command_and_clock_follows(graph, spin_until, force, x0):
+    n = 40
+    sim, probe, executor = graph(echo_force=force, lockstep=True, lockstep_timeout=30.0, x0=x0)
+    probe.max_commands = n
+    assert spin_until(executor, lambda: len(probe.stamps()) >= n + 1, timeout=30.0), \
+        probe.stamps()
+    # No extra step beyond the n commands (the timeout is 30 s).
+    assert not spin_until(executor, lambda: len(probe.stamps()) > n + 1, timeout=0.3)
+    assert probe.stamps() == [k * TS_NS for k in range(n + 1)]
+    assert sim.runner.steps == n and sim.stale_commands == 0 and sim.lockstep_timeouts == 0
+    assert stamp_ns(probe.clock[-1].clock) == n * TS_NS
+    clock = [stamp_ns(c.clock) for c in probe.clock]
+    assert clock == sorted(clock)
+    # The cart moved in the commanded direction (10 N > 3.4 N friction) for 0.2 s.
+    truth = [m for m in probe.truth if stamp_ns(m.header.stamp) == n * TS_NS][-1]
+    displacement = truth.position[0] - x0
+    assert math.copysign(1.0, displacement) == math.copysign(1.0, force)
+    assert 0.01 < abs(displacement) < 0.1
+    assert truth.effort[0] == pytest.approx(force * 1.065e4 / 1.058e4, rel=1e-3)
+    measured = [m for m in probe.joints if stamp_ns(m.header.stamp) == n * TS_NS][-1]
+    assert measured.position[0] == pytest.approx(truth.position[0], abs=1e-4)
+
+
+def test_lockstep_graph_is_deterministic_and_matches_the_offline_runner(graph, spin_until):
+    # A measurement-feedback controller in the loop, noise on: the ROS graph in lockstep gives
+    # bit for bit the samples of the ROS-free SimRunner driven by the same law.
+    from cartpole_sim.model import CartPoleParameters
+    from cartpole_sim.plant import Scenario
+    from cartpole_sim.sim_runner import SimRunner
+
+    def law(x, theta):
+        return -40.0 * (x - 0.3) + 2.0 * (theta - math.pi)
+
+    n = 60
+    sim, probe, executor = graph(echo_force=lambda m: law(m.position[0], m.position[1]),
+                                 lockstep=True, lockstep_timeout=30.0, x0=0.2, theta0=2.9,
+                                 noise=True, seed=11)
+    probe.max_commands = n
+    assert spin_until(executor, lambda: len(probe.stamps()) >= n + 1, timeout=30.0)
+    seen = {}
+    for m in probe.joints:
+        seen.setdefault(stamp_ns(m.header.stamp), tuple(m.position))
+    runner = SimRunner(CartPoleParameters(), Scenario(x0=0.2, theta0=2.9, noise=True, seed=11))
+    offline = {}
+    for _ in range(n):
+        meas = runner.sample.measurement
+        offline[runner.stamp_ns] = (meas.x, meas.theta)
+        runner.command(law(meas.x, meas.theta))
+        runner.advance()
+    offline[runner.stamp_ns] = (runner.sample.measurement.x, runner.sample.measurement.theta)
+    assert seen == offline
+    assert tuple(sim.runner.plant.state) == tuple(runner.plant.state)
+
+
+def test_lockstep_timeout_steps_with_the_held_command(graph, spin_until):
+    from rclpy.parameter import Parameter
+
+    sim, probe, executor = graph(echo_force=10.0, lockstep=True, lockstep_timeout=30.0, x0=0.3)
+    probe.max_commands = 3
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 4, timeout=30.0)
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 5, timeout=0.3)
+    result = sim.set_parameters([Parameter('lockstep_timeout', value=0.05)])[0]
+    assert result.successful, result.reason
+    # With the controller gone, the graph does not hang: one step per timeout.
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 8, timeout=20.0)
+    assert probe.stamps()[:8] == [k * TS_NS for k in range(8)]
+    assert sim.lockstep_timeouts >= 4
+
+
+# -- parameters and reset ---------------------------------------------------------------------------
+def test_invalid_parameters_refused_with_reason(graph, tmp_path):
+    from rclpy.parameter import Parameter
+
+    sim, _, _ = graph(lockstep=True, lockstep_timeout=30.0)
+    cases = [
+        (Parameter('x0', value=0.9), 'travel'),
+        (Parameter('friction_scale', value=-1.0), ''),       # range, refused by rclpy
+        (Parameter('tip_mass', value=-0.1), ''),             # range
+        (Parameter('command_timeout', value=20.0), ''),      # range
+        (Parameter('plant_params_file', value=str(tmp_path / 'missing.yaml')), 'does not exist'),
+    ]
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('cartpole_plant:\n  m_c: -1.0\n')
+    cases.append((Parameter('plant_params_file', value=str(bad)), 'm_c'))
+    for parameter, word in cases:
+        before = sim.get_parameter(parameter.name).value
+        result = sim.set_parameters([parameter])[0]
+        assert not result.successful, parameter.name
+        assert result.reason and word in result.reason, result.reason
+        assert sim.get_parameter(parameter.name).value == before
+    # lockstep is read-only.
+    result = sim.set_parameters([Parameter('lockstep', value=False)])[0]
+    assert not result.successful and 'read-only' in result.reason, result.reason
+    assert sim.get_parameter('lockstep').value is True
+    # A good file is accepted.
+    good = tmp_path / 'good.yaml'
+    good.write_text('cartpole_plant:\n  m_c: 5.0\n')
+    assert sim.set_parameters([Parameter('plant_params_file', value=str(good))])[0].successful
+
+
+def test_set_parameters_service_refuses_x0_outside_travel(graph, spin_until):
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    sim, probe, executor = graph(lockstep=True, lockstep_timeout=30.0)
+    client = probe.node.create_client(SetParameters, '/sim/set_parameters')
+    assert spin_until(executor, client.service_is_ready, timeout=10.0)
+    request = SetParameters.Request(parameters=[Parameter('x0', value=-0.5).to_parameter_msg(),
+                                                Parameter('x0', value=0.8).to_parameter_msg()])
+    future = client.call_async(request)
+    assert spin_until(executor, future.done, timeout=10.0)
+    results = future.result().results
+    assert [r.successful for r in results] == [False, False]
+    assert all(r.reason for r in results)
+    assert sim.get_parameter('x0').value == 0.0
+
+
+def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+
+    sim, probe, executor = graph(echo_force=15.0, lockstep=True, lockstep_timeout=30.0, x0=0.3,
+                                 theta0=3.0)
+    probe.max_commands = 30
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 31, timeout=30.0)
+    moved = sim.runner.plant.state
+    assert moved[0] > 0.31 and moved[2] > 0.1
+    # Scenario changes wait for the reset.
+    assert sim.set_parameters([Parameter('x0', value=0.35)])[0].successful
+    assert sim.runner.plant.state == moved
+    client = probe.node.create_client(Trigger, '/sim/reset')
+    assert spin_until(executor, client.service_is_ready, timeout=10.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(executor, future.done, timeout=10.0)
+    assert future.result().success, future.result().message
+    assert sim.runner.plant.state == [0.35, 3.0, 0.0, 0.0]
+    assert sim.runner.plant.force == 0.0
+    # The reset state goes out as a new, later sample.
+    assert spin_until(executor, lambda: any(stamp_ns(m.header.stamp) == 31 * TS_NS
+                                            for m in probe.truth), timeout=10.0)
+    after = [m for m in probe.truth if stamp_ns(m.header.stamp) == 31 * TS_NS][0]
+    assert list(after.position) == [0.35, 3.0]
+    assert list(after.velocity) == [0.0, 0.0]
