@@ -17,14 +17,14 @@ What is taken from where:
   ``catch`` or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
 - end-stop contact: the true cart position outside [0, travel] (simulator);
-  on hardware, any limit flag in ``/cartpole/hw/health`` (a value whose key
-  contains ``limit`` and reads true or non-zero); with neither, the estimate
-  outside [0, travel];
+  on hardware, a limit flag ``limit_left`` / ``limit_right`` reading true in
+  ``/cartpole/hw/health``; with neither, the estimate outside [0, travel];
 - x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
   the travel.
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -46,6 +46,8 @@ JOINTS = '/joint_states'
 CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
+HW_LIMIT_KEYS = ('limit_left', 'limit_right')
+"""Keys of the limit-switch flags in the hw bridge's health status."""
 
 
 def is_stabilising(mode: str) -> bool:
@@ -101,7 +103,7 @@ class SeriesBuilder:
 
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
         self.hw_health_seen = True
-        if any('limit' in key.lower() and _truthy(v) for key, v in values.items()):
+        if any(_truthy(values.get(key, '')) for key in HW_LIMIT_KEYS):
             self.limit_flag = True
 
     @property
@@ -152,6 +154,55 @@ def _stamp_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
+def parse_joint_state(data: bytes | memoryview) -> tuple[int, list[str], np.ndarray, np.ndarray,
+                                                         np.ndarray]:
+    """(stamp [ns], name, position, velocity, effort) of a CDR sensor_msgs/JointState.
+
+    A direct reader of the XCDR1 layout (4-byte encapsulation header, then
+    fields aligned to their size relative to the payload start), about ten
+    times faster than a generic deserialiser on long bags.
+    """
+    buf = memoryview(data)
+    little = bool(buf[1] & 1)
+    order = '<' if little else '>'
+    base = 4
+    pos = 0
+
+    def align(n: int) -> None:
+        nonlocal pos
+        pos += (-pos) % n
+
+    def u32() -> int:
+        nonlocal pos
+        align(4)
+        (v,) = struct.unpack_from(order + 'I', buf, base + pos)
+        pos += 4
+        return v
+
+    def string() -> str:
+        nonlocal pos
+        n = u32()
+        text = bytes(buf[base + pos:base + pos + max(n - 1, 0)]).decode('utf-8')
+        pos += n
+        return text
+
+    def doubles() -> np.ndarray:
+        nonlocal pos
+        n = u32()
+        if n:
+            align(8)
+        arr = np.frombuffer(buf, dtype=order + 'f8', count=n, offset=base + pos)
+        pos += 8 * n
+        return arr
+
+    sec, nanosec = struct.unpack_from(order + 'iI', buf, base)
+    pos = 8
+    string()  # frame_id
+    names = [string() for _ in range(u32())]
+    position, velocity, effort = doubles(), doubles(), doubles()
+    return sec * 1_000_000_000 + nanosec, names, position, velocity, effort
+
+
 @dataclass
 class BagAnalysis:
     """The analysis of one bag."""
@@ -176,23 +227,34 @@ def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
         raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml)')
     builder = SeriesBuilder()
     wanted = {TRUE_STATE, STATE, FORCE, STATUS, HW_HEALTH}
+    last_status = None
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         topics = {c.topic: c.msgcount for c in reader.connections}
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, _, raw in reader.messages(connections=connections):
-            msg = reader.deserialize(raw, connection.msgtype)
-            stamp = _stamp_ns(msg.header.stamp)
-            if connection.topic == STATUS or connection.topic == HW_HEALTH:
-                for status in msg.status:
-                    values = {kv.key: kv.value for kv in status.values}
-                    if connection.topic == STATUS:
-                        builder.status(stamp, values)
-                    else:
-                        builder.hw_health(stamp, values)
-            else:
-                builder.joint_state(connection.topic, stamp, msg.position, msg.velocity,
-                                    msg.effort)
+            if connection.topic in (STATUS, HW_HEALTH):
+                if connection.topic == STATUS and builder.catch_ns is not None:
+                    last_status = (connection, raw)  # only the controller names are left
+                    continue
+                _feed_diagnostics(builder, connection.topic,
+                                  reader.deserialize(raw, connection.msgtype))
+            elif connection.msgtype == 'sensor_msgs/msg/JointState':
+                stamp, _, position, velocity, effort = parse_joint_state(raw)
+                builder.joint_state(connection.topic, stamp, position, velocity, effort)
+        if last_status is not None:
+            _feed_diagnostics(builder, STATUS,
+                              reader.deserialize(last_status[1], last_status[0].msgtype))
     return builder, topics
+
+
+def _feed_diagnostics(builder: SeriesBuilder, topic: str, msg) -> None:
+    stamp = _stamp_ns(msg.header.stamp)
+    for status in msg.status:
+        values = {kv.key: kv.value for kv in status.values}
+        if topic == STATUS:
+            builder.status(stamp, values)
+        else:
+            builder.hw_health(stamp, values)
 
 
 def analyze_bag(path: str | Path, *, x_ref: float | None = None,

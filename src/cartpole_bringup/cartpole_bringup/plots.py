@@ -244,3 +244,15 @@ def write_plots(series: RunSeries, directory: str | Path, stem: str = 'run',
     directory = Path(directory)
     return [plot_run(series, directory / f'{stem}_timeseries.png', title),
             plot_phase(series, directory / f'{stem}_phase.png', title)]
+
+
+def plot_offline_run(run, path: str | Path, title: str = '') -> Path:
+    """:func:`plot_run` of a :class:`cartpole_bringup.closed_loop.RunResult` (``cartpole offline --plot``).
+
+    Uses the run's ground truth, its force commands and its own E_p / E*.
+    """
+    series = RunSeries(t=run.t, x=run.x, theta=run.theta, theta_dot=run.theta_dot,
+                       force=run.force, energy=run.energy, x_ref=run.x_ref,
+                       upright_energy=run.upright_energy, catch_time=run.catch_time,
+                       label=title or 'offline run')
+    return plot_run(series, path, title)

@@ -23,10 +23,14 @@ covariance of one measurement.
 Friction in the filter's model. The plant's Coulomb friction uses
 ``tanh(k v)`` with ``k = 1000`` (a near step). Its slope at rest,
 ``c_c k / m_c`` = 716 1/s for the cart, makes the forward-Euler prediction
-at ``Ts`` = 5 ms unstable (|1 - Ts 716| > 1) and the Jacobian meaningless
-near zero velocity. The filter uses its own, smaller steepness
-(:attr:`EkfConfig.friction_steepness`, 20 s/m and s/rad by default, chosen by
-the velocity error on the free-swing test of Figure 5.2, see
+at ``Ts`` = 5 ms unstable (|1 - Ts 716| > 1; the limit is
+k < 2 m_c / (c_c Ts) = 559). The filter uses its own steepness
+(:attr:`EkfConfig.friction_steepness`, 200 s/m and s/rad by default: Euler
+factor 1 - 0.72 = 0.28 at rest, still stable for sub-steps up to 2.8 Ts and
++20 % friction). Smaller values (10-50) are stable too but let the modelled
+cart slide under forces below the stiction level (a 2 N push gives a
+0.03 m/s velocity bias at k = 20); 200 gave the smallest velocity errors on
+the free-swing, forced-cart and stuck-cart tests (see
 ``docs/readme/estimation.md``).
 
 No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline
@@ -73,14 +77,20 @@ class EkfConfig:
     Q h / Ts."""
     r_diag: tuple[float, float] = (0.01, 0.1)
     """Diagonal of R_k (9.1): measurement covariance of x [m^2] and theta [rad^2]."""
-    p0_diag: tuple[float, float, float, float] = (1.0e-6, 1.0e-5, 1.0, 1.0)
+    p0_diag: tuple[float, float, float, float] = (1.0e-6, 1.0e-5, 1.0e3, 1.0e5)
     """Diagonal of P_0|0 after an (re)initialisation from a measurement:
-    positions about one encoder tick, velocities (1 m/s)^2 and (1 rad/s)^2."""
+    positions about one encoder tick; velocities practically unknown (the
+    state is initialised with zero velocities, possibly mid-swing), so that
+    the next few samples set them: with Q and R of the thesis a prior of
+    (1 rad/s)^2 takes about 0.4 s to recover from a reset at 10 rad/s, this
+    one about 0.05 s."""
     jacobian_step: float = 1.0e-6
     """epsilon of the forward difference (5.21)."""
     friction_steepness: float = 200.0
     """k of tanh(k v) in the filter's Coulomb friction of cart [s/m] and
-    pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000."""
+    pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000,
+    with which forward Euler at Ts is unstable near rest (see the module
+    docstring)."""
     sample_time: float | None = None
     """Nominal Ts [s]; None takes ``params.sample_time`` (5 ms)."""
     max_dt: float = 0.25
@@ -95,8 +105,9 @@ class EkfConfig:
     max_innovation: tuple[float, float] = (0.05, 1.0)
     """An innovation of x [m] / wrapped theta [rad] larger than this in one
     sample (10 m/s resp. 200 rad/s over Ts) is an outlier whatever P says."""
-    max_covariance: float = 1.0e6
-    """Any diagonal entry of P above this (or non-finite) re-initialises."""
+    max_covariance: float = 1.0e9
+    """Any diagonal entry of P above this (or non-finite) re-initialises;
+    must exceed every entry of ``p0_diag``."""
     max_speed: tuple[float, float] = (20.0, 200.0)
     """|x_dot| [m/s] / |theta_dot| [rad/s] above which the estimate is
     considered diverged and re-initialised."""
@@ -121,6 +132,9 @@ class EkfConfig:
                 and self.sample_time > 0.0):
             raise ValueError(f'sample_time must be None or a finite number > 0, '
                              f'got {self.sample_time!r}')
+        if self.max_covariance <= max(self.p0_diag):
+            raise ValueError(f'max_covariance ({self.max_covariance}) must exceed every '
+                             f'p0_diag entry {self.p0_diag}')
         if not isinstance(self.innovation_count, int) or self.innovation_count < 1:
             raise ValueError(f'innovation_count must be an integer >= 1, '
                              f'got {self.innovation_count!r}')
@@ -227,6 +241,13 @@ class ExtendedKalmanFilter:
         self._r_diag = np.array(cfg.r_diag)
         self._p0 = np.diag(cfg.p0_diag)
 
+    def set_config(self, config: EkfConfig) -> None:
+        """Use another configuration from the next update on (state and P kept)."""
+        if not isinstance(config, EkfConfig):
+            raise TypeError(f'config must be an EkfConfig, got {type(config).__name__}')
+        self.config = config
+        self._configure()
+
     def set_noise(self, q_diag=None, r_diag=None) -> None:
         """Change Q (9.2) and/or R (9.1) between two updates; validated first.
 
@@ -284,9 +305,26 @@ class ExtendedKalmanFilter:
         return self._last
 
     # -- the filter ----------------------------------------------------------------------
-    def _predict(self, h: float, force: float) -> None:
-        """One forward-Euler step of length h, (5.8), (5.15), (5.16), (5.19)-(5.21)."""
-        x, th, xd, thd = self._s
+    def transition(self, state, force: float, h: float) -> tuple[list[float], np.ndarray]:
+        """f_k and its Jacobian F_k for a step of length h, (5.8), (5.19)-(5.21).
+
+        Parameters
+        ----------
+        state
+            [x, theta, x_dot, theta_dot].
+        force
+            Force on the cart during the step [N].
+        h
+            Step length [s] (Ts normally).
+
+        Returns
+        -------
+        (list, ndarray)
+            x + h (f(x) + g(x) u) as a list of 4 floats, and the 4x4 F_k =
+            I + h d(f + g u)/dx by forward differences of step
+            ``config.jacobian_step``.
+        """
+        x, th, xd, thd = state
         m = self.model
         eps = self.config.jacobian_step
         a0, b0 = accelerations(x, th, xd, thd, force, m)
@@ -297,14 +335,17 @@ class ExtendedKalmanFilter:
         a3, b3 = accelerations(x, th, xd + eps, thd, force, m)
         a4, b4 = accelerations(x, th, xd, thd + eps, force, m)
         g = h / eps
-        # F_k = I + h df/dx (5.19).
         f_k = np.array([
             [1.0, 0.0, h, 0.0],
             [0.0, 1.0, 0.0, h],
             [(a1 - a0) * g, (a2 - a0) * g, 1.0 + (a3 - a0) * g, (a4 - a0) * g],
             [(b1 - b0) * g, (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g],
         ])
-        self._s = [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0]
+        return [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0], f_k
+
+    def _predict(self, h: float, force: float) -> None:
+        """Time update (5.15)/(5.16) over a step of length h."""
+        self._s, f_k = self.transition(self._s, force, h)
         q = self._q if h == self.sample_time else self._q * (h / self.sample_time)
         self._p = f_k @ self._p @ f_k.T + q
 
@@ -433,10 +474,12 @@ class ExtendedKalmanFilter:
             reason = f'non-finite measurement ({y_x!r}, {y_theta!r})'
             last = self._last
             had_state = self._t is not None
+            pending = self._pending_reason
             self.reset()
             if had_state:
                 self.resets += 1
-                self._pending_reason = 'recovery after non-finite measurement'
+                pending = 'recovery after non-finite measurement'
+            self._pending_reason = pending
             self._last = last
             est = self._refuse(t, reason, reset=had_state)
             self._last = est

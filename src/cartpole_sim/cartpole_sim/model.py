@@ -55,7 +55,7 @@ class CartPoleParameters:
     """k of tanh(k theta_dot) in (4.21) [s/rad]."""
     travel: float = 0.769
     """Cart travel between the end stops, l_rail - w_cart [m] (section 2.3)."""
-    end_stop_stiffness: float = 1.0e5
+    end_stop_stiffness: float = 1.0e6
     """Spring constant of the end stops [N/m] (section 4.5: stiff spring-damper)."""
     end_stop_damping: float = 1.0e3
     """Damping of the end stops [N s/m]; only pushes, never pulls."""

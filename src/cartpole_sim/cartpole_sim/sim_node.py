@@ -19,6 +19,9 @@ controller cannot hang the graph. Until the first matching command arrives
 (``lockstep_startup_wait``), sample 0 is re-published every 0.1 s wall and the
 timeout does not apply, so a graph whose controller starts slowly still starts
 from the same sample and runs the same way every time.
+
+Topic names are relative (``joint_states`` is ``/joint_states`` without a
+namespace), so a graph can run in a namespace; ``/clock`` stays global.
 """
 from __future__ import annotations
 
@@ -61,7 +64,12 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
         return CartPoleParameters()
     if not Path(path).is_file():
         raise ValueError(f'plant_params_file {path!r} does not exist')
-    return CartPoleParameters.from_yaml(path)
+    try:
+        return CartPoleParameters.from_yaml(path)
+    except ValueError as error:
+        raise ValueError(f'plant_params_file {path!r}: {error}') from error
+    except Exception as error:  # unreadable or not YAML (yaml.YAMLError, OSError, ...)
+        raise ValueError(f'plant_params_file {path!r} cannot be read: {error}') from error
 
 
 class SimNode(Node):
@@ -86,10 +94,10 @@ class SimNode(Node):
                                       and self.get_parameter('lockstep_startup_wait').value)
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
 
-        self._pub_joints = self.create_publisher(JointState, '/joint_states', 10)
-        self._pub_truth = self.create_publisher(JointState, '/cartpole/true_state', 10)
+        self._pub_joints = self.create_publisher(JointState, 'joint_states', 10)
+        self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', 10)
         self._pub_clock = None
-        self.create_subscription(JointState, '/cartpole/force_command', self._on_command, 10)
+        self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -123,7 +131,8 @@ class SimNode(Node):
                         '0.1 s wall and do not apply lockstep_timeout.', read_only=True))
         declare('lockstep_timeout', 1.0, ParameterDescriptor(
             description='Lockstep: wall seconds to wait for the awaited command before stepping '
-                        'with the held one [s].', floating_point_range=_float_range(0.001, 3600.0)))
+                        'with the held one [s].',
+            floating_point_range=_float_range(0.001, 3600.0)))
         declare('command_timeout', 0.05, ParameterDescriptor(
             description='Watchdog: zero force when no command arrived for this much simulated '
                         'time [s].', floating_point_range=_float_range(0.0, 10.0)))
@@ -134,7 +143,8 @@ class SimNode(Node):
             description='Initial pendulum angle [rad]; 0 upright, pi hanging.',
             floating_point_range=_float_range(-20.0, 20.0)))
         declare('x_dot0', 0.0, ParameterDescriptor(
-            description='Initial cart velocity [m/s].', floating_point_range=_float_range(-5.0, 5.0)))
+            description='Initial cart velocity [m/s].',
+            floating_point_range=_float_range(-5.0, 5.0)))
         declare('theta_dot0', 0.0, ParameterDescriptor(
             description='Initial pendulum angular velocity [rad/s].',
             floating_point_range=_float_range(-50.0, 50.0)))

@@ -6,7 +6,6 @@ import math
 import os
 import signal
 import subprocess
-import time
 
 import pytest
 
@@ -101,7 +100,7 @@ def graph(ros_context):
         executor.shutdown()
 
 
-# -- the installed executable in real time ---------------------------------------------------------
+# -- the installed executable in real time --------------------------------------------------------
 def test_installed_executable_publishes_joint_states_in_real_time(ros_context, spin_until):
     from ament_index_python.packages import get_package_prefix
     from rclpy.executors import SingleThreadedExecutor
@@ -109,7 +108,8 @@ def test_installed_executable_publishes_joint_states_in_real_time(ros_context, s
     exe = os.path.join(get_package_prefix('cartpole_sim'), 'lib', 'cartpole_sim', 'sim_node')
     assert os.access(exe, os.X_OK), exe
     proc = subprocess.Popen([exe, '--ros-args', '-p', 'lockstep:=false'],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=os.environ.copy())
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            env=os.environ.copy())
     probe = Probe(ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(probe.node)
@@ -144,7 +144,23 @@ def test_installed_executable_publishes_joint_states_in_real_time(ros_context, s
         executor.shutdown()
 
 
-# -- lockstep ----------------------------------------------------------------------------------------
+def test_real_time_applies_command_then_watchdog_zeroes_it(graph, spin_until):
+    sim, probe, executor = graph(lockstep=False, x0=0.3)
+    assert spin_until(executor, lambda: len(probe.truth) >= 3, timeout=10.0)
+    probe.send(20.0)
+    assert spin_until(executor, lambda: any(m.effort[0] > 19.0 for m in probe.truth),
+                      timeout=10.0)
+    pushed = next(i for i, m in enumerate(probe.truth) if m.effort[0] > 19.0)
+    # No further command: after 50 ms of simulated time the force falls back to zero.
+    assert spin_until(executor, lambda: any(abs(m.effort[0]) < 1e-3
+                                            for m in probe.truth[pushed:]), timeout=10.0)
+    assert sim.runner.watchdog_trips == 1
+    pushed_samples = sum(1 for m in probe.truth[pushed:] if m.effort[0] > 1.0)
+    assert 9 <= pushed_samples <= 12  # 50 ms / 5 ms, plus the sample the lag decays in
+    assert probe.truth[-1].position[0] > 0.3
+
+
+# -- lockstep -------------------------------------------------------------------------------------
 def test_lockstep_does_not_advance_without_commands(graph, spin_until):
     sim, probe, executor = graph(lockstep=True, lockstep_timeout=30.0)
     # Sample 0 is re-published every 0.1 s while the controller is missing.
@@ -240,7 +256,7 @@ def test_lockstep_timeout_steps_with_the_held_command(graph, spin_until):
     assert sim.lockstep_timeouts >= 4
 
 
-# -- parameters and reset ---------------------------------------------------------------------------
+# -- parameters and reset -------------------------------------------------------------------------
 def test_invalid_parameters_refused_with_reason(graph, tmp_path):
     from rclpy.parameter import Parameter
 
@@ -255,6 +271,9 @@ def test_invalid_parameters_refused_with_reason(graph, tmp_path):
     bad = tmp_path / 'bad.yaml'
     bad.write_text('cartpole_plant:\n  m_c: -1.0\n')
     cases.append((Parameter('plant_params_file', value=str(bad)), 'm_c'))
+    garbled = tmp_path / 'garbled.yaml'
+    garbled.write_text('cartpole_plant: [m_c: {\n')
+    cases.append((Parameter('plant_params_file', value=str(garbled)), 'cannot be read'))
     for parameter, word in cases:
         before = sim.get_parameter(parameter.name).value
         result = sim.set_parameters([parameter])[0]

@@ -1,0 +1,138 @@
+// cartpole_bridge: Arduino Due I/O bridge of the cart-pole rig (SPEC section 4).
+//
+// The control runs on the host; this sketch only
+//   - reads both HCTL-2021 quadrature decoders over the shared 8-bit bus
+//     (thesis section 2.1) every 5 ms (micros() deadlines, no drift),
+//   - streams S lines, answers P, obeys E, R, L, U (joint_protocol.cpp),
+//   - writes the current setpoint to DAC0 as 1953 + setpoint (12 bit, Appendix A),
+//   - drives the servo amplifier's enable pin,
+//   - enforces the 50 ms watchdog: enabled and no U for 50 ms -> zero current.
+//
+// PIN NUMBERS: the thesis's figure 2.3 names the signals (DAC, OE, 8-pin bus,
+// SEL, enable, RST) but its text gives no pin numbers. Every number below is
+// an ASSUMPTION listed in the wiring table of the README ("Running on the real
+// rig"); they MUST be checked against the PCB before the first power-up.
+#include "joint_protocol.h"
+
+// ---- wiring (ASSUMED; must match the PCB) -----------------------------------------
+static const uint8_t PIN_BUS[8] = {33, 34, 35, 36, 37, 38, 39, 40};  // D0..D7 of both HCTL-2021
+static const uint8_t PIN_CART_OE = 41;    // output enable, active low
+static const uint8_t PIN_CART_SEL = 42;   // high: low byte, low: high byte (thesis 2.1)
+static const uint8_t PIN_CART_RST = 43;   // counter reset, active low
+static const uint8_t PIN_PEND_OE = 44;
+static const uint8_t PIN_PEND_SEL = 45;
+static const uint8_t PIN_PEND_RST = 46;
+static const uint8_t PIN_AMP_ENABLE = 47; // servo amplifier enable, active high (assumed)
+static const uint8_t PIN_LIMIT_LEFT = 48; // limit switches to GND, INPUT_PULLUP (optional)
+static const uint8_t PIN_LIMIT_RIGHT = 49;
+#define HAVE_LIMIT_SWITCHES 0             // the thesis rig has none: flags bits 2/3 stay 0
+// A positive setpoint must push the cart to the right (x grows); check at the
+// first power-up (README checklist) and flip this if the motor is wired the other way.
+static const bool POSITIVE_SETPOINT_DRIVES_RIGHT = true;
+
+// The native USB port does not reset the board when the host opens it, so the
+// counters survive a reconnect. Use Serial (programming port) if that is the
+// cable in use: opening it resets the Due (and the sketch zeroes the counters).
+#define HOST SerialUSB
+static const uint32_t BAUD = 115200;      // ignored by the native port, used by Serial
+static const uint32_t SAMPLE_US = 5000;   // Ts = 5 ms (thesis section 9.2)
+
+static JpDevice dev;
+static JpLineBuffer rx;
+static uint32_t next_sample_us;
+static char out[3 * (JP_MAX_LINE + 2)];
+
+// Read one HCTL-2021: OE low, low byte (SEL high), high byte (SEL low), OE high,
+// combine to a signed 16-bit count (thesis section 2.1).
+static uint8_t read_bus() {
+  uint8_t v = 0;
+  for (uint8_t i = 0; i < 8; ++i) v |= (digitalRead(PIN_BUS[i]) ? 1 : 0) << i;
+  return v;
+}
+
+static int16_t read_decoder(uint8_t pin_oe, uint8_t pin_sel) {
+  digitalWrite(pin_oe, LOW);
+  digitalWrite(pin_sel, HIGH);
+  delayMicroseconds(1);                   // data access time (datasheet: < 100 ns)
+  uint8_t lo = read_bus();
+  digitalWrite(pin_sel, LOW);
+  delayMicroseconds(1);
+  uint8_t hi = read_bus();
+  digitalWrite(pin_oe, HIGH);
+  return (int16_t)((uint16_t)hi << 8 | lo);
+}
+
+static void reset_counters() {
+  digitalWrite(PIN_CART_RST, LOW);
+  digitalWrite(PIN_PEND_RST, LOW);
+  delayMicroseconds(2);
+  digitalWrite(PIN_CART_RST, HIGH);
+  digitalWrite(PIN_PEND_RST, HIGH);
+}
+
+static void send(const char *buf, size_t n) {
+  // never block the loop on a host that does not read: drop instead
+  if (n > 0 && (size_t)HOST.availableForWrite() >= n) HOST.write((const uint8_t *)buf, n);
+}
+
+static void apply_output() {
+  analogWrite(DAC0, jp_dac_value(jp_device_output_setpoint(&dev)));
+  digitalWrite(PIN_AMP_ENABLE, dev.enabled ? HIGH : LOW);
+}
+
+void setup() {
+  for (uint8_t i = 0; i < 8; ++i) pinMode(PIN_BUS[i], INPUT);
+  const uint8_t outs[] = {PIN_CART_OE, PIN_CART_SEL, PIN_CART_RST, PIN_PEND_OE,
+                          PIN_PEND_SEL, PIN_PEND_RST, PIN_AMP_ENABLE};
+  for (uint8_t i = 0; i < sizeof outs; ++i) pinMode(outs[i], OUTPUT);
+  digitalWrite(PIN_AMP_ENABLE, LOW);
+  digitalWrite(PIN_CART_OE, HIGH);
+  digitalWrite(PIN_PEND_OE, HIGH);
+  digitalWrite(PIN_CART_RST, HIGH);
+  digitalWrite(PIN_PEND_RST, HIGH);
+#if HAVE_LIMIT_SWITCHES
+  pinMode(PIN_LIMIT_LEFT, INPUT_PULLUP);
+  pinMode(PIN_LIMIT_RIGHT, INPUT_PULLUP);
+#endif
+  analogWriteResolution(12);
+  jp_device_init(&dev, "cartpole_bridge", POSITIVE_SETPOINT_DRIVES_RIGHT);
+  jp_line_init(&rx);
+  apply_output();                         // disabled, DAC at 1953: zero current
+  reset_counters();                       // power-up reference; the host homes with R
+  HOST.begin(BAUD);
+  next_sample_us = micros() + SAMPLE_US;
+}
+
+void loop() {
+  // 1. commands, handled as they arrive
+  while (HOST.available() > 0) {
+    size_t n = 0;
+    int r = jp_line_feed(&rx, (char)HOST.read(), &n);
+    if (r == 1) {
+      size_t reply_len = 0;
+      bool reset = jp_device_handle_line(&dev, rx.buf, n, micros(), out, sizeof out, &reply_len);
+      if (reset) reset_counters();
+      send(out, reply_len);
+      apply_output();
+    } else if (r == -1) {
+      send(out, jp_format_error(out, sizeof out, JP_OVERSIZED, "oversized"));
+    }
+  }
+  // 2. the 5 ms sample, on micros() deadlines
+  uint32_t now = micros();
+  if ((int32_t)(now - next_sample_us) >= 0) {
+    next_sample_us += SAMPLE_US;
+    if ((int32_t)(now - next_sample_us) > (int32_t)(4 * SAMPLE_US)) next_sample_us = now + SAMPLE_US;
+    int16_t cart = read_decoder(PIN_CART_OE, PIN_CART_SEL);
+    int16_t pend = read_decoder(PIN_PEND_OE, PIN_PEND_SEL);
+#if HAVE_LIMIT_SWITCHES
+    bool left = digitalRead(PIN_LIMIT_LEFT) == LOW, right = digitalRead(PIN_LIMIT_RIGHT) == LOW;
+#else
+    bool left = false, right = false;
+#endif
+    send(out, jp_device_tick(&dev, now, left, right, out, sizeof out));
+    send(out, jp_device_sample(&dev, now, cart, pend, out, sizeof out));
+  }
+  // 3. the DAC and the enable pin follow the state (watchdog, limits) every pass
+  apply_output();
+}

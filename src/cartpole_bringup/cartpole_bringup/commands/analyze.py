@@ -1,0 +1,73 @@
+"""``cartpole analyze BAG [BAG ...]``: the run summary (and plots) of recorded bags."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..options import add_output_arguments, nominal_parameters, print_summary
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bags', nargs='+', type=Path, metavar='BAG',
+                        help='rosbag2 bag directories (as written by `cartpole run --record` '
+                             'or the recorder node)')
+    parser.add_argument('--plots', type=Path, default=None, metavar='DIR',
+                        help='write PNG figures into DIR: <run>_timeseries.png (Figure 10.1 '
+                             'layout), <run>_phase.png; with several bags also comparison.png')
+    parser.add_argument('--x-ref', type=float, default=None, metavar='M',
+                        help="cart reference x* [m] (default: the bag's x_ref, else mid-travel)")
+    parser.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
+                        help='nominal plant parameters (travel, l, g, E*); default: thesis values')
+    add_output_arguments(parser)
+
+
+def write_figures(analyses, directory: Path) -> list[Path]:
+    """Per-run figures and, for several runs, the overlay; returns the paths."""
+    from ..plots import plot_overlay, write_plots
+
+    paths: list[Path] = []
+    stems: set[str] = set()
+    for i, analysis in enumerate(analyses):
+        stem = analysis.series.label or f'run{i + 1}'
+        if stem in stems:
+            stem = f'{stem}_{i + 1}'
+        stems.add(stem)
+        paths += write_plots(analysis.series, directory, stem, title=stem)
+    if len(analyses) > 1:
+        paths.append(plot_overlay([a.series for a in analyses], directory / 'comparison.png'))
+    return paths
+
+
+def main(args: argparse.Namespace) -> int:
+    from ..analyze import analyze_bag, comparison_table
+
+    params = nominal_parameters(args)
+    analyses = []
+    for bag in args.bags:
+        try:
+            analyses.append(analyze_bag(bag, x_ref=args.x_ref, params=params))
+        except (OSError, ValueError, KeyError) as error:
+            print(f'cartpole analyze: {bag}: {error}', file=sys.stderr)
+            return 2
+    plots = write_figures(analyses, args.plots) if args.plots else []
+    if args.json:
+        runs = [dict(a.summary, bag=str(a.path), source=a.source, **a.controllers)
+                for a in analyses]
+        out = dict(runs[0]) if len(runs) == 1 else {'runs': runs}
+        out['plots'] = [str(p) for p in plots]
+        print(json.dumps(out))
+        return 0
+    for a in analyses:
+        controllers = ', '.join(f'{k} {v}' for k, v in a.controllers.items())
+        print(f'== {a.path} ({a.source}{"; " + controllers if controllers else ""})')
+        print_summary(a.summary, as_json=False)
+        print()
+    if len(analyses) > 1:
+        print('== comparison')
+        print('\n'.join(comparison_table(analyses)))
+        print()
+    for p in plots:
+        print(f'plot: {p}')
+    return 0

@@ -1,0 +1,150 @@
+"""Analysis of bags with a known trajectory: the SPEC 5 summary, sources, plots, the CLI."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).with_name('bag_synth.py'))
+bag_synth = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bag_synth)
+
+from cartpole_bringup import cli  # noqa: E402
+from cartpole_bringup.analyze import analyze_bag  # noqa: E402
+from cartpole_bringup.plots import heteroclinic_orbit  # noqa: E402
+
+PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
+
+
+@pytest.fixture(scope='module')
+def known_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp('bags') / 'known' / 'bag'
+    bag_synth.write_run(path, custom_data={'x_ref': repr(bag_synth.X_REF), 'lockstep': 'true'})
+    return path
+
+
+def test_known_trajectory_gives_the_known_summary(known_bag):
+    a = analyze_bag(known_bag)
+    s = a.summary
+    assert a.source == '/cartpole/true_state'
+    assert a.controllers == {'swingup': 'pendulum_energy', 'stabilizer': 'lqg'}
+    assert s['catch_time_s'] == pytest.approx(bag_synth.CATCH_TIME, abs=1e-9)
+    # pi (1 - t/6) <= 10 deg first at t = 5.6667 s, the sample at 5.670 s (Ts 10 ms).
+    assert s['upright_time_s'] == pytest.approx(5.670, abs=1e-9)
+    assert s['theta_amp_deg'] == pytest.approx(math.degrees(0.01), rel=1e-9)
+    assert s['x_err_max_m'] == pytest.approx(0.05, rel=1e-9)
+    # Mean of sin^2 over whole periods, 1001 samples in [10, 20] s (the two ends are zeros).
+    assert s['mse_x'] == pytest.approx(0.05 ** 2 / 2 * 1000 / 1001, rel=1e-6)
+    assert s['mse_theta'] == pytest.approx(0.01 ** 2 / 2 * 1000 / 1001, rel=1e-6)
+    assert s['end_stop_contact'] is False
+    assert s['success'] is True
+    assert a.topics['/cartpole/true_state'] == 2001
+    assert a.series.t[0] == 0.0 and a.series.t[-1] == pytest.approx(20.0)
+
+
+def test_x_ref_option_overrides_the_bag(known_bag):
+    s = analyze_bag(known_bag, x_ref=bag_synth.X_REF + 0.2).summary
+    assert s['x_err_max_m'] == pytest.approx(0.25, rel=1e-9)
+    assert s['success'] is False
+
+
+def test_truth_outside_the_travel_is_end_stop_contact(tmp_path):
+    path = tmp_path / 'bag'
+    bag_synth.write_run(path, x_offset=0.36)  # x reaches x* + 0.41 > 0.769 m
+    s = analyze_bag(path, x_ref=bag_synth.X_REF).summary
+    assert s['end_stop_contact'] is True and s['success'] is False
+
+
+def test_hardware_bag_uses_the_estimate_and_the_limit_flags(tmp_path):
+    quiet, hit = tmp_path / 'quiet', tmp_path / 'hit'
+    # Real-time stamps (an epoch): t = 0 is the first sample.
+    bag_synth.write_run(quiet, truth=False, hw_limits=False, t_origin=1.7e9, clock=False)
+    bag_synth.write_run(hit, truth=False, hw_limits=True, t_origin=1.7e9, clock=False)
+    a = analyze_bag(quiet)
+    assert a.source == '/cartpole/state'
+    assert a.summary['catch_time_s'] == pytest.approx(bag_synth.CATCH_TIME, abs=1e-6)
+    assert a.summary['end_stop_contact'] is False and a.summary['success'] is True
+    assert analyze_bag(hit).summary['end_stop_contact'] is True
+
+
+def test_a_bag_without_states_is_refused(tmp_path):
+    from cartpole_bringup.bag import BagWriter
+    path = tmp_path / 'empty'
+    BagWriter(path).close()
+    with pytest.raises(ValueError, match='nothing to analyse'):
+        analyze_bag(path)
+
+
+@pytest.mark.parametrize('little_endian', [True, False])
+def test_joint_state_parser_matches_the_generic_deserialiser(little_endian):
+    from rosbags.typesys import Stores, get_typestore
+    from cartpole_bringup.analyze import parse_joint_state
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    js, header, time = (ts.types[n] for n in ('sensor_msgs/msg/JointState', 'std_msgs/msg/Header',
+                                              'builtin_interfaces/msg/Time'))
+    for names, pos, vel, eff in [(['cart', 'pendulum'], [0.1, 3.1], [0.2, -4.0], []),
+                                 (['cart'], [], [], [-12.5]), ([], [], [], []),
+                                 (['a', 'bcdefgh', 'ij'], [1.0, 2.0, 3.0], [], [4.0, 5.0, 6.0])]:
+        msg = js(header=header(stamp=time(sec=12, nanosec=345), frame_id='odd'), name=names,
+                 position=np.array(pos), velocity=np.array(vel), effort=np.array(eff))
+        raw = ts.serialize_cdr(msg, 'sensor_msgs/msg/JointState', little_endian=little_endian)
+        stamp, n, p, v, e = parse_joint_state(raw)
+        assert stamp == 12_000_000_345 and n == names
+        np.testing.assert_array_equal(p, pos)
+        np.testing.assert_array_equal(v, vel)
+        np.testing.assert_array_equal(e, eff)
+
+
+def test_heteroclinic_orbit_is_the_energy_level_of_upright():
+    # (6.10): zero upright, 2 sqrt(g / l) hanging; E_p = E* all along.
+    g, l = 9.81, 0.3345
+    assert heteroclinic_orbit(0.0, l, g) == 0.0
+    assert heteroclinic_orbit(math.pi, l, g) == pytest.approx(2 * math.sqrt(g / l))
+    from cartpole_sim.model import CartPoleParameters, pendulum_energy
+    p = CartPoleParameters()
+    for theta in (0.3, 1.0, 2.5, -2.0):
+        e = pendulum_energy(theta, float(heteroclinic_orbit(theta, p.l, p.g)), p)
+        assert e == pytest.approx(p.upright_energy, rel=1e-12)
+
+
+def test_cli_json_and_plots(known_bag, tmp_path, capsys):
+    other = tmp_path / 'other' / 'bag'
+    bag_synth.write_run(other, x_offset=0.2)
+    plots = tmp_path / 'plots'
+    assert cli.main(['analyze', str(known_bag), str(other), '--json', '--plots', str(plots)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    first, second = out['runs']
+    assert first['success'] is True and first['catch_time_s'] == pytest.approx(5.0)
+    assert first['bag'] == str(known_bag) and first['stabilizer'] == 'lqg'
+    assert second['success'] is False and second['x_err_max_m'] == pytest.approx(0.25)
+    names = sorted(Path(p).name for p in out['plots'])
+    assert names == ['comparison.png', 'known_phase.png', 'known_timeseries.png',
+                     'other_phase.png', 'other_timeseries.png']
+    for p in out['plots']:
+        data = Path(p).read_bytes()
+        assert data.startswith(PNG_MAGIC) and len(data) > 10_000
+    # Text: one table per bag, then the side-by-side comparison.
+    assert cli.main(['analyze', str(known_bag), str(other)]) == 0
+    text = capsys.readouterr().out
+    assert text.count('catch_time_s') == 3
+    table = text.split('== comparison')[1].splitlines()
+    assert table[1].split() == ['known', 'other']
+    row = next(line for line in table if line.startswith('success '))
+    assert row.split()[1:] == ['True', 'False']
+
+
+def test_cli_single_bag_json_is_the_flat_summary(known_bag, capsys):
+    assert cli.main(['analyze', str(known_bag), '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['success'] is True and out['plots'] == []
+    assert out['source'] == '/cartpole/true_state'
+
+
+def test_cli_reports_a_missing_bag(tmp_path, capsys):
+    assert cli.main(['analyze', str(tmp_path / 'nope')]) == 2
+    assert 'not a rosbag2 bag' in capsys.readouterr().err

@@ -1,0 +1,494 @@
+"""The controller manager: switching, catch trigger, feedforward, saturation, rail guard (chapter 6).
+
+One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
+
+1. apply the parameter changes and requests queued since the last cycle
+   (between two cycles, never in the middle of one, like ros2_control's
+   ``do_switch``); a switch is bumpless: the new plugin is activated from the
+   current state, the old one deactivated;
+2. complete the state with the model accelerations under the last applied
+   force (4.18), which (7.10) needs;
+3. catch trigger (6.4) in swing-up, fall detector in stabilisation
+   (:mod:`cartpole_control.catch`);
+4. the active plugin's raw force ``u``; only one controller runs (section 6.4);
+5. ``u + B_ff(x_dot, u)``, the cart friction feedforward (6.12);
+6. saturation to ``[force_min, force_max]`` (Appendix C);
+7. the rail guard (:mod:`cartpole_control.rail_guard`).
+
+Modes: ``idle`` (disabled, zero force), ``swingup``, ``stabilizing`` and
+``fault`` (zero force until :meth:`~ControllerManager.restart`; the one
+exception is the rail guard's brake, which runs until the cart is at rest).
+
+No ROS import: the offline closed loop and the ROS node use this class alike.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+
+from .catch import CatchTrigger
+from .controller import KINDS, STABILIZER, SWINGUP, ControlContext, Controller, ControllerState, \
+    ParameterSpec
+from .feedforward import FrictionFeedforward
+from .rail_guard import BRAKING, RailGuard
+from .registry import load_controllers
+
+logger = logging.getLogger(__name__)
+
+IDLE = 'idle'
+SWINGUP_MODE = 'swingup'
+STABILIZING = 'stabilizing'
+FAULT = 'fault'
+MODES = (IDLE, SWINGUP_MODE, STABILIZING, FAULT)
+
+DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
+"""Default plugins (the thesis's pairing in section 9.2.1)."""
+
+_MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
+_KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
+
+MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
+"""Parameter groups of the manager itself; a plugin cannot take these names."""
+
+
+@dataclass(frozen=True)
+class SetResult:
+    """Outcome of :meth:`ControllerManager.set_parameters` (like rcl's SetParametersResult)."""
+
+    successful: bool
+    reason: str = ''
+
+
+@dataclass(frozen=True)
+class ManagerOutput:
+    """Everything one control cycle decided (the controller status of SPEC section 2)."""
+
+    t: float
+    force: float
+    """The force command [N] after feedforward, saturation and rail guard."""
+    mode: str
+    swingup: str
+    stabilizer: str
+    enabled: bool
+    energy: float
+    """E_p, the pendulum energy (7.3) [J]."""
+    energy_error: float
+    """E* - E_p [J]."""
+    raw_force: float
+    """The active plugin's output u [N] (0 when none runs)."""
+    feedforward: float
+    """B_ff(x_dot, u) of (6.12) [N]."""
+    event: str
+    """'' or 'catch', 'fall', 'restart', 'fault:<reason>', 'switch:<kind>=<name>'
+    (several in one cycle joined by ';')."""
+    catch_count: int
+    fall_count: int
+    catch_time: float | None
+    """Time of the first catch since :meth:`ControllerManager.reset`, or None."""
+    fault_reason: str
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class ControllerManager:
+    """Holds one swing-up and one stabiliser plugin and runs the cycle of the module docstring.
+
+    Parameters
+    ----------
+    plant
+        The controllers' model of the plant (nominal parameters).
+    sample_time
+        Control period Ts [s].
+    registry
+        ``{kind: {name: Controller subclass}}``; None discovers the installed
+        plugins through their entry points (:mod:`cartpole_control.registry`).
+    **initial_parameters
+        Initial values by parameter name (see :meth:`parameter_specs`), e.g.
+        ``stabilizer='smc'`` or ``**{'lqg.r': 0.02}``. A bad value raises
+        ValueError with the reason.
+    """
+
+    def __init__(self, plant: CartPoleParameters, sample_time: float = 0.005,
+                 registry: Mapping[str, Mapping[str, type[Controller]]] | None = None,
+                 **initial_parameters: Any) -> None:
+        if not (math.isfinite(sample_time) and sample_time > 0.0):
+            raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
+        self.plant = plant
+        self.sample_time = float(sample_time)
+        self._registry = self._checked_registry(registry)
+        self._specs = self._build_specs()
+        self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
+        self._lock = threading.Lock()
+        self._values.update(self._validate(initial_parameters))
+        self._trigger, self._feedforward, self._guard = self._build_blocks(self._values)
+        self._context = self._make_context(self._values)
+        self._names = {kind: self._values[kind] for kind in KINDS}
+        self._plugins: dict[str, Controller] = {
+            kind: self._make_plugin(kind, self._names[kind], self._values, self._context)
+            for kind in KINDS}
+        self._enabled = bool(self._values['enabled'])
+        self._pending: dict[str, Any] = {}
+        self._restart_requested = False
+        self.reset()
+
+    # -- set-up -----------------------------------------------------------------------
+    @staticmethod
+    def _checked_registry(registry) -> dict[str, dict[str, type[Controller]]]:
+        reserved = set(MANAGER_PREFIXES) | {'swingup', 'stabilizer', 'enabled', 'x_ref',
+                                            'state_timeout'}
+        out: dict[str, dict[str, type[Controller]]] = {}
+        taken: set[str] = set()
+        for kind in KINDS:
+            found = load_controllers(kind) if registry is None else dict(registry.get(kind, {}))
+            out[kind] = {}
+            for name, cls in sorted(found.items()):
+                if name in reserved or name in taken:
+                    logger.warning('skipping %s controller %r: the name is taken', kind, name)
+                    continue
+                taken.add(name)
+                out[kind][name] = cls
+            if not out[kind]:
+                raise ValueError(f'no {kind} controller is registered (entry-point group '
+                                 f'cartpole_control.{kind}); run `make build`?')
+        return out
+
+    def _build_specs(self) -> dict[str, ParameterSpec]:
+        p, ts = self.plant, self.sample_time
+        specs: list[ParameterSpec] = []
+        for kind, title in ((SWINGUP, 'Swing-up law (chapter 7)'),
+                            (STABILIZER, 'Stabiliser (chapter 8)')):
+            names = tuple(self._registry[kind])
+            default = DEFAULT_CONTROLLERS[kind] if DEFAULT_CONTROLLERS[kind] in names else names[0]
+            specs.append(ParameterSpec(kind, default, f'{title}: one of the registered plugins '
+                                       f'{list(names)}; switched bumplessly between two cycles',
+                                       choices=names))
+        specs += [
+            ParameterSpec('enabled', True, 'Control on; false: idle, zero force. Setting it true '
+                          'again restarts the swing-up (and clears a fault).'),
+            ParameterSpec('x_ref', p.x_middle, 'Cart reference x* [m] from the left end stop; '
+                          'default the middle of the travel', low=round(0.1 * p.travel, 6),
+                          high=round(0.9 * p.travel, 6)),
+            ParameterSpec('catch.energy_tolerance', 0.05, 'Catch trigger (6.4): switch to the '
+                          'stabiliser when |E* - E_p| <= this times E*', low=0.001, high=1.0),
+            ParameterSpec('catch.angle_deg', 30.0, 'Catch trigger (6.4): and |theta_w| <= this '
+                          '[deg]', low=1.0, high=90.0),
+            ParameterSpec('fall.angle_deg', 45.0, 'Fall detector: while stabilising, |theta_w| '
+                          'beyond this [deg] hands back to swing-up; larger than catch.angle_deg',
+                          low=2.0, high=180.0),
+            ParameterSpec('feedforward.right', 3.3, 'Cart friction feedforward (6.12): c_c,R used '
+                          'while x_dot >= 0 [N] (thesis 9.2.1: 3.3)', low=0.0, high=20.0),
+            ParameterSpec('feedforward.left', 2.8, 'Cart friction feedforward (6.12): c_c,L used '
+                          'while x_dot < 0 [N] (thesis 9.2.1: 2.8)', low=0.0, high=20.0),
+            ParameterSpec('feedforward.steepness', 20.0, 'k of tanh(k u) in (6.12) [1/N]; 0 turns '
+                          'the feedforward off', low=0.0, high=1000.0),
+            ParameterSpec('rail.margin', 0.02, 'Rail guard: distance kept from each end stop [m]',
+                          low=0.0, high=0.15),
+            ParameterSpec('rail.max_brake_force', 30.0, 'Rail guard: braking force F_b [N], '
+                          'further limited by the amplifier', low=1.0, high=40.0),
+            ParameterSpec('rail.latency', ts, 'Rail guard: loop latency before a command acts [s]',
+                          low=0.0, high=0.1),
+            ParameterSpec('rail.rest_speed', 0.02, 'Rail guard: |x_dot| below which the cart is at '
+                          'rest [m/s]', low=0.001, high=0.5),
+            ParameterSpec('state_timeout', 0.05, 'No state for this long: zero force, fault '
+                          "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),
+        ]
+        out = {spec.name: spec for spec in specs}
+        for kind in KINDS:
+            for name, cls in self._registry[kind].items():
+                for spec in cls.parameters:
+                    full = f'{name}.{spec.name}'
+                    out[full] = dataclasses.replace(spec, name=full)
+        return out
+
+    def _make_context(self, values: Mapping[str, Any]) -> ControlContext:
+        return ControlContext(plant=self.plant, x_ref=float(values['x_ref']),
+                              sample_time=self.sample_time)
+
+    def _gains(self, name: str, values: Mapping[str, Any]) -> dict[str, Any]:
+        prefix = name + '.'
+        return {key[len(prefix):]: value for key, value in values.items()
+                if key.startswith(prefix)}
+
+    def _make_plugin(self, kind: str, name: str, values: Mapping[str, Any],
+                     context: ControlContext) -> Controller:
+        plugin = self._registry[kind][name]()
+        plugin.configure(self._gains(name, values), context)
+        return plugin
+
+    def _build_blocks(self, v: Mapping[str, Any]):
+        trigger = CatchTrigger(energy_tolerance=v['catch.energy_tolerance'],
+                               angle=math.radians(v['catch.angle_deg']),
+                               fall_angle=math.radians(v['fall.angle_deg']))
+        feedforward = FrictionFeedforward(v['feedforward.right'], v['feedforward.left'],
+                                          v['feedforward.steepness'])
+        guard = RailGuard(self.plant, margin=v['rail.margin'],
+                          max_brake_force=v['rail.max_brake_force'],
+                          latency=v['rail.latency'], rest_speed=v['rail.rest_speed'])
+        return trigger, feedforward, guard
+
+    # -- parameters -------------------------------------------------------------------
+    def parameter_specs(self) -> dict[str, ParameterSpec]:
+        """The manager's parameters and every registered plugin's as ``<plugin>.<param>``."""
+        return dict(self._specs)
+
+    def registered(self, kind: str) -> list[str]:
+        """Names of the registered plugins of ``kind``."""
+        return list(self._registry[kind])
+
+    def get_parameters(self) -> dict[str, Any]:
+        """Current values (accepted changes included, even before the next cycle applies them)."""
+        with self._lock:
+            return dict(self._values)
+
+    def _validate(self, changes: Mapping[str, Any]) -> dict[str, Any]:
+        """Validated copy of ``changes``; ValueError with the reason if any is wrong."""
+        out: dict[str, Any] = {}
+        for name, value in changes.items():
+            spec = self._specs.get(name)
+            if spec is None:
+                raise ValueError(f'unknown parameter {name!r}')
+            if name in KINDS and isinstance(value, str) and value not in self._registry[name]:
+                raise ValueError(f'unknown {name} controller {value!r}; registered: '
+                                 f'{list(self._registry[name])}')
+            out[name] = spec.validate(value)
+        candidate = dict(self._values)
+        candidate.update(out)
+        self._build_blocks(candidate)  # cross-checks, e.g. the fall angle above the catch angle
+        context = self._make_context(candidate)
+        context_changed = candidate['x_ref'] != self._values['x_ref']
+        for kind in KINDS:
+            for name in self._registry[kind]:
+                prefix = name + '.'
+                if context_changed or any(key.startswith(prefix) for key in out):
+                    try:
+                        self._make_plugin(kind, name, candidate, context)
+                    except ValueError as error:
+                        raise ValueError(f'{name}: {error}') from None
+                    except Exception as error:  # a plugin bug must not take the manager down
+                        raise ValueError(f'{name} refused its configuration: '
+                                         f'{type(error).__name__}: {error}') from None
+        return out
+
+    def check_parameters(self, changes: Mapping[str, Any]) -> SetResult:
+        """Validate ``changes`` as :meth:`set_parameters` would, without taking them."""
+        with self._lock:
+            try:
+                self._validate(changes)
+            except ValueError as error:
+                return SetResult(False, str(error))
+        return SetResult(True)
+
+    def set_parameters(self, changes: Mapping[str, Any]) -> SetResult:
+        """Validate all ``changes``; take all of them (applied at the next cycle) or none.
+
+        Refused: an unknown name, a wrong type, a value out of range, an
+        unregistered controller name (the reason lists the registered ones), a
+        gain combination a plugin's ``on_configure`` refuses. The reason says
+        which and why; nothing changes then.
+        """
+        with self._lock:
+            try:
+                accepted = self._validate(changes)
+            except ValueError as error:
+                return SetResult(False, str(error))
+            self._values.update(accepted)
+            self._pending.update(accepted)
+        return SetResult(True)
+
+    # -- requests -----------------------------------------------------------------------
+    def restart(self) -> str:
+        """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
+
+        A fault is cleared and the rail guard re-armed (after its brake has
+        stopped the cart). With ``enabled`` false the manager stays idle.
+        Returns what will happen, for a service reply.
+        """
+        with self._lock:
+            self._restart_requested = True
+            enabled = self._values['enabled']
+        if self.mode in (SWINGUP_MODE, STABILIZING):
+            return f'already running ({self.mode}); nothing to restart'
+        if not enabled:
+            return 'fault cleared; control is disabled (enabled = false), staying idle'
+        return 'swing-up restarts at the next control cycle'
+
+    def reset(self) -> None:
+        """Back to the start of a run: counters cleared, guard re-armed, swing-up (or idle) next.
+
+        Parameter changes already accepted stay queued.
+        """
+        active = getattr(self, '_active', None)
+        if active is not None and active.active:
+            active.deactivate()
+        self._active: Controller | None = None
+        self.mode = SWINGUP_MODE if self._enabled else IDLE
+        self.fault_reason = ''
+        self.catch_count = 0
+        self.fall_count = 0
+        self.catch_time: float | None = None
+        self._last_force = 0.0
+        self._energy = math.nan
+        self._guard.reset()
+        with self._lock:
+            self._restart_requested = False
+
+    # -- switching ------------------------------------------------------------------------
+    def _set_mode(self, mode: str, state: ControllerState | None) -> None:
+        """Enter ``mode``: deactivate the running plugin, activate the mode's one from ``state``."""
+        plugin = self._plugins[_KIND_OF_MODE[mode]] if mode in _KIND_OF_MODE else None
+        if self._active is not None and self._active is not plugin:
+            if self._active.active:
+                self._active.deactivate()
+            self._active = None
+        self.mode = mode
+        if plugin is not None and state is not None and self._active is None:
+            plugin.activate(state)
+            self._active = plugin
+
+    def _fault(self, reason: str, events: list[str]) -> None:
+        if self.mode == FAULT:
+            return
+        self._set_mode(FAULT, None)
+        self.fault_reason = reason
+        events.append(f'fault:{reason}')
+
+    def _apply_pending(self, state: ControllerState, events: list[str]) -> None:
+        """Apply the queued changes and requests: the ``do_switch`` between two cycles."""
+        with self._lock:
+            pending, self._pending = self._pending, {}
+            restart, values = self._restart_requested, dict(self._values)
+            self._restart_requested = False
+        if pending:
+            guard_status = self._guard.status
+            self._trigger, self._feedforward, self._guard = self._build_blocks(values)
+            self._guard.status = guard_status
+            context_changed = 'x_ref' in pending
+            if context_changed:
+                self._context = self._make_context(values)
+            for kind in KINDS:
+                live = self._plugins[kind]
+                name = values[kind]
+                if self._names[kind] != name:
+                    new = self._make_plugin(kind, name, values, self._context)
+                    self._names[kind] = name
+                    running = self._active is live
+                    if running:
+                        live.deactivate()
+                        new.activate(state)
+                        self._active = new
+                    self._plugins[kind] = new
+                    events.append(f'switch:{kind}={name}')
+                elif context_changed or any(key.startswith(name + '.') for key in pending):
+                    # Validated on a scratch instance already, so this cannot refuse.
+                    live.configure(self._gains(name, values), self._context)
+            if 'enabled' in pending and bool(pending['enabled']) != self._enabled:
+                self._enabled = bool(pending['enabled'])
+                if self._enabled:
+                    restart = True
+                elif self.mode != IDLE:
+                    self._set_mode(IDLE, state)
+                    self.fault_reason = ''
+        if restart and self._guard.status == BRAKING:
+            with self._lock:
+                self._restart_requested = True  # wait until the brake has stopped the cart
+        elif restart and self.mode in (IDLE, FAULT):
+            self._guard.reset()
+            self.fault_reason = ''
+            self._set_mode(SWINGUP_MODE if self._enabled else IDLE, state)
+            events.append('restart')
+
+    # -- the cycle ----------------------------------------------------------------------------
+    def update(self, state: ControllerState) -> ManagerOutput:
+        """One control cycle for the estimated ``state``; see the module docstring."""
+        events: list[str] = []
+        p = self.plant
+        if not _finite(state.t, state.x, state.theta, state.x_dot, state.theta_dot):
+            self._fault('non-finite state', events)
+            self._last_force = 0.0
+            self._energy = math.nan
+            return self._output(state.t, 0.0, 0.0, 0.0, events)
+        x_ddot, theta_ddot = accelerations(state.x, state.theta, state.x_dot, state.theta_dot,
+                                           self._last_force, p)
+        state = dataclasses.replace(state, x_ddot=x_ddot, theta_ddot=theta_ddot)
+        self._energy = pendulum_energy(state.theta, state.theta_dot, p)
+
+        self._apply_pending(state, events)
+
+        if self.mode == SWINGUP_MODE and self._trigger.should_catch(state.theta, state.theta_dot, p):
+            self._set_mode(STABILIZING, state)
+            self.catch_count += 1
+            if self.catch_time is None:
+                self.catch_time = state.t
+            events.append('catch')
+        elif self.mode == STABILIZING and self._trigger.has_fallen(state.theta):
+            self._set_mode(SWINGUP_MODE, state)
+            self.fall_count += 1
+            events.append('fall')
+        elif self.mode in _KIND_OF_MODE and self._active is None:
+            self._set_mode(self.mode, state)  # first cycle: activate from this state
+
+        raw = feedforward = force = 0.0
+        if self._active is not None:
+            try:
+                raw = float(self._active.update(state))
+            except Exception as error:  # a plugin bug: fail safe, say why
+                logger.exception('controller %s failed', self._active.name)
+                self._fault(f'{self._active.name} failed: {type(error).__name__}: {error}', events)
+                raw = 0.0
+            else:
+                if not math.isfinite(raw):
+                    self._fault(f'{self._active.name} gave a non-finite force', events)
+                    raw = 0.0
+                else:
+                    feedforward = self._feedforward(state.x_dot, raw)
+                    force = min(max(raw + feedforward, p.force_min), p.force_max)
+        if self.mode in _KIND_OF_MODE or self._guard.status == BRAKING:
+            action = self._guard.check(state.x, state.x_dot, state.theta_dot, force)
+            force = action.force
+            if action.tripped:
+                self._fault('rail guard', events)
+        self._last_force = force
+        return self._output(state.t, force, raw, feedforward, events)
+
+    def stale(self, t: float) -> ManagerOutput:
+        """No state for ``state_timeout``: zero force and fault 'stale state' (until restart)."""
+        events: list[str] = []
+        self._fault('stale state', events)
+        self._last_force = 0.0
+        return self._output(t, 0.0, 0.0, 0.0, events)
+
+    @property
+    def state_timeout(self) -> float:
+        return float(self._values['state_timeout'])
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    @property
+    def guard_status(self) -> str:
+        """The rail guard's status: armed, limited, braking or stopped."""
+        return self._guard.status
+
+    def active_plugins(self) -> dict[str, Controller]:
+        """The live plugin instance of each kind (for inspection and tests)."""
+        return dict(self._plugins)
+
+    def _output(self, t: float, force: float, raw: float, feedforward: float,
+                events: list[str]) -> ManagerOutput:
+        energy = self._energy
+        return ManagerOutput(
+            t=t, force=force, mode=self.mode, swingup=self._names[SWINGUP],
+            stabilizer=self._names[STABILIZER], enabled=self._enabled, energy=energy,
+            energy_error=self.plant.upright_energy - energy, raw_force=raw,
+            feedforward=feedforward, event=';'.join(events), catch_count=self.catch_count,
+            fall_count=self.fall_count, catch_time=self.catch_time,
+            fault_reason=self.fault_reason)

@@ -1,0 +1,476 @@
+"""ControllerManager: parameters and refusals, queued bumpless switching, feedforward,
+saturation, catch/fall, faults, rail guard, and closed loops on the simulated plant."""
+import math
+
+import pytest
+
+from cartpole_control.controller import (STABILIZER, SWINGUP, Controller, ControllerState,
+                                         ParameterSpec)
+from cartpole_control.feedforward import FrictionFeedforward
+from cartpole_control.manager import (FAULT, IDLE, STABILIZING, SWINGUP_MODE, ControllerManager,
+                                      ManagerOutput)
+from cartpole_sim.model import CartPoleParameters, accelerations, wrap_angle
+from cartpole_sim.plant import Plant, Scenario
+
+P = CartPoleParameters()
+TS = P.sample_time
+
+
+# -- test plugins --------------------------------------------------------------------------
+class Recording(Controller):
+    """Returns the gain ``force``; records its lifecycle calls."""
+
+    parameters = (ParameterSpec('force', 0.0, 'constant force [N]', low=-100.0, high=100.0),
+                  ParameterSpec('limit', 100.0, 'refuse |force| above this', low=0.0, high=100.0))
+
+    def __init__(self):
+        super().__init__()
+        self.calls = []
+        self.hook = None
+
+    def on_configure(self):
+        if abs(self.gains['force']) > self.gains['limit']:
+            raise ValueError(f"force {self.gains['force']} exceeds limit {self.gains['limit']}")
+
+    def activate(self, state):
+        super().activate(state)
+        self.calls.append(('activate', state.t))
+
+    def deactivate(self):
+        super().deactivate()
+        self.calls.append(('deactivate',))
+
+    def update(self, state):
+        self.calls.append(('update', state.t))
+        if self.hook is not None:
+            self.hook(state)
+        return self.gains['force']
+
+
+class PushA(Recording):
+    kind, name = SWINGUP, 'push_a'
+
+
+class PushB(Recording):
+    kind, name = SWINGUP, 'push_b'
+
+
+class HoldA(Recording):
+    kind, name = STABILIZER, 'hold_a'
+
+
+class HoldB(Recording):
+    kind, name = STABILIZER, 'hold_b'
+
+
+class Broken(Recording):
+    kind, name = STABILIZER, 'broken'
+
+    def update(self, state):
+        raise RuntimeError('division by zero in the law')
+
+
+REGISTRY = {SWINGUP: {'push_a': PushA, 'push_b': PushB},
+            STABILIZER: {'hold_a': HoldA, 'hold_b': HoldB, 'broken': Broken}}
+
+
+def make(**params):
+    params.setdefault('stabilizer', 'hold_a')
+    return ControllerManager(P, TS, registry=REGISTRY, **params)
+
+
+def state(t=0.0, x=None, theta=math.pi, x_dot=0.0, theta_dot=0.0):
+    return ControllerState(t, P.x_middle if x is None else x, theta, x_dot, theta_dot)
+
+
+def upright(t=0.0, theta=0.05, **kw):
+    return state(t, theta=theta, **kw)
+
+
+def plugin(manager, kind):
+    return manager.active_plugins()[kind]
+
+
+# -- parameters ----------------------------------------------------------------------------
+def test_parameter_specs_cover_manager_and_every_plugin():
+    m = make()
+    specs = m.parameter_specs()
+    for name in ('swingup', 'stabilizer', 'enabled', 'x_ref', 'catch.energy_tolerance',
+                 'catch.angle_deg', 'fall.angle_deg', 'feedforward.right', 'feedforward.left',
+                 'feedforward.steepness', 'rail.margin', 'rail.max_brake_force', 'state_timeout'):
+        assert name in specs
+    for plugin_name in ('push_a', 'push_b', 'hold_a', 'hold_b', 'broken'):
+        assert f'{plugin_name}.force' in specs and f'{plugin_name}.limit' in specs
+    assert specs['swingup'].choices == ('push_a', 'push_b')
+    values = m.get_parameters()
+    assert values['catch.energy_tolerance'] == 0.05 and values['catch.angle_deg'] == 30.0
+    assert values['feedforward.right'] == 3.3 and values['feedforward.left'] == 2.8
+    assert values['x_ref'] == pytest.approx(P.travel / 2)
+    assert values['enabled'] is True
+
+
+def test_defaults_with_the_installed_plugins():
+    m = ControllerManager(P)
+    values = m.get_parameters()
+    assert values['swingup'] == 'pendulum_energy' and values['stabilizer'] == 'lqg'
+    assert set(m.registered(SWINGUP)) >= {'pendulum_energy', 'full_energy', 'sign_based'}
+    assert set(m.registered(STABILIZER)) >= {'pid', 'lqg', 'smc'}
+    assert values['lqg.r'] == 0.01 and values['smc.poles'][0] == -1.0
+    assert 'pendulum_energy.k_e' in m.parameter_specs()
+
+
+def test_unknown_controller_is_refused_with_the_list_and_nothing_changes():
+    m = make(stabilizer='hold_a')
+    m.update(upright(0.0))
+    before = m.get_parameters()
+    result = m.set_parameters({'x_ref': 0.3, 'stabilizer': 'mpc'})
+    assert not result.successful
+    assert "'mpc'" in result.reason and "['broken', 'hold_a', 'hold_b']" in result.reason
+    assert m.get_parameters() == before
+    out = m.update(upright(TS))
+    assert out.stabilizer == 'hold_a' and out.event == ''
+
+
+@pytest.mark.parametrize('changes, words', [
+    ({'no_such': 1.0}, ['unknown parameter', 'no_such']),
+    ({'catch.angle_deg': 120.0}, ['above its maximum']),
+    ({'catch.angle_deg': 'thirty'}, ['must be a number']),
+    ({'enabled': 1}, ['must be a bool']),
+    ({'fall.angle_deg': 20.0}, ['fall angle', 'larger than the catch angle']),
+    ({'hold_b.limit': 5.0, 'hold_b.force': 8.0}, ['hold_b', 'exceeds limit']),  # on_configure
+    ({'hold_b.force': 10.0, 'x_ref': -1.0}, ['x_ref', 'below its minimum']),  # atomic
+])
+def test_bad_changes_are_refused_with_a_reason_and_change_nothing(changes, words):
+    m = make()
+    before = m.get_parameters()
+    result = m.set_parameters(changes)
+    assert not result.successful
+    for word in words:
+        assert word in result.reason
+    assert m.get_parameters() == before
+    assert plugin(m, STABILIZER).gains['force'] == 0.0
+
+
+def test_refused_gain_keeps_the_old_one_in_the_running_plugin():
+    m = make(stabilizer='hold_a', **{'hold_a.force': 2.0})
+    assert m.update(upright(0.0)).raw_force == 2.0
+    assert not m.set_parameters({'hold_a.limit': 1.0}).successful
+    assert m.get_parameters()['hold_a.force'] == 2.0
+    assert m.update(upright(TS)).raw_force == 2.0
+
+
+def test_initial_parameters_are_validated():
+    with pytest.raises(ValueError, match='unknown swingup controller'):
+        make(swingup='bang_bang')
+    with pytest.raises(ValueError, match='exceeds limit'):
+        make(**{'hold_a.force': 60.0, 'hold_a.limit': 50.0})
+
+
+def test_gains_of_inactive_plugins_can_be_set_and_are_used_on_switch():
+    m = make(stabilizer='hold_a')
+    assert m.set_parameters({'hold_b.force': 7.0}).successful
+    m.update(upright(0.0))
+    assert m.set_parameters({'stabilizer': 'hold_b'}).successful
+    out = m.update(upright(TS))
+    assert out.stabilizer == 'hold_b' and out.raw_force == 7.0
+
+
+# -- queued, bumpless switching -----------------------------------------------------------------
+def test_changes_are_applied_between_updates_not_in_the_middle():
+    m = make(stabilizer='hold_a', **{'hold_a.force': 1.0})
+    m.update(upright(0.0))
+    running = plugin(m, STABILIZER)
+    results = []
+
+    def mid_cycle(_state):  # a request arriving while update() runs
+        results.append(m.set_parameters({'hold_a.force': 5.0, 'stabilizer': 'hold_b'}))
+        running.hook = None
+    running.hook = mid_cycle
+    out = m.update(upright(TS))
+    assert results[0].successful
+    assert out.raw_force == 1.0 and out.stabilizer == 'hold_a' and out.event == ''
+    assert m.get_parameters()['stabilizer'] == 'hold_b'  # accepted, queued
+    out = m.update(upright(2 * TS))
+    assert out.stabilizer == 'hold_b' and out.event == 'switch:stabilizer=hold_b'
+    assert out.mode == STABILIZING
+
+
+def test_switching_the_stabiliser_while_stabilising_is_bumpless():
+    m = make(stabilizer='hold_a')
+    m.update(upright(0.0))
+    old = plugin(m, STABILIZER)
+    assert m.set_parameters({'stabilizer': 'hold_b'}).successful
+    m.update(upright(TS))
+    new = plugin(m, STABILIZER)
+    assert isinstance(new, HoldB) and new.active and not old.active
+    assert old.calls[-1] == ('deactivate',)
+    assert new.calls[:2] == [('activate', TS), ('update', TS)]  # activated from this state
+
+
+def test_switching_the_swingup_while_swinging_takes_effect_next_cycle():
+    m = make(swingup='push_a', **{'push_a.force': 1.0, 'push_b.force': -1.0})
+    assert m.update(state(0.0)).raw_force == 1.0
+    assert m.set_parameters({'swingup': 'push_b'}).successful
+    out = m.update(state(TS))
+    assert (out.mode, out.swingup, out.raw_force) == (SWINGUP_MODE, 'push_b', -1.0)
+    assert out.event == 'switch:swingup=push_b'
+
+
+def test_switching_the_inactive_kind_does_not_activate_it():
+    m = make(swingup='push_a')
+    m.update(state(0.0))
+    assert m.set_parameters({'stabilizer': 'hold_b'}).successful
+    out = m.update(state(TS))
+    assert out.mode == SWINGUP_MODE and out.stabilizer == 'hold_b'
+    assert not plugin(m, STABILIZER).active and plugin(m, SWINGUP).active
+
+
+def test_gain_change_reconfigures_the_running_plugin_without_reactivation():
+    m = make(swingup='push_a')
+    m.update(state(0.0))
+    live = plugin(m, SWINGUP)
+    assert m.set_parameters({'push_a.force': 3.0}).successful
+    assert m.update(state(TS)).raw_force == 3.0
+    assert plugin(m, SWINGUP) is live and [c for c in live.calls if c[0] == 'activate'] == [
+        ('activate', 0.0)]
+
+
+# -- feedforward (6.12) and saturation ---------------------------------------------------------
+@pytest.mark.parametrize('x_dot, u, expected', [
+    (0.0, 1.0, 3.3), (0.5, 1.0, 3.3), (0.5, -1.0, -3.3), (-0.5, 1.0, 2.8), (-0.5, -1.0, -2.8),
+    (0.0, 0.0, 0.0), (0.2, 0.01, 3.3 * math.tanh(0.2))])
+def test_feedforward_signs_and_magnitudes(x_dot, u, expected):
+    assert FrictionFeedforward(3.3, 2.8, 20.0)(x_dot, u) == pytest.approx(expected, abs=1e-9)
+
+
+def test_manager_adds_feedforward_to_the_raw_force():
+    m = make(swingup='push_a', **{'push_a.force': -2.0, 'feedforward.steepness': 50.0})
+    out = m.update(state(0.0, x_dot=-0.3))
+    assert out.raw_force == -2.0
+    assert out.feedforward == pytest.approx(-2.8)
+    assert out.force == pytest.approx(-4.8)
+    m.set_parameters({'feedforward.left': 1.0})
+    out = m.update(state(TS, x_dot=-0.3))
+    assert out.force == pytest.approx(-3.0)
+
+
+@pytest.mark.parametrize('raw, expected', [(100.0, P.force_max), (-100.0, P.force_min),
+                                           (20.0, 20.0 + 3.3)])
+def test_force_is_saturated_to_the_amplifier(raw, expected):
+    m = make(swingup='push_a', **{'push_a.force': raw})
+    out = m.update(state(0.0))
+    assert out.force == pytest.approx(expected)
+    assert P.force_max == pytest.approx(34.246, abs=1e-3)
+    assert P.force_min == pytest.approx(-37.360, abs=1e-3)
+
+
+def test_model_accelerations_under_the_last_force_reach_the_plugin():
+    m = make(swingup='push_a', **{'push_a.force': 4.0})
+    seen = []
+    m.update(state(0.0))
+    plugin(m, SWINGUP).hook = seen.append
+    s = state(TS, theta=2.5, x_dot=0.2, theta_dot=1.0)
+    last = m.update(state(0.0)).force
+    m.update(s)
+    expected = accelerations(s.x, s.theta, s.x_dot, s.theta_dot, last, P)
+    assert (seen[-1].x_ddot, seen[-1].theta_ddot) == pytest.approx(expected)
+
+
+# -- catch trigger and fall detector ----------------------------------------------------------------
+def orbit_rate(theta):
+    """theta_dot on the heteroclinic orbit (6.10): E_p = E*."""
+    return -math.sqrt(2 * P.g / P.l * (1 - math.cos(theta)))
+
+
+def test_catch_fires_exactly_on_the_conditions():
+    m = make()
+    t = 0.0
+    for deg in (60.0, 31.0):  # energy right, angle not yet
+        theta = math.radians(deg)
+        out = m.update(state(t, theta=theta, theta_dot=orbit_rate(theta)))
+        assert out.mode == SWINGUP_MODE and out.catch_count == 0
+        t += TS
+    theta = math.radians(20.0)
+    out = m.update(state(t, theta=theta, theta_dot=orbit_rate(theta) * 2.0))  # energy 9 % high
+    assert out.mode == SWINGUP_MODE and abs(out.energy_error) > 0.05 * P.upright_energy
+    t += TS
+    theta = math.radians(29.0)
+    out = m.update(state(t, theta=theta, theta_dot=orbit_rate(theta)))
+    assert (out.mode, out.event, out.catch_count, out.catch_time) == (STABILIZING, 'catch', 1, t)
+    assert out.energy_error == pytest.approx(0.0, abs=1e-9)
+    assert out.raw_force == plugin(m, STABILIZER).gains['force']
+    assert not plugin(m, SWINGUP).active and plugin(m, STABILIZER).active
+
+
+def test_catch_is_latched_until_a_fall_then_rearmed():
+    m = make()
+    out = m.update(upright(0.0, theta=0.1))
+    assert out.mode == STABILIZING
+    # Energy far off and 40 deg: still stabilising (one-shot, hysteresis up to 45 deg).
+    out = m.update(upright(TS, theta=math.radians(40.0), theta_dot=3.0))
+    assert out.mode == STABILIZING and out.event == ''
+    out = m.update(upright(2 * TS, theta=math.radians(-46.0)))
+    assert (out.mode, out.event, out.fall_count) == (SWINGUP_MODE, 'fall', 1)
+    assert plugin(m, SWINGUP).active and not plugin(m, STABILIZER).active
+    out = m.update(upright(3 * TS, theta=0.0))
+    assert (out.mode, out.catch_count, out.catch_time) == (STABILIZING, 2, 0.0)
+
+
+def test_catch_thresholds_are_parameters():
+    m = make(**{'catch.angle_deg': 10.0, 'fall.angle_deg': 20.0})
+    assert m.update(upright(0.0, theta=math.radians(15.0),
+                            theta_dot=orbit_rate(math.radians(15.0)))).mode == SWINGUP_MODE
+    assert m.update(upright(TS, theta=math.radians(9.0),
+                            theta_dot=orbit_rate(math.radians(9.0)))).mode == STABILIZING
+    assert m.update(upright(2 * TS, theta=math.radians(21.0))).event == 'fall'
+
+
+# -- faults, stale state, idle, restart ---------------------------------------------------------------
+def test_stale_state_commands_zero_and_faults_until_restart():
+    m = make(swingup='push_a', **{'push_a.force': 5.0})
+    assert m.update(state(0.0)).force > 5.0
+    out = m.stale(0.06)
+    assert (out.force, out.mode, out.fault_reason, out.event) == (
+        0.0, FAULT, 'stale state', 'fault:stale state')
+    out = m.update(state(0.065))
+    assert (out.force, out.mode, out.event) == (0.0, FAULT, '')
+    assert 'restarts' in m.restart()
+    out = m.update(state(0.07))
+    assert (out.mode, out.event, out.fault_reason) == (SWINGUP_MODE, 'restart', '')
+    assert out.force > 5.0
+
+
+@pytest.mark.parametrize('bad', [dict(x=math.nan), dict(theta_dot=math.inf),
+                                 dict(x_dot=-math.inf)])
+def test_non_finite_state_faults_with_zero_force(bad):
+    m = make(swingup='push_a', **{'push_a.force': 5.0})
+    m.update(state(0.0))
+    out = m.update(state(TS, **bad))
+    assert (out.force, out.mode, out.fault_reason) == (0.0, FAULT, 'non-finite state')
+    assert not plugin(m, SWINGUP).active
+
+
+def test_a_plugin_that_raises_faults_with_zero_force():
+    m = make(stabilizer='broken')
+    out = m.update(upright(0.0))
+    assert out.force == 0.0 and out.mode == FAULT
+    assert 'broken failed' in out.fault_reason and 'division by zero' in out.fault_reason
+
+
+def test_disable_gives_idle_and_zero_force_enable_restarts_swingup():
+    m = make(swingup='push_a', **{'push_a.force': 5.0})
+    m.update(state(0.0))
+    assert m.set_parameters({'enabled': False}).successful
+    out = m.update(state(TS))
+    assert (out.mode, out.force, out.enabled) == (IDLE, 0.0, False)
+    assert not plugin(m, SWINGUP).active
+    m.set_parameters({'enabled': True})
+    out = m.update(state(2 * TS))
+    assert (out.mode, out.event, out.enabled) == (SWINGUP_MODE, 'restart', True)
+    assert out.force > 5.0
+
+
+def test_starts_idle_when_disabled_and_restart_keeps_it_idle():
+    m = make(enabled=False)
+    assert m.update(state(0.0)).mode == IDLE
+    assert 'disabled' in m.restart()
+    assert m.update(state(TS)).mode == IDLE
+
+
+def test_reset_clears_counters():
+    m = make()
+    m.update(upright(0.0))
+    m.update(upright(TS, theta=1.0))
+    m.reset()
+    out = m.update(state(2 * TS))
+    assert (out.catch_count, out.fall_count, out.catch_time, out.mode) == (
+        0, 0, None, SWINGUP_MODE)
+
+
+def test_output_is_frozen():
+    out = make().update(state(0.0))
+    assert isinstance(out, ManagerOutput)
+    with pytest.raises(Exception):
+        out.force = 1.0
+
+
+# -- closed loops on the simulated plant (true state as the estimate) --------------------------
+def run(manager, plant, seconds, on_step=None):
+    outs = []
+    for k in range(int(round(seconds / TS))):
+        if on_step is not None:
+            on_step(k, plant)
+        s = plant.true_state()
+        out = manager.update(ControllerState(plant.t, *s))
+        outs.append(out)
+        plant.step(out.force)
+    return outs
+
+
+def test_rail_guard_overrides_a_controller_pushing_into_the_stop():
+    m = make(swingup='push_a', **{'push_a.force': 100.0})
+    plant = Plant(P, Scenario(x0=P.x_middle))
+    outs = run(m, plant, 1.5)
+    assert not plant.end_stop_contact
+    assert outs[-1].mode == FAULT and outs[-1].fault_reason == 'rail guard'
+    assert outs[-1].force == 0.0
+    assert sum(o.event == 'fault:rail guard' for o in outs) == 1
+    assert abs(plant.true_state()[2]) < 0.05
+    assert min(o.force for o in outs) < -25.0  # it braked, not just zeroed
+    # Restart re-arms: back to the (still pushing) swing-up, now at rest near the stop.
+    m.set_parameters({'push_a.force': -2.0})
+    m.restart()
+    out = m.update(ControllerState(plant.t, *plant.true_state()))
+    assert out.mode == SWINGUP_MODE and out.force < 0.0
+
+
+def test_rail_guard_at_the_left_stop_at_rest_lets_the_swingup_start():
+    """Default start (x = 0, at rest): no trip; pushing into the stop withheld, out allowed."""
+    m = make(swingup='push_a', **{'push_a.force': -5.0})
+    plant = Plant(P, Scenario())
+    outs = run(m, plant, 0.2)
+    assert all(o.force == 0.0 and o.mode == SWINGUP_MODE for o in outs)
+    m.set_parameters({'push_a.force': 2.0})
+    outs = run(m, plant, 0.5)
+    assert outs[-1].mode == SWINGUP_MODE and plant.true_state()[0] > 0.03
+
+
+def test_without_feedforward_the_swingup_never_leaves_the_left_stop():
+    """SPEC section 7: the first centring push (~1.9 N) is below the 3.4 N Coulomb friction."""
+    for steepness, moves in ((0.0, False), (20.0, True)):
+        m = ControllerManager(P, **{'feedforward.steepness': steepness})
+        plant = Plant(P, Scenario())
+        outs = run(m, plant, 1.0)
+        assert 1.5 < outs[0].raw_force < 2.5
+        assert bool(plant.true_state()[0] > 0.01) is moves
+
+
+def test_swingup_catch_and_switching_stabilisers_keeps_the_pendulum_up():
+    m = ControllerManager(P)  # pendulum_energy + lqg
+    plant = Plant(P, Scenario())
+    outs = run(m, plant, 7.0)
+    assert outs[-1].mode == STABILIZING and outs[-1].catch_count == 1
+    assert 3.0 < outs[-1].catch_time < 7.0
+    for name in ('smc', 'pid', 'lqg'):
+        assert m.set_parameters({'stabilizer': name}).successful
+        angles = []
+        outs = run(m, plant, 2.5, lambda k, pl: angles.append(abs(wrap_angle(pl.state[1]))))
+        assert outs[0].event == f'switch:stabilizer={name}' and outs[0].stabilizer == name
+        assert all(o.mode == STABILIZING for o in outs)
+        assert max(angles) < math.radians(3.0), name
+    assert outs[-1].fall_count == 0 and not plant.end_stop_contact
+    assert abs(plant.true_state()[0] - P.x_middle) < 0.1
+
+
+def test_switching_the_swingup_while_swinging_keeps_swinging():
+    m = ControllerManager(P, swingup='pendulum_energy')
+    plant = Plant(P, Scenario(x0=P.x_middle))
+    outs = run(m, plant, 2.0)
+    assert outs[-1].mode == SWINGUP_MODE
+    energy_before = max(o.energy for o in outs)
+    assert m.set_parameters({'swingup': 'sign_based'}).successful
+    outs = run(m, plant, 10.0)
+    assert outs[0].event == 'switch:swingup=sign_based'
+    assert max(o.energy for o in outs) > energy_before
+    assert outs[-1].catch_count >= 1 and outs[-1].mode == STABILIZING
+    assert not plant.end_stop_contact

@@ -1,0 +1,130 @@
+"""Rail guard: stopping distance, the override, and that the cart really stops before a stop."""
+import math
+
+import pytest
+
+from cartpole_control.rail_guard import ARMED, BRAKING, LIMITED, STOPPED, RailGuard
+from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.plant import Plant, Scenario
+
+P = CartPoleParameters()
+MASS = P.m_c + P.m_p
+
+
+def run_guarded(scenario, command, seconds=1.5, **guard_kwargs):
+    """Plant with the true state, ``command(state)`` filtered by the guard; returns plant, guard, log."""
+    plant = Plant(P, scenario)
+    guard = RailGuard(P, **guard_kwargs)
+    log = []
+    for _ in range(int(seconds / P.sample_time)):
+        x, theta, x_dot, theta_dot = plant.true_state()
+        action = guard.check(x, x_dot, theta_dot, command(plant.true_state()))
+        log.append((plant.t, x, x_dot, action.force, action.status))
+        plant.step(action.force)
+    return plant, guard, log
+
+
+def test_stopping_position_formula():
+    guard = RailGuard(P, margin=0.02, max_brake_force=30.0, latency=0.005)
+    t_d = 0.005 + 1.0 / P.actuator_pole
+    v, x = 1.0, 0.4
+    a_b = (30.0 + 0.5 * min(P.c_c_right, P.c_c_left) - P.m_p * P.g) / MASS
+    expected = x + v * t_d + v * v / (2.0 * a_b)
+    assert guard.stopping_position(x, v, 0.0, 0.0) == pytest.approx(expected)
+    # A swinging pendulum pulls on the cart: the estimate gets longer.
+    assert guard.stopping_position(x, v, 10.0, 0.0) > expected + 0.03
+    # Mirror image to the left.
+    assert guard.stopping_position(x, -v, 0.0, 0.0) == pytest.approx(2 * x - expected, abs=1e-3)
+
+
+def test_brake_is_limited_by_the_amplifier():
+    guard = RailGuard(P, max_brake_force=40.0)
+    assert guard.brake_force(+1.0) == pytest.approx(-P.force_min)  # push left: 37.4 N
+    assert guard.brake_force(-1.0) == pytest.approx(P.force_max)   # push right: 34.2 N
+
+
+def test_cart_at_rest_at_the_left_stop_is_not_braked_and_may_push_away():
+    guard = RailGuard(P)
+    action = guard.check(0.0, 0.0, 0.0, 5.0)  # the default start: at the stop, at rest
+    assert (action.force, action.status, action.tripped) == (5.0, ARMED, False)
+    action = guard.check(0.0, 0.0, 0.0, -20.0)  # pushing into the stop is withheld, no trip
+    assert (action.force, action.status, action.tripped) == (0.0, LIMITED, False)
+    action = guard.check(P.travel, 0.0, 0.0, 20.0)
+    assert (action.force, action.status) == (0.0, LIMITED)
+    action = guard.check(P.travel, 0.0, 0.0, -20.0)
+    assert (action.force, action.status) == (-20.0, ARMED)
+
+
+def test_no_override_in_the_middle():
+    guard = RailGuard(P)
+    for v in (-1.0, 0.0, 1.0):
+        for force in (P.force_min, 0.0, P.force_max):
+            action = guard.check(P.x_middle, v, 5.0, force)
+            assert action.force == force and action.status == ARMED
+
+
+def test_moving_towards_a_stop_trips_and_brakes_against_the_motion():
+    guard = RailGuard(P, max_brake_force=30.0)
+    action = guard.check(0.6, 1.5, 0.0, 10.0)
+    assert action.tripped and action.status == BRAKING
+    assert action.force == pytest.approx(-30.0)
+    # Stays tripped whatever the controller wants, until the cart is at rest.
+    assert guard.check(0.65, 0.5, 0.0, 30.0).force == pytest.approx(-30.0)
+    last = guard.check(0.66, 0.025, 0.0, 30.0)  # last step: only what stops it
+    assert last.force == pytest.approx(-MASS * 0.025 / P.sample_time)
+    stopped = guard.check(0.66, 0.001, 0.0, 30.0)
+    assert (stopped.force, stopped.status, guard.tripped) == (0.0, STOPPED, True)
+    assert guard.check(0.66, 0.001, 0.0, -30.0).force == 0.0
+    guard.reset()
+    assert guard.check(P.x_middle, 0.0, 0.0, 3.0).force == 3.0
+
+
+def test_zero_force_alone_does_not_stop_a_cart_at_2_m_per_s():
+    """The demonstration that a guard which only zeroes the force is useless."""
+    plant = Plant(P, Scenario(x0=P.x_middle, x_dot0=2.0))
+    for _ in range(int(1.0 / P.sample_time)):
+        plant.step(0.0)
+    assert plant.end_stop_contact
+
+
+@pytest.mark.parametrize('x0, v0', [(P.x_middle, 2.0), (P.x_middle, -2.0), (0.2, 1.0),
+                                    (0.6, -2.5)])
+def test_the_guard_stops_a_fast_cart_before_the_stop(x0, v0):
+    # The controller keeps pushing along the motion at full force.
+    push = P.force_max if v0 > 0 else P.force_min
+    plant, guard, log = run_guarded(Scenario(x0=x0, x_dot0=v0), lambda s: push)
+    assert not plant.end_stop_contact
+    assert guard.status == STOPPED
+    x_min = min(row[1] for row in log)
+    x_max = max(row[1] for row in log)
+    assert 0.0 < x_min and x_max < P.travel
+    assert abs(plant.true_state()[2]) < 0.05
+    assert log[-1][3] == 0.0
+
+
+def test_the_guard_allows_for_a_swinging_pendulum():
+    """Pendulum through the bottom at ~E* (theta_dot ~ 10.8 rad/s): its pull is allowed for."""
+    theta_dot0 = math.sqrt(4.0 * P.g / P.l)
+    for v0, theta_dot in ((1.8, theta_dot0), (1.8, -theta_dot0), (-1.8, theta_dot0)):
+        push = P.force_max if v0 > 0 else P.force_min
+        plant, guard, _ = run_guarded(
+            Scenario(x0=P.x_middle, x_dot0=v0, theta0=math.pi, theta_dot0=theta_dot),
+            lambda s: push)
+        assert not plant.end_stop_contact
+        assert guard.status == STOPPED
+
+
+def test_a_controller_creeping_into_the_stop_is_stopped_at_the_margin():
+    plant, guard, log = run_guarded(Scenario(x0=0.3), lambda s: -6.0, seconds=2.0, margin=0.02)
+    assert not plant.end_stop_contact
+    assert guard.status == STOPPED
+    assert plant.true_state()[0] > 0.0
+
+
+def test_invalid_settings_are_refused():
+    with pytest.raises(ValueError):
+        RailGuard(P, margin=0.5)
+    with pytest.raises(ValueError):
+        RailGuard(P, max_brake_force=0.0)
+    with pytest.raises(ValueError):
+        RailGuard(P, rest_speed=0.0)

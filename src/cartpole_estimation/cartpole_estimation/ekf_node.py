@@ -1,0 +1,295 @@
+"""ROS 2 node ``ekf``: the EKF of chapter 5 between the encoders and the controllers.
+
+Subscribes ``/joint_states`` (the quantised positions of ``cart`` and
+``pendulum``) and ``/cartpole/force_command`` (``cart`` effort), publishes
+``/cartpole/state`` (estimated positions and velocities, stamp copied from
+the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
+(diagnostic_msgs/DiagnosticArray) every ``health_period``. The numerical work
+is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
+wires it to ROS.
+"""
+from __future__ import annotations
+
+import math
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from cartpole_sim.model import CartPoleParameters
+
+from .ekf import EkfConfig, ExtendedKalmanFilter
+
+JOINT_NAMES = ('cart', 'pendulum')
+
+
+def _stamp_seconds(stamp) -> float:
+    return stamp.sec + 1.0e-9 * stamp.nanosec
+
+
+def _positive_array_reason(name: str, value, length: int) -> str:
+    """'' if ``value`` is ``length`` finite numbers > 0, else why not."""
+    values = list(value)
+    if len(values) != length:
+        return f'{name} needs {length} entries, got {len(values)}'
+    if not all(math.isfinite(v) and v > 0.0 for v in values):
+        return f'{name} entries must be finite and > 0, got {values}'
+    return ''
+
+
+class EkfNode(Node):
+    """The ``ekf`` node (SPEC section 2, docs/architecture.md).
+
+    Keyword arguments go to :class:`rclpy.node.Node` (``context``,
+    ``parameter_overrides``, ``namespace``, ...).
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('ekf', **kwargs)
+        defaults = EkfConfig()
+        self.declare_parameter('q', list(defaults.q_diag), ParameterDescriptor(
+            description='Diagonal of the process covariance Q_k added per sample period '
+                        '(thesis 9.2): x [m^2], theta [rad^2], x_dot [(m/s)^2], '
+                        'theta_dot [(rad/s)^2]; 4 entries, each > 0.'))
+        self.declare_parameter('r', list(defaults.r_diag), ParameterDescriptor(
+            description='Diagonal of the measurement covariance R_k (thesis 9.1): '
+                        'x [m^2], theta [rad^2]; 2 entries, each > 0.'))
+        self.declare_parameter('plant_params_file', '', ParameterDescriptor(
+            description="YAML file of the filter's plant parameters "
+                        "(CartPoleParameters.to_yaml); '' = the thesis values.",
+            read_only=True))
+        self.declare_parameter('friction_steepness', defaults.friction_steepness,
+                               ParameterDescriptor(
+            description='k of tanh(k v) in the filter model\'s Coulomb friction of cart '
+                        '[s/m] and pendulum [s/rad] (4.20)/(4.21). Forward Euler at Ts is '
+                        'unstable near rest above 2 m_c / (c_c Ts), about 560.',
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)]))
+        self.declare_parameter('health_period', 0.1, ParameterDescriptor(
+            description='Period of /cartpole/ekf/health [s] (node clock).',
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)]))
+        self.declare_parameter('command_timeout', 0.05, ParameterDescriptor(
+            description='A force command older than this [s of measurement time] is taken '
+                        'as zero in the prediction, as the plant and the bridge do.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
+
+        reason = self._validate([self.get_parameter('q'), self.get_parameter('r')])
+        if reason:
+            raise ValueError(f'ekf: {reason}')
+        params_file = self.get_parameter('plant_params_file').value
+        params = CartPoleParameters.from_yaml(params_file) if params_file \
+            else CartPoleParameters()
+        self.filter = ExtendedKalmanFilter(params, EkfConfig(
+            q_diag=tuple(self.get_parameter('q').value),
+            r_diag=tuple(self.get_parameter('r').value),
+            friction_steepness=self.get_parameter('friction_steepness').value))
+        self._command_timeout = self.get_parameter('command_timeout').value
+
+        # Force command held as the plant holds it: value and the measurement
+        # time (stamp of the latest sample) at which it arrived.
+        self._force = 0.0
+        self._force_received_at: float | None = None
+        self._last_sample_t: float | None = None
+        self._last_force_used = 0.0
+        self.samples = 0
+        self.bad_messages = 0
+        self.duplicate_samples = 0
+        self.bad_commands = 0
+        self.last_bad = ''
+        self._last_estimate = None
+        self._last_reset_reason = ''
+        self._resets_reported = 0
+
+        self._state_msg = JointState()
+        self._state_msg.name = list(JOINT_NAMES)
+        self._state_pub = self.create_publisher(JointState, '/cartpole/state', 10)
+        self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/ekf/health', 10)
+        self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
+        self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self._health_timer = self.create_timer(self.get_parameter('health_period').value,
+                                               self._publish_health)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+
+    # -- parameters ---------------------------------------------------------------------
+    @staticmethod
+    def _validate(parameters) -> str:
+        for p in parameters:
+            if p.name == 'q':
+                reason = _positive_array_reason('q', p.value, 4)
+            elif p.name == 'r':
+                reason = _positive_array_reason('r', p.value, 2)
+            else:
+                reason = ''
+            if reason:
+                return reason
+        return ''
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        reason = self._validate(parameters)
+        return SetParametersResult(successful=not reason, reason=reason)
+
+    def _on_parameters_set(self, parameters: list[Parameter]) -> None:
+        # Same callback group as the subscriptions: applied between two updates.
+        changes = {}
+        for p in parameters:
+            if p.name == 'q':
+                changes['q_diag'] = tuple(p.value)
+            elif p.name == 'r':
+                changes['r_diag'] = tuple(p.value)
+            elif p.name == 'friction_steepness':
+                changes['friction_steepness'] = float(p.value)
+            elif p.name == 'command_timeout':
+                self._command_timeout = float(p.value)
+            elif p.name == 'health_period':
+                self._health_timer.cancel()
+                self.destroy_timer(self._health_timer)
+                self._health_timer = self.create_timer(float(p.value), self._publish_health)
+        if changes:
+            self.filter.set_config(self.filter.config.replace(**changes))
+            self.get_logger().info(f'EKF configuration changed: {changes}')
+
+    # -- inputs -------------------------------------------------------------------------
+    def _on_force_command(self, msg: JointState) -> None:
+        try:
+            force = float(msg.effort[list(msg.name).index('cart')])
+        except (ValueError, IndexError):
+            force = math.nan
+        if not math.isfinite(force):
+            self.bad_commands += 1
+            self.get_logger().warning(
+                f'bad /cartpole/force_command dropped (needs a finite effort for "cart"): '
+                f'names {list(msg.name)}, effort {list(msg.effort)}',
+                throttle_duration_sec=1.0)
+            return
+        self._force = force
+        self._force_received_at = self._last_sample_t
+
+    def _prediction_force(self) -> float:
+        """The command held over the interval that ends at this sample, as the plant holds it.
+
+        The simulator's watchdog (and the hardware bridge's) zero a command
+        whose age at the start of a period exceeds ``command_timeout``; the
+        age here is the previous sample's stamp minus the stamp of the
+        sample that was the latest when the command arrived.
+        """
+        if self._force_received_at is None or self._last_sample_t is None:
+            return 0.0
+        if self._last_sample_t - self._force_received_at > self._command_timeout + 1.0e-9:
+            return 0.0
+        return self._force
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        names = msg.name
+        try:
+            i_cart = names.index('cart')
+            i_pend = names.index('pendulum')
+            x = msg.position[i_cart]
+            theta = msg.position[i_pend]
+        except (ValueError, IndexError):
+            self._drop(msg, 'needs positions for "cart" and "pendulum"')
+            return
+        if not (math.isfinite(x) and math.isfinite(theta)):
+            self._drop(msg, 'non-finite position')
+            return
+        t = _stamp_seconds(msg.header.stamp)
+        if t == self._last_sample_t:
+            # A repeated sample (the simulator re-publishes sample 0 until a
+            # controller answers): already estimated, nothing new.
+            self.duplicate_samples += 1
+            return
+        force = self._prediction_force()
+        est = self.filter.update(t, x, theta, force)
+        if est.rejected:
+            self._drop(msg, est.rejected)
+            return
+        out = self._state_msg
+        out.header.stamp = msg.header.stamp
+        out.position = [est.x, est.theta]
+        out.velocity = [est.x_dot, est.theta_dot]
+        self._state_pub.publish(out)
+        # Book-keeping after the publication (off the latency path).
+        self._last_sample_t = t
+        self._last_force_used = force
+        self._last_estimate = est
+        self.samples += 1
+        if est.reset:
+            self._last_reset_reason = est.reset_reason
+            if est.reset_reason != 'initialisation':
+                self.get_logger().warning(f'EKF re-initialised: {est.reset_reason}')
+
+    def _drop(self, msg: JointState, why: str) -> None:
+        self.bad_messages += 1
+        self.last_bad = why
+        self.get_logger().warning(f'/joint_states sample dropped: {why}',
+                                  throttle_duration_sec=1.0)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.filter.request_reset()
+        response.success = True
+        response.message = 'EKF will re-initialise from the next sample'
+        return response
+
+    # -- health ---------------------------------------------------------------------------
+    def health_status(self) -> DiagnosticStatus:
+        """The DiagnosticStatus ``ekf`` (see docs/readme/estimation.md for the keys)."""
+        est = self._last_estimate
+        f = self.filter
+        status = DiagnosticStatus(name='ekf', hardware_id='cartpole')
+        if est is None:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'no sample yet'
+            innovation = (0.0, 0.0)
+            p_diag = f.config.p0_diag
+            dt = 0.0
+        else:
+            innovation, p_diag, dt = est.innovation, est.covariance_diagonal, est.dt
+            if f.resets > self._resets_reported:
+                status.level = DiagnosticStatus.WARN
+                status.message = f're-initialised: {self._last_reset_reason}'
+            else:
+                status.level = DiagnosticStatus.OK
+                status.message = 'ok'
+        self._resets_reported = f.resets
+        values = {
+            'innovation_x': innovation[0], 'innovation_theta': innovation[1],
+            'p_x': p_diag[0], 'p_theta': p_diag[1], 'p_x_dot': p_diag[2],
+            'p_theta_dot': p_diag[3], 'resets': f.resets, 'reset_reason': self._last_reset_reason,
+            'missed_samples': f.missed_samples_total, 'dt': dt, 'samples': self.samples,
+            'bad_messages': self.bad_messages, 'duplicate_samples': self.duplicate_samples,
+            'bad_commands': self.bad_commands,
+            'rejected_samples': f.rejected_samples, 'force': self._last_force_used,
+            'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
+        }
+        status.values = [KeyValue(key=k, value=repr(float(v)) if isinstance(v, (int, float))
+                                  else str(v)) for k, v in values.items()]
+        return status
+
+    def _publish_health(self) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self.health_status()]
+        self._health_pub.publish(msg)
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = EkfNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

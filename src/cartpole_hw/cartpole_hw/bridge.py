@@ -1,0 +1,386 @@
+"""The host side of the Joint protocol as a pure state machine (no ROS, no serial).
+
+:class:`BridgeCore` turns received lines, force commands and the passage of
+time into lines to send and samples to publish. The serial link
+(:mod:`cartpole_hw.serial_link`) and the ROS node (:mod:`cartpole_hw.hw_node`)
+only move bytes and messages; every safety rule lives here and is tested
+without a port. Time ``now`` is ``time.monotonic()`` seconds.
+
+Safety rules (SPEC section 4, "any fault commands zero force"):
+
+- Disarmed (the default): the device is kept disabled (``E,0``, re-sent if a
+  sample shows it enabled) and no ``U`` other than ``U,0`` is ever sent.
+- Arming needs a live link (``V`` with protocol version 1 seen) and homed
+  encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
+  ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
+  the device ``U,0`` every sample (zero force, device watchdog quiet).
+- Host watchdog: once commands flow, no fresh command for ``command_timeout``
+  -> ``U,0``, ``E,0``, disarmed (a *trip*). Non-finite or stale commands
+  (stamp older than ``command_timeout``) are not fresh.
+- Faults that disarm (``U,0`` + ``E,0``): no valid sample for
+  ``sample_timeout``, the device's watchdog flag, a limit switch closing
+  while armed, a device ``!`` line with a fault code (>= 16), a serial
+  error/disconnect, a device restart (sequence jumping back), shutdown.
+  Re-arming is always an explicit request.
+- Limit switches: force towards a closed switch is never sent (directional
+  inhibit), so the cart homed at the left stop (left switch closed) can be
+  driven right; a switch *closing* while armed is a crash: fault.
+- Homing: ``R`` then ``P``; samples are discarded until the ``V`` answer
+  (the device handles lines in order, so every sample after ``V`` counts
+  from the new zero), then the counter unwrapping restarts. Allowed only
+  while disarmed. Never done automatically on a reconnect: a device that
+  kept power kept its counts (the position reference survives, the bridge
+  keeps unwrapping), while an automatic reset would silently move x = 0 to
+  wherever the cart happens to be. A device that restarted (sequence jumps
+  back) has lost its reference: ``homed`` drops and arming is refused until
+  an explicit home.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+from cartpole_sim.plant import CounterUnwrapper
+
+from . import protocol as jp
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """Tunables of the host side."""
+
+    calibration: jp.Calibration = field(default_factory=jp.Calibration)
+    command_timeout: float = 0.05
+    """Host watchdog: longest gap between fresh force commands while armed [s] (SPEC 4)."""
+    sample_timeout: float = 0.05
+    """Longest gap between valid samples while armed [s] (10 samples)."""
+    answer_timeout: float = 0.5
+    """Time to wait for the ``V`` answer to a ``P`` before asking again [s]."""
+    latency_window: int = 400
+    """Number of latest command latencies kept for p50/max (2 s at 200 Hz)."""
+
+    def __post_init__(self) -> None:
+        for name in ('command_timeout', 'sample_timeout', 'answer_timeout'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+
+
+@dataclass(frozen=True)
+class JointSample:
+    """One decoded sample, ready to publish on ``/joint_states``."""
+
+    receipt: float
+    """Host time the line was read [s] (the clock given to the core)."""
+    seq: int
+    t_us: int
+    x: float
+    """Cart position [m], unwrapped counts times resolution (2.4)."""
+    theta: float
+    """Pendulum angle [rad], pi hanging after reset (2.3)."""
+    flags: int
+
+
+@dataclass
+class Output:
+    """What one event asks the link to do."""
+
+    write: list[bytes] = field(default_factory=list)
+    sample: JointSample | None = None
+
+
+U_ZERO = jp.encode(jp.Setpoint(0))
+E_ON = jp.encode(jp.Enable(True))
+E_OFF = jp.encode(jp.Enable(False))
+PING = jp.encode(jp.Ping())
+RESET = jp.encode(jp.ResetCounters())
+STREAM_ON = jp.encode(jp.Stream(True))
+STREAM_OFF = jp.encode(jp.Stream(False))
+
+
+class BridgeCore:
+    """Host-side protocol state machine (see the module docstring)."""
+
+    def __init__(self, config: BridgeConfig | None = None) -> None:
+        self.config = config or BridgeConfig()
+        self.connected = False
+        self.link_ready = False
+        self.device_name = ''
+        self.armed = False
+        self.arm_requested = False
+        self.homed = False
+        self.homing = False
+        self.commands_live = False
+        self.last_command = -math.inf
+        self.last_sample = -math.inf
+        self.ping_sent = -math.inf
+        self.home_sent = -math.inf
+        self.armed_at = -math.inf
+        self.flags = 0
+        self.tracker = jp.SequenceTracker()
+        self._unwrap_cart = CounterUnwrapper(self.config.calibration.counter_bits)
+        self._unwrap_pend = CounterUnwrapper(self.config.calibration.counter_bits)
+        self._since_resync = 0
+        # counters for the health report
+        self.samples = 0
+        self.bad_lines: Counter[str] = Counter()
+        self.device_errors: Counter[int] = Counter()
+        self.watchdog_trips = 0
+        self.device_watchdog_trips = 0
+        self.faults = 0
+        self.connects = 0
+        self.ignored_commands = 0
+        self.bad_commands = 0
+        self.stale_commands = 0
+        self.limit_inhibits = 0
+        self.last_error = ''
+        self.latencies: deque[float] = deque(maxlen=self.config.latency_window)
+        self.last_setpoint = 0
+
+    # -- link ----------------------------------------------------------------------------------
+    def on_connect(self, now: float) -> list[bytes]:
+        """The port is open: make the device safe, ask who it is, start streaming."""
+        self.connected = True
+        self.connects += 1
+        self.link_ready = False
+        self.armed = False
+        self.commands_live = False
+        self.homing = False
+        self.ping_sent = now
+        self.last_sample = now
+        return [U_ZERO, E_OFF, PING, STREAM_ON]
+
+    def on_disconnect(self, now: float, reason: str) -> None:
+        """The port failed or vanished: disarm (nothing can be sent any more)."""
+        if self.connected:
+            self._fault(f'link lost: {reason}')
+        self.connected = False
+        self.link_ready = False
+        self.homing = False
+
+    @property
+    def reconnects(self) -> int:
+        return max(0, self.connects - 1)
+
+    # -- requests ----------------------------------------------------------------------------
+    def arm(self, now: float) -> tuple[bool, str, list[bytes]]:
+        """Arm: enable the amplifier (``E,1``) and start forwarding commands."""
+        reason = self.arm_refusal()
+        if reason:
+            return False, reason, []
+        if self.armed:
+            return True, 'already armed', []
+        self.armed = True
+        self.arm_requested = True
+        self.commands_live = False
+        self.armed_at = now
+        self._since_resync = 0
+        return True, 'armed', [E_ON, U_ZERO]
+
+    def arm_refusal(self) -> str:
+        """Why arming is refused now ('' if it is allowed)."""
+        if not self.connected:
+            return 'not connected to the device'
+        if not self.link_ready:
+            return 'the device has not answered the ping (V line) yet'
+        if self.homing:
+            return 'homing in progress'
+        if not self.homed:
+            return 'encoders not homed: call ~/home (cart at the left stop, pendulum hanging still)'
+        return ''
+
+    def disarm(self) -> list[bytes]:
+        """Zero force and disable: ``U,0``, ``E,0`` (also when already disarmed)."""
+        self.armed = False
+        self.arm_requested = False
+        self.commands_live = False
+        self.last_setpoint = 0
+        return [U_ZERO, E_OFF] if self.connected else []
+
+    def home(self, now: float) -> tuple[bool, str, list[bytes]]:
+        """Reset both counters (``R``), then ``P``; only while disarmed."""
+        if self.armed:
+            return False, 'refused while armed: disarm first', []
+        if not self.connected:
+            return False, 'not connected to the device', []
+        self.homing = True
+        self.home_sent = now
+        return True, 'homing: R sent', [RESET, PING]
+
+    def shutdown(self) -> list[bytes]:
+        """Last words: zero force, disable, stop streaming."""
+        out = self.disarm()
+        return out + ([STREAM_OFF] if self.connected else [])
+
+    def _fault(self, reason: str) -> list[bytes]:
+        self.faults += 1
+        self.last_error = reason
+        self.arm_requested = False
+        if self.armed:
+            return self.disarm()
+        return []
+
+    # -- force commands ------------------------------------------------------------------------
+    def on_command(self, force: float, now: float, latency: float | None = None) -> list[bytes]:
+        """A force command [N] from the controller; ``latency`` = now - its stamp [s]."""
+        if not self.armed:
+            self.ignored_commands += 1
+            return []
+        if not math.isfinite(force):
+            self.bad_commands += 1
+            return []
+        if latency is not None and latency > self.config.command_timeout:
+            self.stale_commands += 1
+            return []
+        if (force > 0 and self.flags & jp.FLAG_LIMIT_RIGHT) or \
+                (force < 0 and self.flags & jp.FLAG_LIMIT_LEFT):
+            self.limit_inhibits += 1
+            force = 0.0
+        setpoint = self.config.calibration.force_to_setpoint(force)
+        self.commands_live = True
+        self.last_command = now
+        self.last_setpoint = setpoint
+        if latency is not None and latency >= 0:
+            self.latencies.append(latency)
+        return [jp.encode(jp.Setpoint(setpoint))]
+
+    # -- time ------------------------------------------------------------------------------------
+    def on_tick(self, now: float) -> list[bytes]:
+        """Watchdogs and retries; call at least every few ms."""
+        out: list[bytes] = []
+        if not self.connected:
+            return out
+        if self.armed and self.commands_live and now - self.last_command > self.config.command_timeout:
+            self.watchdog_trips += 1
+            out += self._fault(f'host watchdog: no fresh force command for '
+                               f'{1e3 * (now - self.last_command):.0f} ms')
+        if self.armed and now - self.last_sample > self.config.sample_timeout:
+            out += self._fault(f'no valid sample for {1e3 * (now - self.last_sample):.0f} ms')
+        if (not self.link_ready or self.homing) and now - self.ping_sent > self.config.answer_timeout \
+                and now - self.home_sent > self.config.answer_timeout:
+            if self.homing:
+                self.homing = False
+                self.last_error = 'homing failed: no V answer after R'
+            self.ping_sent = now
+            out += [PING, STREAM_ON]
+        if self.arm_requested and not self.armed and not self.arm_refusal():
+            out += self.arm(now)[2]
+        return out
+
+    # -- received lines ------------------------------------------------------------------------------
+    def on_line(self, line: bytes | jp.DecodeError, now: float) -> Output:
+        """One line from the splitter (or its oversize error)."""
+        message = line if isinstance(line, jp.DecodeError) else jp.decode_line(line, direction='device')
+        if isinstance(message, jp.DecodeError):
+            self.bad_lines[message.reason] += 1
+            return Output()
+        if isinstance(message, jp.Sample):
+            return self._on_sample(message, now)
+        if isinstance(message, jp.Version):
+            return Output(self._on_version(message, now))
+        return Output(self._on_device_error(message))
+
+    def _on_version(self, message: jp.Version, now: float) -> list[bytes]:
+        self.device_name = message.name
+        if message.version != jp.PROTOCOL_VERSION:
+            self.link_ready = False
+            self.last_error = (f'device speaks protocol version {message.version}, '
+                               f'this bridge {jp.PROTOCOL_VERSION}')
+            return self._fault(self.last_error)
+        self.link_ready = True
+        if self.homing:
+            self.homing = False
+            self.homed = True
+            self._unwrap_cart.reset()
+            self._unwrap_pend.reset()
+        return []
+
+    def _on_device_error(self, message: jp.DeviceError) -> list[bytes]:
+        self.device_errors[message.code] += 1
+        if message.code == jp.ERROR_CODES['watchdog']:
+            self.device_watchdog_trips += 1
+        if message.is_fault and self.armed:
+            return self._fault(f'device fault {message.code}: {message.text}')
+        return []
+
+    def _on_sample(self, s: jp.Sample, now: float) -> Output:
+        out: list[bytes] = []
+        jump = self.tracker.update(s.seq)
+        if jump < 0:
+            # sequence went back: the device restarted, its counters are zero again
+            self.homed = False
+            self._unwrap_cart.reset()
+            self._unwrap_pend.reset()
+            out += self._fault('sample sequence jumped back (device restarted?): re-home')
+        if self.homing:
+            return Output(out)  # counts before the reset took effect
+        self.samples += 1
+        self.last_sample = now
+        previous, self.flags = self.flags, s.flags
+        cal = self.config.calibration
+        x = cal.cart_position(self._unwrap_cart.update(s.cart_ticks))
+        theta = cal.pendulum_angle(self._unwrap_pend.update(s.pend_ticks))
+        if self.armed:
+            if s.watchdog_tripped:
+                out += self._fault('device watchdog tripped (U lines not arriving)')
+            rising = s.flags & ~previous
+            if rising & jp.FLAG_LIMIT_LEFT:
+                out += self._fault('left limit switch closed while armed')
+            elif rising & jp.FLAG_LIMIT_RIGHT:
+                out += self._fault('right limit switch closed while armed')
+        self._since_resync += 1
+        if self.armed:
+            if not self.commands_live:
+                out.append(U_ZERO)
+            if not s.enabled and self._since_resync >= 10:
+                self._since_resync = 0
+                out.append(E_ON)        # E,1 was lost
+        elif s.enabled and self.connected and self._since_resync >= 10:
+            self._since_resync = 0
+            out += [U_ZERO, E_OFF]      # E,0 was lost
+        return Output(out, JointSample(now, s.seq, s.t_us, x, theta, s.flags))
+
+    # -- health ---------------------------------------------------------------------------------------
+    def latency_stats(self) -> tuple[float, float]:
+        """(p50, max) of the recent receipt-to-command-send latencies [s] (nan if none)."""
+        if not self.latencies:
+            return math.nan, math.nan
+        ordered = sorted(self.latencies)
+        return ordered[len(ordered) // 2], ordered[-1]
+
+    def health(self) -> dict[str, str]:
+        """Health figures as strings (the KeyValues of ``/cartpole/hw/health``)."""
+        p50, worst = self.latency_stats()
+        values = {
+            'connected': str(self.connected).lower(),
+            'link_ready': str(self.link_ready).lower(),
+            'device': self.device_name,
+            'armed': str(self.armed).lower(),
+            'homed': str(self.homed).lower(),
+            'samples': str(self.samples),
+            'lost_samples': str(self.tracker.lost),
+            'bad_lines': str(sum(self.bad_lines.values())),
+        }
+        for reason in jp.DECODE_REASONS:
+            values[f'bad_lines.{reason}'] = str(self.bad_lines[reason])
+        values.update({
+            'watchdog_trips': str(self.watchdog_trips),
+            'device_watchdog': str(bool(self.flags & jp.FLAG_WATCHDOG)).lower(),
+            'device_watchdog_trips': str(self.device_watchdog_trips),
+            'device_errors': str(sum(self.device_errors.values())),
+            'device_enabled': str(bool(self.flags & jp.FLAG_ENABLED)).lower(),
+            'limit_left': str(bool(self.flags & jp.FLAG_LIMIT_LEFT)).lower(),
+            'limit_right': str(bool(self.flags & jp.FLAG_LIMIT_RIGHT)).lower(),
+            'latency_p50': repr(p50),
+            'latency_max': repr(worst),
+            'setpoint': str(self.last_setpoint),
+            'ignored_commands': str(self.ignored_commands),
+            'bad_commands': str(self.bad_commands),
+            'stale_commands': str(self.stale_commands),
+            'limit_inhibits': str(self.limit_inhibits),
+            'faults': str(self.faults),
+            'reconnects': str(self.reconnects),
+            'last_error': self.last_error,
+        })
+        return values

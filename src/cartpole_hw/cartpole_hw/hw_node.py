@@ -1,0 +1,267 @@
+"""ROS 2 node ``hw_bridge``: the rig (or its emulator) on ``/joint_states`` and
+``/cartpole/force_command`` through the Joint serial protocol (SPEC section 4).
+
+The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
+:class:`~cartpole_hw.bridge.BridgeCore`, where every rule lives (read
+``bridge.py``'s docstring for the safety rules):
+
+- publishes ``/joint_states`` (``cart``, ``pendulum``; x from the unwrapped
+  cart count (2.4), theta = pi + pendulum count (2.3); ``header.stamp`` =
+  receipt time) from the reader thread, for every valid ``S`` line;
+- subscribes ``/cartpole/force_command`` (``name=['cart']``, ``effort=[F]``)
+  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed;
+- ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
+  ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
+- publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
+  status ``hw_bridge``) every ``health_period``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
+
+from . import protocol as jp
+from .bridge import BridgeConfig, BridgeCore, JointSample
+from .serial_link import SerialLink
+
+_CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
+                'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
+
+
+class HwBridgeNode(Node):
+    """Serial bridge to the Arduino Due I/O firmware (node name ``hw_bridge``)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('hw_bridge', **kwargs)
+        cal = jp.Calibration()
+
+        def fp(lo, hi):
+            return [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+
+        def ir(lo, hi, step=1):
+            return [IntegerRange(from_value=lo, to_value=hi, step=step)]
+
+        ro = dict(read_only=True)
+        self.declare_parameter('port', '/dev/ttyACM0', ParameterDescriptor(
+            description='serial device of the Arduino Due (or the emulator link, e.g. '
+                        '/tmp/cartpole-emu); re-opened after a disconnect', **ro))
+        self.declare_parameter('baud', 115200, ParameterDescriptor(
+            description='baud rate (8N1)', integer_range=ir(1200, 4_000_000), **ro))
+        self.declare_parameter('cart_sign', cal.cart_sign, ParameterDescriptor(
+            description='+1 if a growing cart count means the cart moves right, else -1',
+            integer_range=ir(-1, 1, 2), **ro))
+        self.declare_parameter('pendulum_sign', cal.pendulum_sign, ParameterDescriptor(
+            description='+1 if a growing pendulum count means theta grows, else -1',
+            integer_range=ir(-1, 1, 2), **ro))
+        self.declare_parameter('force_sign', cal.force_sign, ParameterDescriptor(
+            description='+1 if a positive setpoint pushes the cart right, else -1',
+            integer_range=ir(-1, 1, 2), **ro))
+        self.declare_parameter('cart_ticks_over_travel', cal.cart_ticks_over_travel,
+                               ParameterDescriptor(description='cart ticks over the travel (2.4)',
+                                                   floating_point_range=fp(1, 1e6), **ro))
+        self.declare_parameter('travel', cal.travel, ParameterDescriptor(
+            description='cart travel between the end stops [m] (section 2.3)',
+            floating_point_range=fp(0.01, 10.0), **ro))
+        self.declare_parameter('pendulum_ticks_per_rev', cal.pendulum_ticks_per_rev,
+                               ParameterDescriptor(description='pendulum ticks per revolution (2.3)',
+                                                   floating_point_range=fp(1, 1e6), **ro))
+        self.declare_parameter('setpoint_per_newton', cal.setpoint_per_newton, ParameterDescriptor(
+            description='DAC setpoint per newton, 1/0.017623 (A.3)',
+            floating_point_range=fp(1.0, 1000.0), **ro))
+        self.declare_parameter('dac_zero', cal.dac_zero, ParameterDescriptor(
+            description='DAC value of zero current (Appendix A)', integer_range=ir(0, 4095), **ro))
+        self.declare_parameter('command_timeout', 0.05, ParameterDescriptor(
+            description='host watchdog: longest gap between fresh force commands while '
+                        'armed [s]; a trip sends U,0 and E,0 and disarms',
+            floating_point_range=fp(0.005, 1.0)))
+        self.declare_parameter('sample_timeout', 0.05, ParameterDescriptor(
+            description='longest gap between valid samples while armed before disarming [s]',
+            floating_point_range=fp(0.01, 1.0)))
+        self.declare_parameter('reconnect_period', 0.5, ParameterDescriptor(
+            description='period of the attempts to re-open a vanished port [s]',
+            floating_point_range=fp(0.05, 10.0)))
+        self.declare_parameter('health_period', 0.2, ParameterDescriptor(
+            description='period of /cartpole/hw/health [s]', floating_point_range=fp(0.02, 10.0),
+            **ro))
+        self.declare_parameter('home_on_start', False, ParameterDescriptor(
+            description='reset the encoders (R) once the device first answers; the cart must be '
+                        'at the left stop and the pendulum hanging still', **ro))
+        self.declare_parameter('armed', False, ParameterDescriptor(
+            description='true enables the amplifier and forwards force commands; true at start '
+                        'arms as soon as the device answers and the encoders are homed; any '
+                        'fault sets it back to false'))
+
+        p = {name: self.get_parameter(name).value for name in _CALIBRATION}
+        p['cart_ticks_over_travel'] = float(p['cart_ticks_over_travel'])
+        p['pendulum_ticks_per_rev'] = float(p['pendulum_ticks_per_rev'])
+        try:
+            calibration = jp.Calibration(**p)
+            config = BridgeConfig(calibration=calibration,
+                                  command_timeout=self.get_parameter('command_timeout').value,
+                                  sample_timeout=self.get_parameter('sample_timeout').value)
+        except ValueError as exc:
+            raise ValueError(f'hw_bridge: bad calibration parameters: {exc}') from exc
+        port = self.get_parameter('port').value
+        if not isinstance(port, str) or not port.strip():
+            raise ValueError('hw_bridge: parameter port must name a serial device')
+
+        self.core = BridgeCore(config)
+        self.core.arm_requested = bool(self.get_parameter('armed').value)
+        self._home_pending = bool(self.get_parameter('home_on_start').value)
+        self._lock = threading.RLock()
+        self._syncing = False
+
+        self._joint_pub = self.create_publisher(JointState, '/joint_states', 10)
+        self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
+        self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
+        self.create_service(SetBool, '~/arm', self._on_arm)
+        self.create_service(Trigger, '~/home', self._on_home)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.create_timer(self.get_parameter('health_period').value, self._on_health_timer)
+
+        self.link = SerialLink(self.core, port, self.get_parameter('baud').value,
+                               on_sample=self._publish_sample,
+                               reconnect_period=self.get_parameter('reconnect_period').value,
+                               lock=self._lock, logger=self.get_logger().info)
+        self.link.start()
+
+    # -- samples and commands ------------------------------------------------------------------
+    def _publish_sample(self, sample: JointSample) -> None:
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = ''
+        msg.name = ['cart', 'pendulum']
+        msg.position = [sample.x, sample.theta]
+        self._joint_pub.publish(msg)
+        if self._home_pending and self.core.link_ready:
+            self._home_pending = False
+            ok, reason = self.link.call(lambda core, now: core.home(now))
+            self.get_logger().info(f'home_on_start: {reason}')
+
+    def _on_force_command(self, msg: JointState) -> None:
+        try:
+            force = float(msg.effort[list(msg.name).index('cart')]) if msg.name else float(msg.effort[0])
+        except (ValueError, IndexError):
+            with self._lock:
+                self.core.bad_commands += 1
+            return
+        stamp = msg.header.stamp
+        latency = None
+        if stamp.sec or stamp.nanosec:
+            latency = (self.get_clock().now().nanoseconds - (stamp.sec * 10**9 + stamp.nanosec)) * 1e-9
+        self.link.call(lambda core, now: (True, '', core.on_command(force, now, latency)))
+
+    # -- arm / home --------------------------------------------------------------------------------
+    def _on_arm(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        result = self.set_parameters([Parameter('armed', value=bool(request.data))])[0]
+        response.success = result.successful
+        response.message = result.reason or ('armed' if request.data else 'disarmed')
+        return response
+
+    def _on_home(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        ok, reason = self.link.call(lambda core, now: core.home(now))
+        response.success, response.message = ok, reason
+        return response
+
+    # -- parameters ---------------------------------------------------------------------------------
+    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        for param in params:
+            if param.name == 'armed':
+                if param.type_ != Parameter.Type.BOOL:
+                    return SetParametersResult(successful=False, reason='armed must be a bool')
+                if param.value and not self._syncing:
+                    with self._lock:
+                        refusal = self.core.arm_refusal()
+                    if refusal:
+                        return SetParametersResult(successful=False,
+                                                   reason=f'cannot arm: {refusal}')
+            if param.name in ('command_timeout', 'sample_timeout', 'reconnect_period'):
+                value = param.value
+                if not isinstance(value, float) or not math.isfinite(value) or value <= 0:
+                    return SetParametersResult(successful=False,
+                                               reason=f'{param.name} must be a finite number > 0')
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params: list[Parameter]) -> None:
+        for param in params:
+            if param.name == 'armed' and not self._syncing:
+                if param.value:
+                    ok, reason = self.link.call(lambda core, now: core.arm(now))
+                    self.get_logger().info(f'arm: {reason}')
+                else:
+                    self.link.call(lambda core, now: (True, '', core.disarm()))
+                    self.get_logger().info('disarmed')
+            elif param.name in ('command_timeout', 'sample_timeout'):
+                with self._lock:
+                    self.core.config = dataclasses.replace(self.core.config,
+                                                           **{param.name: param.value})
+            elif param.name == 'reconnect_period':
+                self.link.reconnect_period = param.value
+
+    # -- health -----------------------------------------------------------------------------------
+    def _on_health_timer(self) -> None:
+        with self._lock:
+            values = self.core.health()
+            armed, wanted = self.core.armed, self.core.arm_requested
+            connected, link_ready = self.core.connected, self.core.link_ready
+        if self.get_parameter('armed').value and not armed and not wanted:
+            # a fault (or the link) disarmed the bridge: the parameter follows
+            self._syncing = True
+            try:
+                self.set_parameters([Parameter('armed', value=False)])
+            finally:
+                self._syncing = False
+        status = DiagnosticStatus()
+        status.name = 'hw_bridge'
+        status.hardware_id = str(self.link.port)
+        if not connected or not link_ready:
+            status.level = DiagnosticStatus.ERROR
+            status.message = 'disconnected' if not connected else 'waiting for the device'
+        elif not armed:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'disarmed' + (f' ({values["last_error"]})' if values['last_error'] else '')
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = 'armed'
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [status]
+        self._health_pub.publish(msg)
+
+    def destroy_node(self) -> None:
+        """Zero force and disable on the way out, then close the port."""
+        link = getattr(self, 'link', None)
+        if link is not None:
+            link.stop()
+        super().destroy_node()
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = HwBridgeNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,153 @@
+"""The serial port around :class:`~cartpole_hw.bridge.BridgeCore`: a reader thread.
+
+One thread owns the reading side of the port: it opens the port (and re-opens
+it every ``reconnect_period`` while it is gone), reads with a 2 ms timeout,
+splits lines, hands each to the core and calls ``on_sample`` right away (the
+sample -> publish path never waits for an executor), and runs the core's
+watchdogs after every read. Writes come from this thread and from the
+caller's (ROS executor) thread; both hold ``lock``, the same lock that
+guards the core, so the order of the lines on the wire is the order of the
+core's decisions. A failed write or read closes the port; the core is told
+(it disarms) and the thread starts re-opening it. No ROS import.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+import serial
+
+from . import protocol as jp
+from .bridge import BridgeCore, JointSample
+
+
+class SerialLink:
+    """Owns the port and the reader thread of one bridge."""
+
+    def __init__(self, core: BridgeCore, port: str, baud: int = 115200,
+                 on_sample: Callable[[JointSample], None] | None = None,
+                 reconnect_period: float = 0.5, lock: threading.Lock | None = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 logger: Callable[[str], None] | None = None) -> None:
+        self.core = core
+        self.port = port
+        self.baud = int(baud)
+        self.on_sample = on_sample
+        self.reconnect_period = float(reconnect_period)
+        self.lock = lock or threading.RLock()
+        self.clock = clock
+        self.log = logger or (lambda text: None)
+        self._serial: serial.Serial | None = None
+        self._broken: str | None = None
+        self._splitter = jp.LineSplitter()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.open_error = ''
+
+    # -- public ------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name='cartpole-hw-link', daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Zero force, disable, stop streaming, close: the last words on the port."""
+        with self.lock:
+            self.write(self.core.shutdown())
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        self._close('shutdown')
+
+    def call(self, request: Callable[[BridgeCore, float], tuple[bool, str, list[bytes]]]
+             ) -> tuple[bool, str]:
+        """Run ``request(core, now)`` under the lock and write the lines it returns."""
+        with self.lock:
+            ok, reason, lines = request(self.core, self.clock())
+            self.write(lines)
+        return ok, reason
+
+    def write(self, lines: list[bytes]) -> None:
+        """Send lines (call with :attr:`lock` held). A failure marks the port broken."""
+        if not lines:
+            return
+        port = self._serial
+        if port is None:
+            return
+        try:
+            port.write(b''.join(lines))
+        except (serial.SerialException, OSError) as exc:
+            self._broken = f'write failed: {exc}'
+
+    @property
+    def is_open(self) -> bool:
+        return self._serial is not None
+
+    # -- thread ----------------------------------------------------------------------------------
+    def _open(self) -> bool:
+        try:
+            port = serial.Serial(self.port, self.baud, timeout=0.002, write_timeout=0.05,
+                                 exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            if str(exc) != self.open_error:
+                self.log(f'cannot open {self.port}: {exc}')
+            self.open_error = str(exc)
+            return False
+        self.open_error = ''
+        self._splitter.reset()
+        self._broken = None
+        with self.lock:
+            self._serial = port
+            self.write(self.core.on_connect(self.clock()))
+        self.log(f'opened {self.port}')
+        return True
+
+    def _close(self, reason: str) -> None:
+        with self.lock:
+            port, self._serial = self._serial, None
+            if port is not None:
+                self.core.on_disconnect(self.clock(), reason)
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass
+            if reason != 'shutdown':
+                self.log(f'closed {self.port}: {reason}')
+
+    def _run(self) -> None:
+        next_attempt = 0.0
+        while not self._stop.is_set():
+            if self._serial is None:
+                now = self.clock()
+                if now >= next_attempt:
+                    next_attempt = now + self.reconnect_period
+                    if self._open():
+                        continue
+                with self.lock:
+                    self.write(self.core.on_tick(self.clock()))
+                self._stop.wait(min(0.02, max(0.0, next_attempt - self.clock())))
+                continue
+            if self._broken:
+                self._close(self._broken)
+                continue
+            try:
+                port = self._serial
+                data = port.read(max(1, port.in_waiting))
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                self._close(f'read failed: {exc}')
+                continue
+            now = self.clock()
+            samples: list[JointSample] = []
+            with self.lock:
+                for item in self._splitter.feed(data) if data else ():
+                    out = self.core.on_line(item, now)
+                    self.write(out.write)
+                    if out.sample is not None:
+                        samples.append(out.sample)
+                self.write(self.core.on_tick(self.clock()))
+            if self.on_sample is not None:
+                for sample in samples:
+                    self.on_sample(sample)

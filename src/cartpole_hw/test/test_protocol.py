@@ -1,0 +1,215 @@
+"""Joint protocol codec (SPEC section 4): shared vectors, round trips, fuzzing, conversions."""
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from cartpole_hw import protocol as jp
+from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.plant import CounterUnwrapper, wrap_counter
+
+_spec = importlib.util.spec_from_file_location('hw_vectors', Path(__file__).with_name('vectors.py'))
+vectors = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(vectors)
+
+
+# -- shared vectors ------------------------------------------------------------------------------
+@pytest.mark.parametrize('line,expected', vectors.load('decode'))
+def test_decode_vectors(line, expected):
+    raw = vectors.unescape(line)
+    assert jp.canonical(jp.decode_line(raw)) == expected
+    # the same with the terminator, LF or CRLF
+    assert jp.canonical(jp.decode_line(raw + b'\n')) == expected
+    if not raw.endswith(b'\r'):
+        assert jp.canonical(jp.decode_line(raw + b'\r\n')) == expected
+
+
+def test_vectors_cover_every_reason_and_type():
+    expected = {e for _, e in vectors.load('decode')}
+    for reason in jp.DECODE_REASONS:
+        assert f'err:{reason}' in expected
+    kinds = {e[0] for e in expected if not e.startswith('err:')}
+    assert kinds == set('PERLUVS!')
+
+
+@pytest.mark.parametrize('body,line', vectors.load('encode'))
+def test_encode_vectors(body, line):
+    decoded = jp.decode_line(line)
+    assert not isinstance(decoded, jp.DecodeError)
+    assert jp.encode(decoded) == line.encode() + b'\n'
+    assert decoded.body() == body
+
+
+@pytest.mark.parametrize('force,setpoint', vectors.load('setpoint'))
+def test_setpoint_vectors(force, setpoint):
+    assert jp.Calibration().force_to_setpoint(float(force)) == int(setpoint)
+
+
+@pytest.mark.parametrize('setpoint,dac', vectors.load('dac'))
+def test_dac_vectors(setpoint, dac):
+    assert jp.Calibration().dac_value(int(setpoint)) == int(dac)
+
+
+@pytest.mark.parametrize('body,hh', vectors.load('checksum'))
+def test_checksum_vectors(body, hh):
+    assert f'{jp.checksum(body):02X}' == hh
+
+
+# -- round trips ---------------------------------------------------------------------------------
+int16 = st.integers(jp.INT16_MIN, jp.INT16_MAX)
+uint32 = st.integers(0, jp.UINT32 - 1)
+text = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, blacklist_characters='*'),
+               max_size=40)
+messages = st.one_of(
+    st.just(jp.Ping()), st.just(jp.ResetCounters()),
+    st.builds(jp.Enable, st.booleans()), st.builds(jp.Stream, st.booleans()),
+    st.builds(jp.Setpoint, int16),
+    st.builds(jp.Version, st.integers(0, 65535), text.filter(lambda s: s and ',' not in s)),
+    st.builds(jp.Sample, uint32, uint32, int16, int16, st.integers(0, 15)),
+    st.builds(jp.DeviceError, st.integers(0, 255), text),
+)
+
+
+@given(messages)
+def test_round_trip_every_message(message):
+    line = jp.encode(message)
+    assert line.endswith(b'\n') and len(line) - 1 <= jp.MAX_LINE
+    assert jp.decode_line(line) == message
+    assert jp.decode_line(line.replace(b'\n', b'\r\n')) == message
+    assert jp.decode_line(line.lower() if isinstance(message, jp.Ping) else line) == message \
+        or isinstance(message, jp.Ping)
+
+
+@given(messages, st.integers(0, 200), st.integers(0, 255))
+def test_any_single_byte_corruption_is_refused_or_harmless(message, position, value):
+    line = bytearray(jp.encode(message)[:-1])
+    i = position % len(line)
+    if value in (line[i], 0x0A):
+        return
+    original = bytes(line)
+    line[i] = value
+    result = jp.decode_line(bytes(line))
+    # XOR catches every single-byte change, except a hex digit's case in the checksum
+    if not isinstance(result, jp.DecodeError):
+        assert result == jp.decode_line(original)
+        assert bytes(line).upper() == original.upper()
+
+
+def test_direction_filter():
+    assert jp.decode_line(b'P*50', direction='device').reason == 'unknown_type'
+    assert jp.decode_line(jp.encode(jp.Sample(1, 2, 3, 4, 5)), direction='host').reason == 'unknown_type'
+    assert jp.decode_line(b'P*50', direction='host') == jp.Ping()
+
+
+def test_encode_refuses_what_the_wire_cannot_carry():
+    with pytest.raises(ValueError):
+        jp.encode(jp.Sample(0, 0, 40000, 0, 0))
+    with pytest.raises(ValueError):
+        jp.encode(jp.Sample(0, 0, 0, 0, 16))
+    with pytest.raises(ValueError):
+        jp.encode(jp.Setpoint(1 << 20))
+    with pytest.raises(ValueError):
+        jp.encode(jp.DeviceError(1, 'star * in text'))
+    with pytest.raises(ValueError):
+        jp.encode(jp.Version(1, 'comma,name'))
+
+
+# -- fuzzing ---------------------------------------------------------------------------------------
+@settings(max_examples=400)
+@given(st.binary(max_size=200))
+def test_decoder_never_raises(data):
+    result = jp.decode_line(data)
+    if isinstance(result, jp.DecodeError):
+        assert result.reason in jp.DECODE_REASONS
+    else:
+        assert jp.decode_line(jp.encode(result)) == result
+
+
+@settings(max_examples=300)
+@given(st.lists(st.binary(max_size=300), max_size=30))
+def test_splitter_is_bounded_and_never_raises(chunks):
+    splitter = jp.LineSplitter()
+    for chunk in chunks:
+        for item in splitter.feed(chunk):
+            if isinstance(item, jp.DecodeError):
+                assert item.reason == 'oversized'
+            else:
+                assert b'\n' not in item and 0 < len(item) <= jp.MAX_LINE
+        assert splitter.buffered <= jp.MAX_LINE + 1
+
+
+@given(st.lists(messages, min_size=1, max_size=20), st.lists(st.integers(1, 50), min_size=1))
+def test_splitter_reassembles_lines_across_any_chunking(msgs, cuts):
+    stream = b''.join(jp.encode(m).replace(b'\n', b'\r\n') if i % 2 else jp.encode(m)
+                      for i, m in enumerate(msgs))
+    chunks, i, k = [], 0, 0
+    while i < len(stream):
+        n = cuts[k % len(cuts)]
+        chunks.append(stream[i:i + n])
+        i += n
+        k += 1
+    decoded = [jp.decode_line(line) for line in jp.iter_lines(chunks)]
+    assert decoded == msgs
+
+
+def test_splitter_drops_oversized_garbage_and_recovers():
+    splitter = jp.LineSplitter()
+    good = jp.encode(jp.Sample(7, 35000, 1, 2, 1))
+    out = splitter.feed(b'x' * 1000)
+    out += splitter.feed(b'y' * 5000 + b'\n' + good)
+    assert [type(o) for o in out] == [jp.DecodeError, bytes]
+    assert out[0].reason == 'oversized'
+    assert jp.decode_line(out[1]) == jp.Sample(7, 35000, 1, 2, 1)
+
+
+# -- sequence tracking -----------------------------------------------------------------------------
+def test_sequence_tracker_counts_gaps_across_the_uint32_wrap():
+    t = jp.SequenceTracker()
+    for seq in (jp.UINT32 - 3, jp.UINT32 - 2, 1, 2, 2, 5):
+        t.update(seq)
+    # lost: UINT32-1, 0 (2) and 3, 4 (2); one duplicate
+    assert (t.lost, t.duplicates, t.restarts) == (4, 1, 0)
+    assert t.update(0) == -1 and t.restarts == 1   # backwards: device restarted
+    assert t.update(1) == 0 and t.lost == 4
+
+
+# -- conversions (2.3), (2.4), (A.3) ------------------------------------------------------------
+def test_calibration_matches_the_thesis_resolutions():
+    cal = jp.Calibration.from_parameters(CartPoleParameters())
+    assert cal.cart_resolution == pytest.approx(88.016e-6, rel=1e-4)          # (2.4)
+    assert cal.pendulum_resolution == pytest.approx(math.pi * 1e-3)           # (2.3)
+    assert cal.cart_position(8737) == pytest.approx(0.769)
+    assert cal.pendulum_angle(0) == pytest.approx(math.pi)                   # hanging after reset
+    assert cal.pendulum_angle(1000) == pytest.approx(2 * math.pi)
+    assert cal.setpoint_to_force(1) == pytest.approx(0.017623, rel=1e-4)      # (A.3)
+    assert (cal.setpoint_min, cal.setpoint_max) == (-1953, 2142)
+    # +11 A (34.2 N) fits in the DAC range, -12 A (-37.4 N) does not: the DAC's
+    # offset 1953 limits the leftward force to -1953 / 56.744 = -34.4 N
+    p = CartPoleParameters()
+    assert 0 < cal.force_to_setpoint(p.force_max) < cal.setpoint_max
+    assert cal.force_to_setpoint(p.force_min) == cal.setpoint_min
+    assert cal.setpoint_to_force(cal.setpoint_min) == pytest.approx(-34.42, abs=0.01)
+
+
+def test_calibration_signs_and_refusals():
+    cal = jp.Calibration(cart_sign=-1, pendulum_sign=-1, force_sign=-1)
+    assert cal.cart_position(100) < 0
+    assert cal.pendulum_angle(500) == pytest.approx(math.pi / 2)
+    assert cal.force_to_setpoint(10.0) == -567
+    assert cal.force_to_setpoint(math.nan) == 0
+    for bad in (dict(cart_sign=0), dict(travel=-1.0), dict(dac_zero=5000),
+                dict(setpoint_per_newton=math.inf)):
+        with pytest.raises(ValueError):
+            jp.Calibration(**bad)
+
+
+def test_unwrapping_the_16_bit_counters_reuses_the_plant_unwrapper():
+    cal = jp.Calibration()
+    unwrap = CounterUnwrapper(16)
+    counts = (0, 20000, 32767, 35536, 60536, 85536, 60000, 40000)   # many revolutions
+    raw = [wrap_counter(c) for c in counts]
+    assert raw == [0, 20000, 32767, -30000, -5000, 20000, -5536, -25536]
+    angles = [cal.pendulum_angle(unwrap.update(r)) for r in raw]
+    assert angles == pytest.approx([math.pi + c * cal.pendulum_resolution for c in counts])
