@@ -29,7 +29,7 @@ inline uint32_t micros() { return fake_us += 700; }
 inline void analogWrite(int, int v) { dac_written = v; }
 inline void analogWriteResolution(int) {}
 struct FakeSerial {
-  const char *in = "P*50\nE,1*58\nU,100*79\nL,1*51\n";
+  const char *in = "P*50\nE,1*58\nU,100*48\nL,1*51\n";
   size_t pos = 0, written = 0;
   void begin(unsigned long) {}
   int available() { return in[pos] ? 1 : 0; }
@@ -41,13 +41,18 @@ static FakeSerial SerialUSB;
 '''
 
 STUB_MAIN = r'''
+#include "Arduino.h"
+#include "cartpole_bridge.ino"
 #include <stdio.h>
 int main() {
   setup();
   for (int i = 0; i < 1000; ++i) loop();
-  // streaming after L,1: about 1000 * 0.7 ms / 5 ms samples went out
-  printf("dac=%d written=%zu\n", dac_written, SerialUSB.written);
-  return (dac_written >= 0 && SerialUSB.written > 1000) ? 0 : 1;
+  // 0.7 s of loop: the U,100 was taken, then the 50 ms watchdog tripped and
+  // the DAC went back to zero current (1953); S lines streamed after L,1
+  printf("dac=%d setpoint=%d tripped=%d written=%zu\n", dac_written, (int)dev.setpoint,
+         (int)dev.watchdog_tripped, SerialUSB.written);
+  return (dev.enabled && dev.setpoint == 100 && dev.watchdog_tripped && dac_written == 1953
+          && dev.seq > 100 && SerialUSB.written > 100 * 20) ? 0 : 1;
 }
 '''
 
@@ -73,10 +78,7 @@ def test_sketch_compiles_against_an_arduino_stub(tmp_path):
     sketch = FIRMWARE / 'cartpole_bridge'
     build = subprocess.run(
         [GXX, '-std=c++11', '-Wall', '-Wextra', '-Werror', f'-I{tmp_path}', f'-I{sketch}',
-         '-include', str(tmp_path / 'Arduino.h'), '-o', str(exe),
-         '-x', 'c++', str(sketch / 'cartpole_bridge.ino'),
-         '-x', 'c++', str(sketch / 'joint_protocol.cpp'),
-         '-x', 'none', str(tmp_path / 'main.cpp')],
+         '-o', str(exe), str(tmp_path / 'main.cpp'), str(sketch / 'joint_protocol.cpp')],
         capture_output=True, text=True, timeout=120)
     assert build.returncode == 0, build.stderr
     result = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30)

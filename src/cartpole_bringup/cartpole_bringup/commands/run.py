@@ -1,0 +1,262 @@
+"""``cartpole run --sim | --hw --port DEV``: the node graph, optionally recorded, then its summary.
+
+See docs/readme/run.md. The graph itself is :mod:`cartpole_bringup.graph`.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from .. import options
+
+DISCOVERY_RANGES = ('localhost', 'subnet', 'system_default')
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    plant = parser.add_mutually_exclusive_group(required=True)
+    plant.add_argument('--sim', action='store_true', help='run on the simulated plant')
+    plant.add_argument('--hw', action='store_true', help='run on the rig through the serial bridge')
+    hw = parser.add_argument_group('hardware')
+    hw.add_argument('--port', default=None, metavar='DEV',
+                    help='serial device of the rig (with --hw), e.g. /dev/ttyACM0 or an '
+                         '`cartpole emulate` pseudo-terminal')
+    hw.add_argument('--hw-arm', action='store_true',
+                    help='arm the bridge (enable the amplifier) at start; never armed by default')
+    g = parser.add_argument_group('graph')
+    g.add_argument('--lockstep', action='store_true',
+                   help='simulator in lockstep: one Ts per force command, /clock, all nodes on '
+                        'sim time (deterministic, faster than real time)')
+    g.add_argument('--processes', action='store_true',
+                   help='one OS process a node (the installed executables) instead of one '
+                        'process and executor')
+    g.add_argument('--duration', type=float, default=None, metavar='S',
+                   help='stop after S seconds (simulated in lockstep, wall otherwise); '
+                        'default: until Ctrl-C')
+    g.add_argument('--record', type=Path, default=None, metavar='DIR',
+                   help='record a bag into DIR/<UTC time>_<swingup>_<stabilizer>/bag')
+    g.add_argument('--plots', nargs='?', const='', default=None, metavar='DIR',
+                   help='write the PNG figures (into the run directory with --record, else DIR)')
+    g.add_argument('--domain-id', type=int, default=None, metavar='N',
+                   help='ROS_DOMAIN_ID of the graph (default: the environment\'s, else 0)')
+    g.add_argument('--discovery', choices=DISCOVERY_RANGES, default='localhost',
+                   help='ROS_AUTOMATIC_DISCOVERY_RANGE of the graph (default localhost: the '
+                        'graph is invisible to other machines)')
+    g.add_argument('--log-level', default='warn',
+                   choices=('debug', 'info', 'warn', 'error', 'fatal'),
+                   help='ROS log level of the nodes (default warn)')
+    options.add_controller_arguments(parser)
+    options.add_scenario_arguments(parser)
+    options.add_output_arguments(parser)
+
+
+def controller_names(args: argparse.Namespace) -> dict[str, str]:
+    """swing-up / stabiliser names: the option, else the params file, else the manager default."""
+    from cartpole_control.manager import DEFAULT_CONTROLLERS
+    from cartpole_control.controller import STABILIZER, SWINGUP
+
+    file_values = options.load_ros_parameters(args.params, 'controller_manager')
+    return {
+        'swingup': args.swingup or str(file_values.get('swingup', DEFAULT_CONTROLLERS[SWINGUP])),
+        'stabilizer': (args.stabilizer
+                       or str(file_values.get('stabilizer', DEFAULT_CONTROLLERS[STABILIZER]))),
+    }
+
+
+def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """The explicit ROS parameters of each node from the command-line options."""
+    out: dict[str, dict[str, Any]] = {'controller_manager': {}, 'ekf': {}}
+    if args.swingup:
+        out['controller_manager']['swingup'] = args.swingup
+    if args.stabilizer:
+        out['controller_manager']['stabilizer'] = args.stabilizer
+    if args.sim:
+        sim: dict[str, Any] = {
+            'x0': float(args.x0), 'theta0': float(args.theta0),
+            'friction_scale': float(args.friction_scale),
+            'encoder_offset': float(args.encoder_offset), 'noise': bool(args.noise),
+            'seed': int(args.seed),
+        }
+        if args.tip_mass is not None:
+            sim['tip_mass'] = float(args.tip_mass)
+        if args.plant_params is not None:
+            sim['plant_params_file'] = str(args.plant_params.resolve())
+        out['sim'] = sim
+    else:
+        out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
+    return out
+
+
+def run_directory(root: Path, names: dict[str, str], now: _dt.datetime | None = None) -> Path:
+    """``root/<UTC timestamp>_<swingup>_<stabilizer>`` (a suffix if it exists already)."""
+    now = now or _dt.datetime.now(_dt.timezone.utc)
+    base = root / f'{now.strftime("%Y%m%dT%H%M%SZ")}_{names["swingup"]}_{names["stabilizer"]}'
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f'{base.name}_{n}')
+    return path
+
+
+def _validate(args: argparse.Namespace) -> str | None:
+    if args.hw and not args.port:
+        return '--hw needs --port DEV'
+    if args.sim and (args.port or args.hw_arm):
+        return '--port and --hw-arm are for --hw'
+    if args.lockstep and not args.sim:
+        return '--lockstep needs --sim'
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        return f'--duration must be > 0, got {args.duration}'
+    if args.plots == '' and args.record is None:
+        return '--plots without DIR needs --record (the figures go into the run directory)'
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        return f'--domain-id must be in [0, 232], got {args.domain_id}'
+    if args.params is not None and not args.params.is_file():
+        return f'--params {args.params}: no such file'
+    if args.sim:
+        try:
+            scenario = options.scenario_from_args(args)
+            nominal = options.nominal_parameters(args)
+            scenario.plant_parameters(nominal)
+        except (ValueError, OSError) as error:
+            return str(error)
+        if not 0.0 <= args.x0 <= nominal.travel:
+            return f'--x0 {args.x0} m is outside the travel [0, {nominal.travel}] m'
+    return None
+
+
+class _StopRequest:
+    """Ctrl-C / SIGTERM: the first asks for a clean stop, a second one aborts."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self.previous: dict[int, Any] = {}
+
+    def __call__(self, signum, frame) -> None:
+        if self.requested and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.previous[sig] = signal.signal(sig, self)
+
+    def restore(self) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+
+
+def main(args: argparse.Namespace) -> int:
+    error = _validate(args)
+    if error:
+        print(f'cartpole run: {error}', file=sys.stderr)
+        return 2
+    if args.domain_id is not None:
+        os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
+    if args.discovery != 'system_default':
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    from .. import metrics
+    from ..analyze import analyze_bag
+    from ..graph import Graph, GraphError, GraphSpec
+
+    names = controller_names(args)
+    nominal = options.nominal_parameters(args)
+    file_x_ref = options.load_ros_parameters(args.params, 'controller_manager').get('x_ref')
+    x_ref = float(file_x_ref) if file_x_ref is not None else nominal.x_middle
+    run_dir = bag = None
+    if args.record is not None:
+        run_dir = run_directory(args.record, names)
+        run_dir.mkdir(parents=True)
+        bag = run_dir / 'bag'
+    custom = {'x_ref': repr(x_ref), 'lockstep': str(bool(args.lockstep)).lower(),
+              'plant': 'sim' if args.sim else 'hw', **names,
+              'command': ' '.join(['cartpole', 'run'] + sys.argv[2:])[:1000]}
+    spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=node_parameters(args),
+                     params_file=args.params.resolve() if args.params else None,
+                     lockstep=args.lockstep, processes=args.processes, record=bag,
+                     custom_data=custom, log_level=args.log_level)
+
+    ros_args = ['--ros-args', '--log-level', args.log_level]
+    if spec.params_file:
+        ros_args += ['--params-file', str(spec.params_file)]
+    stop = _StopRequest()
+    context = Context()
+    rclpy.init(args=['cartpole_run'] + ros_args, context=context,
+               signal_handler_options=SignalHandlerOptions.NO)
+    stop.install()
+    warnings: list[str] = []
+    graph = None
+    try:
+        graph = Graph(spec, context, should_stop=lambda: stop.requested)
+        if not args.json:
+            where = f' recording into {bag}' if bag else ''
+            print(f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
+                  f'{"lockstep" if args.lockstep else "real time"}, '
+                  f'{"one process a node" if args.processes else "one process"}, '
+                  f'{names["swingup"]} + {names["stabilizer"]}, ROS_DOMAIN_ID='
+                  f'{os.environ.get("ROS_DOMAIN_ID", "0")}{where}; '
+                  f'{"for %g s" % args.duration if args.duration else "Ctrl-C stops"}',
+                  file=sys.stderr, flush=True)
+        graph.start()
+        queried = graph.get_parameter('controller_manager', 'x_ref', timeout=2.0)
+        if isinstance(queried, (int, float)) and math.isfinite(queried):
+            x_ref = float(queried)
+        graph.run_for(args.duration)
+        elapsed = graph.elapsed()
+        warnings += graph.close()
+    except GraphError as exc:
+        print(f'cartpole run: {exc}', file=sys.stderr)
+        return 1
+    finally:
+        if graph is not None:
+            warnings += graph.close()
+        stop.restore()
+        rclpy.try_shutdown(context=context)
+    for w in warnings:
+        print(f'cartpole run: warning: {w}', file=sys.stderr)
+
+    series = summary = None
+    try:
+        if bag is not None:
+            analysis = analyze_bag(bag, x_ref=x_ref, params=nominal)
+            series, summary = analysis.series, analysis.summary
+        else:
+            series, contact = graph.monitor.builder.build(
+                params=nominal, x_ref=x_ref, lockstep=args.lockstep, label='run')
+            summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
+                                        catch_time=series.catch_time, end_stop_contact=contact)
+    except (ValueError, OSError) as exc:
+        print(f'cartpole run: no summary: {exc}', file=sys.stderr)
+    plots: list[Path] = []
+    if series is not None and args.plots is not None:
+        from ..plots import write_plots
+        plot_dir = run_dir if args.plots == '' else Path(args.plots)
+        plots = write_plots(series, plot_dir, 'run',
+                            title=f'{names["swingup"]} + {names["stabilizer"]}')
+    extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), **names,
+             'run_dir': str(run_dir) if run_dir else None, 'bag': str(bag) if bag else None,
+             'plots': [str(p) for p in plots]}
+    if run_dir is not None and summary is not None:
+        (run_dir / 'summary.json').write_text(json.dumps(dict(summary, **extra), indent=2) + '\n')
+    if args.json:
+        print(json.dumps(dict(summary or {}, **extra)))
+    else:
+        if summary is not None:
+            options.print_summary(summary, as_json=False)
+        for key in ('run_dir', 'bag'):
+            if extra[key]:
+                print(f'{key}: {extra[key]}')
+        for p in plots:
+            print(f'plot: {p}')
+    return 0 if summary is not None else 1

@@ -1,0 +1,156 @@
+"""Host-side safety rules (BridgeCore) and the device logic the emulator runs, without ports."""
+import math
+
+import pytest
+
+from cartpole_hw import protocol as jp
+from cartpole_hw.bridge import E_OFF, E_ON, RESET, U_ZERO, BridgeConfig, BridgeCore
+from cartpole_hw.device import DeviceLogic
+
+
+def sample(seq, cart=0, pend=0, flags=0):
+    return jp.encode(jp.Sample(seq, seq * 5000, cart, pend, flags))[:-1]
+
+
+def ready_core(t=0.0):
+    """A connected, homed core."""
+    core = BridgeCore(BridgeConfig())
+    core.on_connect(t)
+    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], t)
+    ok, _, lines = core.home(t)
+    assert ok and lines == [RESET, jp.encode(jp.Ping())]
+    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], t)
+    assert core.homed
+    return core
+
+
+def setpoints(lines):
+    return [jp.decode_line(line).value for line in lines if line.startswith(b'U,')]
+
+
+def test_arming_is_refused_with_reasons_until_connected_answered_and_homed():
+    core = BridgeCore()
+    assert 'not connected' in core.arm(0.0)[1]
+    core.on_connect(0.0)
+    assert 'ping' in core.arm(0.0)[1]
+    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], 0.0)
+    assert 'not homed' in core.arm(0.0)[1]
+    core.on_line(jp.encode(jp.Version(2, 'future'))[:-1], 0.0)
+    assert not core.link_ready and 'version 2' in core.last_error
+
+
+def test_disarmed_bridge_never_sends_a_nonzero_setpoint():
+    core = ready_core()
+    assert core.on_command(10.0, 0.01) == []
+    out = core.on_line(sample(1, flags=jp.FLAG_ENABLED), 0.02)   # device enabled by someone
+    for k in range(2, 20):
+        out.write += core.on_line(sample(k, flags=jp.FLAG_ENABLED), 0.02 + k * 0.005).write
+    assert E_OFF in out.write and set(setpoints(out.write)) == {0}
+    assert core.ignored_commands == 1
+
+
+def test_homing_discards_samples_until_the_version_answer():
+    core = ready_core()
+    core.on_line(sample(1, cart=100), 0.0)
+    core.home(0.01)
+    assert core.on_line(sample(2, cart=100), 0.011).sample is None   # before R took effect
+    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], 0.012)
+    s = core.on_line(sample(3, cart=5, pend=-500), 0.013).sample
+    assert s.x == pytest.approx(5 * 0.769 / 8737) and s.theta == pytest.approx(math.pi / 2)
+
+
+def test_host_watchdog_trips_after_command_timeout_and_disarms():
+    core = ready_core()
+    ok, _, lines = core.arm(0.0)
+    assert ok and lines == [E_ON, U_ZERO]
+    # before the first command: zero force fed every sample, no trip
+    assert U_ZERO in core.on_line(sample(1, flags=1), 0.005).write
+    assert core.on_tick(0.2) == [] or core.armed is False
+    core = ready_core()
+    core.arm(0.0)
+    t = 0.0
+    for k in range(1, 5):
+        t = k * 0.005
+        core.on_line(sample(k, flags=1), t)
+        assert setpoints(core.on_command(2.0, t, latency=0.001)) == [113]   # 56.744 * 2 N
+    assert core.on_tick(t + 0.049) == []
+    core.on_line(sample(5, flags=1), t + 0.049)
+    lines = core.on_tick(t + 0.051)
+    assert lines == [U_ZERO, E_OFF] and not core.armed and core.watchdog_trips == 1
+    assert 'host watchdog' in core.last_error
+    assert core.on_command(2.0, t + 0.06) == []          # stays disarmed: explicit re-arm
+
+
+def test_stale_and_nonfinite_commands_are_not_fresh():
+    core = ready_core()
+    core.arm(0.0)
+    assert core.on_command(math.nan, 0.001) == []
+    assert core.on_command(1.0, 0.001, latency=0.2) == []
+    assert (core.bad_commands, core.stale_commands, core.commands_live) == (1, 1, False)
+
+
+@pytest.mark.parametrize('event', ['sample_timeout', 'device_watchdog', 'limit', 'device_fault',
+                                   'disconnect', 'restart'])
+def test_every_fault_zeroes_force_and_disarms(event):
+    core = ready_core()
+    core.arm(0.0)
+    core.on_line(sample(10, flags=1), 0.001)
+    core.on_command(5.0, 0.002)
+    if event == 'sample_timeout':
+        lines = core.on_tick(0.06)
+    elif event == 'device_watchdog':
+        lines = core.on_line(sample(11, flags=jp.FLAG_ENABLED | jp.FLAG_WATCHDOG), 0.004).write
+    elif event == 'limit':
+        lines = core.on_line(sample(11, flags=jp.FLAG_ENABLED | jp.FLAG_LIMIT_RIGHT), 0.004).write
+    elif event == 'device_fault':
+        lines = core.on_line(jp.encode(jp.DeviceError(17, 'limit right'))[:-1], 0.004).write
+    elif event == 'disconnect':
+        core.on_disconnect(0.004, 'gone')
+        lines = [U_ZERO, E_OFF]            # nothing can be sent; on reconnect U,0 E,0 go first
+        assert core.on_connect(0.5)[:2] == [U_ZERO, E_OFF] and core.reconnects == 1
+    else:
+        lines = core.on_line(sample(0, flags=1), 0.004).write
+        assert not core.homed and 're-home' in core.last_error
+    assert lines[:2] == [U_ZERO, E_OFF]
+    assert not core.armed and not core.arm_requested and core.last_error
+
+
+def test_limit_switch_inhibits_force_towards_it_only():
+    core = ready_core()
+    core.on_line(sample(1, flags=jp.FLAG_LIMIT_LEFT), 0.0)   # homed at the left stop
+    assert core.arm(0.001)[0]
+    core.on_line(sample(2, flags=jp.FLAG_LIMIT_LEFT | 1), 0.005)
+    assert core.armed                                    # closed before arming: no crash
+    assert setpoints(core.on_command(-3.0, 0.006)) == [0]
+    assert setpoints(core.on_command(3.0, 0.007)) == [170]
+    assert core.limit_inhibits == 1
+
+
+def test_bad_lines_are_counted_by_reason_and_lost_samples_by_seq():
+    core = ready_core()
+    for line in (b'S,1,2,3,4,5*00', b'S,1,2,3,4,5', b'P*50', b'S,1,2,99999,4,5*' + b'%02X' % jp.checksum('S,1,2,99999,4,5')):
+        core.on_line(line, 0.0)
+    core.on_line(jp.DecodeError('oversized'), 0.0)
+    core.on_line(sample(1), 0.0)
+    core.on_line(sample(4), 0.0)
+    h = core.health()
+    assert (h['bad_lines'], h['bad_lines.bad_checksum'], h['bad_lines.missing_checksum'],
+            h['bad_lines.unknown_type'], h['bad_lines.out_of_range'], h['bad_lines.oversized']) \
+        == ('5', '1', '1', '1', '1', '1')
+    assert h['lost_samples'] == '2' and h['samples'] == '2'
+
+
+# -- the device logic (mirror of joint_protocol.cpp, run by the emulator) ---------------------
+def test_device_watchdog_enable_and_reset_rules():
+    d = DeviceLogic()
+    d.handle_line(b'E,1*58', 0)
+    d.handle_line(b'U,500*7C', 1000)
+    assert d.output_setpoint() == 500 and d.dac_value() == 2453
+    assert d.tick(1000 + 49_999, False, False) == []
+    assert d.tick(1000 + 50_000, False, False) == [jp.encode(jp.DeviceError(16, 'watchdog'))]
+    assert d.output_setpoint() == 0 and d.flags() == jp.FLAG_ENABLED | jp.FLAG_WATCHDOG
+    replies, reset = d.handle_line(b'R*52', 60_000)
+    assert not reset and jp.decode_line(replies[0]).code == 9
+    d.handle_line(b'E,0*59', 70_000)
+    assert d.dac_value() == 1953 and d.handle_line(b'R*52', 80_000) == ([], True)
+    assert jp.decode_line(d.handle_line(b'U,1.5*00', 0)[0][0]).code == 1
