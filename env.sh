@@ -22,5 +22,15 @@ fi
 if [ "${1:-}" != "--no-overlay" ] && [ -f "$_cp_root/install/setup.bash" ]; then
     # shellcheck disable=SC1091
     source "$_cp_root/install/setup.bash"
+    # ament_python puts executables in lib/<package>/ (for `ros2 run`); put them on
+    # PATH too, so `cartpole`, `sim_node`, `ekf_node`, ... work as plain commands.
+    for _cp_lib in "$_cp_root"/install/cartpole_*/lib/cartpole_*; do
+        case ":$PATH:" in
+            *":$_cp_lib:"*) ;;
+            *) [ -d "$_cp_lib" ] && PATH="$_cp_lib:$PATH" ;;
+        esac
+    done
+    export PATH
+    unset _cp_lib
 fi
 unset _cp_root

@@ -13,8 +13,8 @@ What is taken from where:
 - time: the messages' ``header.stamp``; t = 0 is simulated time zero when the
   run was in lockstep (``/clock`` recorded, or ``lockstep=true`` in the bag's
   custom_data), else the first sample;
-- catch time: the first ``/cartpole/controller_status`` whose ``event`` is
-  ``catch`` or whose ``mode`` is the stabilising one, at its ``state_stamp``
+- catch time: the first ``/cartpole/controller_status`` whose ``event`` has
+  ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
 - end-stop contact: the true cart position outside [0, travel] (simulator);
   on hardware, a limit flag ``limit_left`` / ``limit_right`` reading true in
@@ -98,7 +98,8 @@ class SeriesBuilder:
                 self.controllers[key] = values[key]
         if self.catch_ns is not None:
             return
-        if values.get('event', '') == CATCH_EVENT or is_stabilising(values.get('mode', '')):
+        events = values.get('event', '').split(';')
+        if CATCH_EVENT in events or is_stabilising(values.get('mode', '')):
             self.catch_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
 
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:

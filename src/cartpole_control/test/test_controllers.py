@@ -64,7 +64,7 @@ def test_parameters_have_thesis_descriptions_and_valid_defaults(kind, name):
     assert cls.parameters, name
     for spec in cls.parameters:
         assert spec.validate(spec.default) == spec.default     # defaults pass their own ranges
-        assert spec.description and '[' in spec.description or spec.name in ('poles',)
+        assert '[' in spec.description, f'{name}.{spec.name}: no unit'
     assert cls.validate_gains(cls.defaults()) == cls.defaults()
 
 
@@ -84,11 +84,11 @@ def test_first_push_from_the_left_stop_is_to_the_right(name):
 
 @pytest.mark.parametrize('name', ['pendulum_energy', 'sign_based'])
 @pytest.mark.parametrize('theta, theta_dot', [(math.pi - 0.4, 2.0), (math.pi + 0.4, 2.0),
-                                               (math.pi - 0.4, -2.0), (2.0, 3.0), (-2.5, -1.0)])
+                                               (math.pi - 0.4, -2.0), (2.0, 3.0), (-2.5, -1.5)])
 def test_energy_laws_pump_below_and_drain_above_e_star(name, theta, theta_dot):
     """dE_p/dt = m_p l u theta_dot cos(theta) (7.4) > 0 while E_p < E*, < 0 above."""
     controller = make(SWINGUP, name)
-    for speed, grows in ((theta_dot, True), (theta_dot * 6.0, False)):
+    for speed, grows in ((theta_dot, True), (theta_dot * 10.0, False)):
         state = consistent_state(1.0, X_REF, theta, 0.0, speed)
         below = pendulum_energy(theta, speed, PARAMS) < PARAMS.upright_energy
         assert below == grows
@@ -103,8 +103,8 @@ def test_sign_based_is_a_saturated_sign_of_u_max_as_acceleration():
     state = consistent_state(0.0, X_REF, math.pi - 0.4, 0.0, 2.0)
     assert sb.acceleration(state) == pytest.approx(-1.0)          # cos < 0, theta_dot > 0
     force = sb.update(state)
-    assert -6.0 < force < -4.0          # u_max = 1 m/s^2 is about 5 N on the 5 kg cart
-    sb.configure({'width': 1e3}, CONTEXT)
+    assert -6.0 < force < -3.0          # u_max = 1 m/s^2 is about 5 N on the 5 kg cart
+    sb.configure({'width': 50.0}, CONTEXT)
     assert -1.0 < sb.acceleration(state) < 0.0                    # linear zone
 
 

@@ -50,21 +50,21 @@ class FullEnergySwingUp(Controller):
     kind = SWINGUP
     name = 'full_energy'
     parameters = (
-        ParameterSpec('k_x', 12.0, 'cart position gain k_x of (7.14)/(7.27) [N^2/J per m]; '
-                      'thesis 12', low=0.0, high=1000.0),
-        ParameterSpec('k_d', 1.0, 'cart velocity damping k_d of (7.19)/(7.27); thesis 1',
+        ParameterSpec('k_x', 12.0, 'cart position weight k_x of (7.14)/(7.27) [N^2] '
+                      '(k_e dimensionless, V_2 in J^2); thesis 12', low=0.0, high=1000.0),
+        ParameterSpec('k_d', 1.0, 'cart velocity damping k_d of (7.19)/(7.21) [N^2 s]; thesis 1',
                       low=0.0, high=1000.0),
-        ParameterSpec('k_v', 8.3, 'velocity weight k_v of (7.14)/(7.27) [J kg]; must satisfy '
+        ParameterSpec('k_v', 8.3, 'velocity weight k_v of (7.14)/(7.27) [N^2 s^2 = J kg]; must satisfy '
                       'k_v/k_e > E*(m_c+m_p) (7.28)-(7.30); thesis 8.3',
                       low=1e-6, high=1000.0),
-        ParameterSpec('k_e', 1.0, 'energy weight k_e of (7.14)/(7.27) [1/J]; thesis 1',
+        ParameterSpec('k_e', 1.0, 'energy weight k_e of (7.14)/(7.27) [1]; thesis 1',
                       low=0.0, high=1000.0),
         ParameterSpec('k_i', 0.15, 'integral gain k_i on the energy error of (7.27) '
-                      '[N per (J s rad/s)]; thesis 0.012 (needs > 30 s to swing up on this '
+                      '[N/J]; thesis 0.012 (needs > 30 s to swing up on this '
                       'model, tuned 0.15)', low=0.0, high=10.0),
         ParameterSpec('i_max', 20.0, 'anti-windup: bound of int (E* - E) dt [J s] '
                       '(not in the thesis)', low=0.0, high=1000.0),
-        ParameterSpec('d_min', 0.0, 'floor of the denominator of (7.27) [kg^-1]; 0 is the '
+        ParameterSpec('d_min', 0.0, 'floor of the denominator of (7.27) [J]; 0 is the '
                       'thesis law (not in the thesis)', low=0.0, high=10.0),
     )
 

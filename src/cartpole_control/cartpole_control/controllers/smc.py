@@ -109,8 +109,8 @@ class SlidingModeStabilizer(Controller):
         ParameterSpec('boundary', 0.2, 'boundary layer width phi_b replacing sgn(s) by '
                       'sat(s/phi_b) [rad/s] (0.01-0.5 work; not in the thesis)',
                       low=1e-4, high=10.0),
-        ParameterSpec('cos_min', 0.2, 'floor of |cos theta| in Gamma = cos theta/(l d), keeps '
-                      'the law finite far from upright', low=0.01, high=1.0),
+        ParameterSpec('cos_min', 0.2, 'floor of |cos theta| in Gamma = cos theta/(l d) [1], '
+                      'keeps the law finite far from upright', low=0.01, high=1.0),
     )
 
     def __init__(self) -> None:

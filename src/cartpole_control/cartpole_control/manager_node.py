@@ -1,0 +1,299 @@
+"""The ``controller_manager`` node: :class:`~cartpole_control.manager.ControllerManager` on ROS.
+
+Wiring only; every decision is the manager's.
+
+- subscribes ``/cartpole/state`` (sensor_msgs/JointState, joints found by
+  name ``cart``/``pendulum``); each message runs one control cycle at once and
+  publishes ``/cartpole/force_command`` (JointState ``name=['cart']``,
+  ``effort=[F]``, ``header.stamp`` = the state's stamp) -- this callback is
+  the loop's latency path -- and then ``/cartpole/controller_status``
+  (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``);
+- parameters: every entry of :meth:`ControllerManager.parameter_specs` (the
+  manager's and every plugin's as ``<plugin>.<param>``) with a descriptor;
+  validated in the on-set callback (a refused value keeps the old one and says
+  why), handed to the manager in the post-set callback, applied by it between
+  two control cycles; plus the read-only ``plant_params_file`` and
+  ``sample_time``;
+- a stale-state timer on the node clock (the ROS clock: with
+  ``use_sim_time`` it follows ``/clock``, so a lockstep simulation slower than
+  real time is not "stale"): no state for ``state_timeout`` -> zero force and
+  fault ``stale state``;
+- service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
+  fault;
+- zero force on shutdown (:meth:`publish_zero`, also called by
+  :meth:`destroy_node`).
+"""
+from __future__ import annotations
+
+import array
+import sys
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from cartpole_sim.model import CartPoleParameters
+
+from .controller import ControllerState, ParameterSpec
+from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
+
+CART_JOINT = 'cart'
+PENDULUM_JOINT = 'pendulum'
+NODE_NAME = 'controller_manager'
+STALE_CHECK_PERIOD = 0.01
+"""Period of the stale-state check on the node clock [s]."""
+STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
+               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp')
+"""The KeyValues of the controller status, in this order (docs/architecture.md)."""
+
+
+def load_plant_parameters(path: str) -> CartPoleParameters:
+    """The controllers' plant model: the thesis values, or a CartPoleParameters YAML file."""
+    if not path:
+        return CartPoleParameters()
+    if not Path(path).is_file():
+        raise ValueError(f'plant_params_file {path!r} does not exist')
+    return CartPoleParameters.from_yaml(path)
+
+
+def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
+    """A ROS parameter descriptor from a :class:`ParameterSpec` (ranges, constraints text)."""
+    d = ParameterDescriptor(description=spec.description, dynamic_typing=False)
+    default = spec.default
+    constraints = []
+    if spec.choices is not None:
+        constraints.append('one of: ' + ', '.join(spec.choices))
+    if isinstance(default, bool) or isinstance(default, str):
+        pass
+    elif isinstance(default, (tuple, list)):
+        count = f'{spec.length} numbers' if spec.length is not None else 'numbers'
+        bounds = f' in [{_fmt(spec.low)}, {_fmt(spec.high)}]' if (
+            spec.low is not None or spec.high is not None) else ''
+        constraints.append(count + (' each' + bounds if bounds else ''))
+    elif isinstance(default, int):
+        if spec.low is not None and spec.high is not None:
+            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
+                                            step=1)]
+    elif spec.low is not None or spec.high is not None:
+        low = -sys.float_info.max if spec.low is None else float(spec.low)
+        high = sys.float_info.max if spec.high is None else float(spec.high)
+        d.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+    d.additional_constraints = '; '.join(constraints)
+    return d
+
+
+def _fmt(value: float | None) -> str:
+    return '-inf' if value is None else f'{value:g}'
+
+
+def ros_value(spec: ParameterSpec, value: Any) -> Any:
+    """A manager value as the ROS parameter type fixed by the spec's default."""
+    if isinstance(spec.default, (tuple, list)):
+        return [float(v) for v in value]
+    if isinstance(spec.default, bool) or isinstance(spec.default, str):
+        return value
+    if isinstance(spec.default, int):
+        return int(value)
+    return float(value)
+
+
+def manager_value(value: Any) -> Any:
+    """A ROS parameter value as the manager takes it (arrays as tuples)."""
+    if isinstance(value, (array.array, list, tuple)):
+        return tuple(value)
+    return value
+
+
+def _stamp_seconds(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+class ControllerManagerNode(Node):
+    """The controller manager node (name ``controller_manager``); see the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.declare_parameter('plant_params_file', '', ParameterDescriptor(
+            description="YAML of the controllers' plant model (CartPoleParameters); '' = the "
+                        'thesis values', read_only=True))
+        self.declare_parameter('sample_time', 0.005, ParameterDescriptor(
+            description='Control period Ts [s] the plugins are designed for', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=1e-4, to_value=0.1, step=0.0)]))
+        plant = load_plant_parameters(self.get_parameter('plant_params_file').value)
+        self.manager = ControllerManager(plant, self.get_parameter('sample_time').value)
+        self._specs = self.manager.parameter_specs()
+        for name, spec in self._specs.items():
+            self.declare_parameter(name, ros_value(spec, spec.default), descriptor_for(spec))
+        initial = {}
+        for name, spec in self._specs.items():
+            value = manager_value(self.get_parameter(name).value)
+            if value != spec.default:
+                initial[name] = value
+        result = self.manager.set_parameters(initial)
+        if not result.successful:  # a bad parameter file: refuse to start, say why
+            raise ValueError(f'controller_manager: invalid parameters: {result.reason}')
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self._pub_force = self.create_publisher(JointState, '/cartpole/force_command', 10)
+        self._pub_status = self.create_publisher(DiagnosticArray, '/cartpole/controller_status',
+                                                 10)
+        self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
+        self.create_service(Trigger, '~/restart_swingup', self._on_restart)
+        self._last_state_ns: int | None = None
+        self._last_stamp = None
+        self._stale = False
+        self.bad_states = 0
+        """State messages without the cart/pendulum positions and velocities (ignored)."""
+        self.create_timer(STALE_CHECK_PERIOD, self._check_stale)
+        values = self.manager.get_parameters()
+        self.get_logger().info(
+            f"controller_manager: swing-up {values['swingup']}, stabiliser "
+            f"{values['stabilizer']}, enabled {values['enabled']}, x_ref {values['x_ref']:g} m")
+
+    # -- parameters ----------------------------------------------------------------------
+    def _changes(self, parameters: list[Parameter]) -> dict[str, Any]:
+        return {p.name: manager_value(p.value) for p in parameters if p.name in self._specs}
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Refuse a change the manager would refuse (reason included); nothing changes then."""
+        result = self.manager.check_parameters(self._changes(parameters))
+        return SetParametersResult(successful=result.successful, reason=result.reason)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        """Queue accepted changes; the manager applies them before its next cycle."""
+        changes = self._changes(parameters)
+        if changes:
+            result = self.manager.set_parameters(changes)
+            if not result.successful:  # cannot happen after the on-set check; say so if it does
+                self.get_logger().error(f'parameter change not taken: {result.reason}')
+
+    # -- the control cycle (latency path) ------------------------------------------------------
+    def _on_state(self, msg: JointState) -> None:
+        try:
+            c = msg.name.index(CART_JOINT)
+            p = msg.name.index(PENDULUM_JOINT)
+            state = ControllerState(_stamp_seconds(msg.header.stamp), msg.position[c],
+                                    msg.position[p], msg.velocity[c], msg.velocity[p])
+        except (ValueError, IndexError):
+            self.bad_states += 1
+            self.get_logger().warning(
+                '/cartpole/state needs position and velocity of joints cart and pendulum; '
+                'message ignored', throttle_duration_sec=1.0)
+            return
+        out = self.manager.update(state)
+        force = JointState()
+        force.header.stamp = msg.header.stamp
+        force.name = [CART_JOINT]
+        force.effort = [out.force]
+        self._pub_force.publish(force)
+        self._last_state_ns = self.get_clock().now().nanoseconds
+        self._last_stamp = msg.header.stamp
+        self._stale = False
+        self._publish_status(out, msg.header.stamp)
+
+    def _publish_status(self, out: ManagerOutput, stamp) -> None:
+        self._pub_status.publish(status_message(out, stamp))
+        if out.event.startswith('fault') or ';fault' in out.event:
+            self.get_logger().error(f'fault: {out.fault_reason}; zero force until '
+                                    '~/restart_swingup')
+        elif out.event:
+            self.get_logger().info(f'{out.event} at t = {out.t:.3f} s')
+
+    def _check_stale(self) -> None:
+        if self._last_state_ns is None or self._stale:
+            return
+        now = self.get_clock().now()
+        if (now.nanoseconds - self._last_state_ns) * 1e-9 <= self.manager.state_timeout:
+            return
+        self._stale = True
+        stamp = now.to_msg()
+        out = self.manager.stale(_stamp_seconds(stamp))
+        self.publish_zero(stamp)
+        self._publish_status(out, stamp)
+
+    # -- services and shutdown ---------------------------------------------------------------------
+    def _on_restart(self, request, response):
+        running = self.manager.mode not in (IDLE, FAULT)
+        response.message = self.manager.restart()
+        response.success = not running
+        self.get_logger().info(f'restart_swingup: {response.message}')
+        return response
+
+    def publish_zero(self, stamp=None) -> None:
+        """Publish a zero force command (stamp: the given one, else the last state's, else now)."""
+        if not self.context.ok():
+            return
+        msg = JointState()
+        if stamp is None:
+            stamp = self._last_stamp if self._last_stamp is not None else \
+                self.get_clock().now().to_msg()
+        msg.header.stamp = stamp
+        msg.name = [CART_JOINT]
+        msg.effort = [0.0]
+        self._pub_force.publish(msg)
+
+    def destroy_node(self) -> None:
+        """Command zero force, then destroy the node."""
+        try:
+            self.publish_zero()
+        except Exception:  # the context may already be shutting down; the node still goes
+            pass
+        super().destroy_node()
+
+
+def status_message(out: ManagerOutput, stamp) -> DiagnosticArray:
+    """The ``/cartpole/controller_status`` message of one cycle (numbers as repr(float))."""
+    if out.mode == FAULT:
+        level = DiagnosticStatus.ERROR
+    elif out.mode == IDLE:
+        level = DiagnosticStatus.WARN
+    else:
+        level = DiagnosticStatus.OK
+    values = {
+        'mode': out.mode,
+        'swingup': out.swingup,
+        'stabilizer': out.stabilizer,
+        'enabled': 'true' if out.enabled else 'false',
+        'energy': repr(float(out.energy)),
+        'energy_error': repr(float(out.energy_error)),
+        'raw_force': repr(float(out.raw_force)),
+        'feedforward': repr(float(out.feedforward)),
+        'force': repr(float(out.force)),
+        'catch_count': repr(float(out.catch_count)),
+        'fall_count': repr(float(out.fall_count)),
+        'event': out.event,
+        'state_stamp': repr(_stamp_seconds(stamp)),
+    }
+    status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
+                              hardware_id='cartpole',
+                              values=[KeyValue(key=k, value=values[k]) for k in STATUS_KEYS])
+    array_msg = DiagnosticArray(status=[status])
+    array_msg.header.stamp = stamp
+    return array_msg
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ControllerManagerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

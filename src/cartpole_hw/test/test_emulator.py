@@ -1,0 +1,163 @@
+"""The device emulator over a real pseudo-terminal, spoken to with pyserial.
+
+Rates and intervals are measured with the device's own seq/t_us (simulated
+device time), never asserted against the wall clock beyond a generous count.
+"""
+import os
+import time
+
+import pytest
+import serial
+
+from cartpole_hw import protocol as jp
+from cartpole_hw.emulator import Emulator, FaultConfig, main
+
+
+class Client:
+    """A minimal host: pyserial + splitter + decoder."""
+
+    def __init__(self, path):
+        self.port = serial.Serial(path, 115200, timeout=0.01)
+        self.splitter = jp.LineSplitter()
+        self.messages = []
+        self.errors = []
+
+    def send(self, *messages):
+        self.port.write(b''.join(jp.encode(m) for m in messages))
+
+    def pump(self, until, timeout=5.0, every=None):
+        """Read until ``until(self)`` holds; ``every()`` is called each read."""
+        deadline = time.monotonic() + timeout
+        while not until(self):
+            if time.monotonic() > deadline:
+                return False
+            for line in self.splitter.feed(self.port.read(self.port.in_waiting or 1)):
+                m = line if isinstance(line, jp.DecodeError) else jp.decode_line(line, 'device')
+                (self.errors if isinstance(m, jp.DecodeError) else self.messages).append(m)
+            if every:
+                every()
+        return True
+
+    @property
+    def samples(self):
+        return [m for m in self.messages if isinstance(m, jp.Sample)]
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    em = Emulator(link=str(tmp_path / 'emu'))
+    em.start()
+    try:
+        yield em
+    finally:
+        em.stop()
+
+
+def test_streams_5ms_samples_at_about_200_hz(emulator):
+    c = Client(emulator.link)
+    c.send(jp.Ping(), jp.Stream(True))
+    t0 = time.monotonic()
+    assert c.pump(lambda c: len(c.samples) >= 200)
+    wall = time.monotonic() - t0
+    s = c.samples
+    assert any(isinstance(m, jp.Version) and m.version == 1 for m in c.messages)
+    assert [b.seq - a.seq for a, b in zip(s, s[1:])] == [1] * (len(s) - 1)      # none lost
+    assert {b.t_us - a.t_us for a, b in zip(s, s[1:])} == {5000}                # Ts = 5 ms
+    assert 200 / wall == pytest.approx(200, rel=0.4)    # real time, generous
+    assert s[0].flags == jp.FLAG_LIMIT_LEFT             # at the left stop, disabled
+    assert (s[0].cart_ticks, s[0].pend_ticks) == (0, 0)
+
+
+def test_setpoint_reaches_the_amplifier_and_moves_the_cart_right(emulator):
+    c = Client(emulator.link)
+    c.send(jp.Stream(True), jp.Enable(True))
+    c.pump(lambda c: len(c.samples) >= 2)
+    n0 = len(c.samples)
+    c.pump(lambda c: len(c.samples) >= n0 + 60, every=lambda: c.send(jp.Setpoint(600)))
+    moved = c.samples[-1]
+    assert moved.enabled and not moved.watchdog_tripped
+    assert moved.cart_ticks > 100                       # 600 / 56.744 = 10.6 N > friction
+    assert emulator.device.dac_value() == 1953 + 600
+    # and left with a negative setpoint: the cart comes back
+    n1 = len(c.samples)
+    c.pump(lambda c: len(c.samples) >= n1 + 80, every=lambda: c.send(jp.Setpoint(-600)))
+    assert c.samples[-1].cart_ticks < moved.cart_ticks
+
+
+def test_device_watchdog_trips_50ms_after_the_last_setpoint(emulator):
+    c = Client(emulator.link)
+    c.send(jp.Stream(True), jp.Enable(True), jp.Setpoint(300))
+    assert c.pump(lambda c: any(s.watchdog_tripped for s in c.samples))
+    first = next(s for s in c.samples if s.watchdog_tripped)
+    enabled = [s for s in c.samples if s.enabled]
+    # U arrived with E,1, i.e. before the first enabled sample; the trip 50..55 ms later
+    assert 50_000 <= first.t_us - enabled[0].t_us + 5000 <= 60_000
+    assert any(isinstance(m, jp.DeviceError) and m.code == 16 for m in c.messages)
+    assert emulator.device.output_setpoint() == 0
+    c.send(jp.Setpoint(10))
+    n = len(c.samples)
+    assert c.pump(lambda c: len(c.samples) > n + 2)
+    assert not c.samples[-1].watchdog_tripped             # cleared by the next U
+
+
+def test_reset_rezeroes_and_malformed_commands_are_answered(emulator):
+    emulator.plant.state[0] = 0.2                        # cart in the middle somewhere
+    c = Client(emulator.link)
+    c.send(jp.Stream(True))
+    c.pump(lambda c: len(c.samples) >= 2)
+    assert c.samples[-1].cart_ticks == round(0.2 / (0.769 / 8737))
+    c.port.write(b'U,5*00\nE,1*58\n' + jp.encode(jp.ResetCounters()))
+    assert c.pump(lambda c: sum(isinstance(m, jp.DeviceError) for m in c.messages) >= 2)
+    codes = [m.code for m in c.messages if isinstance(m, jp.DeviceError)]
+    assert codes[:2] == [1, 9]                           # bad checksum; R refused while enabled
+    c.send(jp.Enable(False), jp.ResetCounters(), jp.Ping())
+    assert c.pump(lambda c: isinstance(c.messages[-1], jp.Sample) and
+                  any(isinstance(m, jp.Version) for m in c.messages))
+    n = len(c.messages)
+    c.pump(lambda c: len(c.messages) > n + 2)
+    assert abs(c.samples[-1].cart_ticks) <= 1           # re-zeroed where the cart stands
+
+
+def test_disconnect_makes_the_port_vanish_and_come_back_at_the_link(tmp_path):
+    link = tmp_path / 'emu'
+    with Emulator(link=str(link), faults=FaultConfig(corrupt=0.0)) as em:
+        c = Client(str(link))
+        c.send(jp.Stream(True))
+        c.pump(lambda c: len(c.samples) >= 2)
+        old = os.path.realpath(link)   # noqa: F841 (the new pty may reuse the number)
+        em.disconnect(0.3)
+        with pytest.raises(serial.SerialException):
+            deadline = time.monotonic() + 3
+            while time.monotonic() < deadline:
+                c.port.read(100)
+        deadline = time.monotonic() + 3
+        while not link.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert link.exists() and em.disconnect_count == 1
+        c2 = Client(str(link))
+        n = len(c.samples)
+        assert c2.pump(lambda c2: len(c2.samples) >= 3)   # still streaming: device kept power
+        assert c2.samples[0].seq > c.samples[n - 1].seq + 10
+        c.port.close()
+        c2.port.close()
+        del old
+
+
+def test_corruption_is_always_detected(tmp_path):
+    with Emulator(link=str(tmp_path / 'emu'), faults=FaultConfig(corrupt=0.5), seed=3) as em:
+        c = Client(em.link)
+        c.send(jp.Stream(True))
+        assert c.pump(lambda c: len(c.samples) + len(c.errors) >= 200)
+        assert len(c.errors) > 50
+        s = c.samples
+        # every accepted sample is genuine: seq increasing, t_us = 5 ms x seq
+        assert all(b.seq > a.seq for a, b in zip(s, s[1:]))
+        assert all((b.t_us - a.t_us) == 5000 * (b.seq - a.seq) for a, b in zip(s, s[1:]))
+
+
+def test_command_line_refuses_bad_options(capsys):
+    with pytest.raises(SystemExit):
+        main(['--drop', '2'])
+    assert 'probability' in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(['--stall', 'x'])

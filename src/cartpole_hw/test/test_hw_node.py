@@ -1,0 +1,170 @@
+"""hw_bridge node in-process against the emulator over a real pty.
+
+Rates are judged against the emulator's own count of sample periods (device
+time), not the wall clock.
+"""
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def rig(ros_context, tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+
+    from cartpole_hw.emulator import Emulator
+    from cartpole_hw.hw_node import HwBridgeNode
+
+    em = Emulator(link=str(tmp_path / 'emu'))
+    em.start()
+    node = HwBridgeNode(context=ros_context, parameter_overrides=[
+        Parameter('port', value=em.link), Parameter('home_on_start', value=True),
+        Parameter('armed', value=True), Parameter('reconnect_period', value=0.1),
+        Parameter('health_period', value=0.05)])
+    probe = node.__class__.__mro__[1]('probe', context=ros_context)
+
+    class Rig:
+        pass
+
+    r = Rig()
+    r.em, r.node, r.probe = em, node, probe
+    r.joint_states, r.health = [], []
+    probe.create_subscription(JointState, '/joint_states', r.joint_states.append, 1000)
+    probe.create_subscription(DiagnosticArray, '/cartpole/hw/health',
+                              lambda m: r.health.append({kv.key: kv.value for kv in m.status[0].values}), 100)
+    r.pub = probe.create_publisher(JointState, '/cartpole/force_command', 10)
+    r.executor = SingleThreadedExecutor(context=ros_context)
+    r.executor.add_node(node)
+    r.executor.add_node(probe)
+
+    def command(force):
+        msg = JointState()
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.name = ['cart']
+        msg.effort = [float(force)]
+        r.pub.publish(msg)
+
+    def spin(predicate, timeout=10.0, force=None):
+        """Spin until predicate(); publish ``force`` after every new sample if given."""
+        deadline = time.monotonic() + timeout
+        seen = len(r.joint_states)
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            r.executor.spin_once(timeout_sec=0.002)
+            if force is not None and len(r.joint_states) > seen:
+                seen = len(r.joint_states)
+                command(force)
+        return True
+
+    r.command, r.spin = command, spin
+    r.h = lambda: r.health[-1] if r.health else {}
+    try:
+        assert spin(lambda: r.h().get('armed') == 'true'), r.h()
+        yield r
+    finally:
+        node.destroy_node()
+        probe.destroy_node()
+        em.stop()
+
+
+def test_joint_states_at_the_device_rate_and_force_reaches_the_cart(rig):
+    n0, s0 = len(rig.joint_states), rig.em.samples
+    assert rig.spin(lambda: rig.em.samples - s0 >= 200, force=8.0)
+    received = len(rig.joint_states) - n0
+    assert received >= 0.9 * (rig.em.samples - s0)          # ~200 Hz: one message a period
+    last = rig.joint_states[-1]
+    assert list(last.name) == ['cart', 'pendulum']
+    assert last.position[0] > 0.02                          # pushed right by +8 N
+    assert rig.em.device.setpoint == round(8.0 * 56.744)
+    assert abs(last.position[0] - rig.em.plant.state[0]) < 0.01
+    assert rig.spin(lambda: rig.h().get('latency_p50', 'nan') != 'nan')
+    h = rig.h()
+    assert h['lost_samples'] == '0' and h['bad_lines'] == '0' and h['homed'] == 'true'
+    assert float(h['latency_max']) < 0.05
+
+
+def test_silent_command_source_trips_the_host_watchdog(rig):
+    assert rig.spin(lambda: rig.em.device.setpoint > 0, force=5.0)
+    # the controller dies: no more commands
+    assert rig.spin(lambda: rig.h().get('watchdog_trips') == '1' and rig.h().get('armed') == 'false')
+    assert not rig.em.device.enabled and rig.em.device.output_setpoint() == 0
+    tail = rig.em.received[-6:]
+    assert b'U,0*49' in tail and b'E,0*59' in tail
+    assert rig.spin(lambda: rig.node.get_parameter('armed').value is False)
+    rig.command(5.0)                       # a late command does not re-arm anything
+    assert rig.spin(lambda: rig.h().get('ignored_commands') not in (None, '0'))
+    assert rig.em.device.output_setpoint() == 0
+
+
+def test_link_stall_trips_the_device_watchdog_and_the_bridge_disarms(rig):
+    assert rig.spin(lambda: rig.em.device.setpoint > 0, force=5.0)
+    rig.em.stall(300)
+    # keep commanding: the bridge still gets no samples, the device no U
+    assert rig.spin(lambda: rig.em.device.watchdog_tripped, timeout=5.0)
+    assert rig.em.device.output_setpoint() == 0
+    assert rig.spin(lambda: rig.h().get('armed') == 'false' and rig.h().get('faults') != '0')
+    assert 'sample' in rig.h()['last_error']
+
+
+def test_corrupted_stream_is_survived_with_zero_force_while_bad(rig):
+    from std_srvs.srv import SetBool
+
+    rig.em.set_faults(corrupt=0.2)
+    s0 = rig.em.samples
+    assert rig.spin(lambda: rig.em.samples - s0 >= 100, force=3.0)
+    h = rig.h()
+    assert int(h['bad_lines']) > 5 and h['armed'] == 'true'       # 20 % bad lines survived
+    rig.em.set_faults(corrupt=1.0)                                # nothing valid any more
+    assert rig.spin(lambda: rig.h().get('armed') == 'false', force=3.0)
+    assert rig.em.device.output_setpoint() == 0 and not rig.em.device.enabled
+    rig.em.set_faults(corrupt=0.0)
+    n = len(rig.joint_states)
+    assert rig.spin(lambda: len(rig.joint_states) > n + 20)
+    client = rig.probe.create_client(SetBool, '/hw_bridge/arm')
+    future = client.call_async(SetBool.Request(data=True))
+    assert rig.spin(future.done)
+    assert future.result().success, future.result().message
+    assert rig.spin(lambda: rig.em.device.enabled)
+
+
+def test_disconnect_and_reconnect_with_zero_force_while_down(rig):
+    from std_srvs.srv import SetBool, Trigger
+
+    assert rig.spin(lambda: rig.em.device.setpoint > 0, force=5.0)
+    rig.em.disconnect(0.5)
+    assert rig.spin(lambda: rig.h().get('connected') == 'false', force=5.0)
+    assert rig.spin(lambda: rig.em.device.watchdog_tripped)       # device: no U -> zero current
+    assert rig.em.device.output_setpoint() == 0
+    assert rig.spin(lambda: rig.h().get('connected') == 'true' and rig.h().get('reconnects') == '1')
+    n = len(rig.joint_states)
+    assert rig.spin(lambda: len(rig.joint_states) > n + 20)
+    h = rig.h()
+    assert h['armed'] == 'false' and h['homed'] == 'true'         # counts kept, explicit re-arm
+    assert not rig.em.device.enabled
+    # homing is refused while armed, allowed while disarmed
+    home = rig.probe.create_client(Trigger, '/hw_bridge/home')
+    future = home.call_async(Trigger.Request())
+    assert rig.spin(future.done) and future.result().success
+    arm = rig.probe.create_client(SetBool, '/hw_bridge/arm')
+    future = arm.call_async(SetBool.Request(data=True))
+    assert rig.spin(future.done) and future.result().success, future.result().message
+    future = home.call_async(Trigger.Request())
+    assert rig.spin(future.done) and not future.result().success
+    assert 'armed' in future.result().message
+
+
+def test_bad_parameter_values_are_refused_with_reasons(rig):
+    from rclpy.parameter import Parameter
+
+    results = rig.node.set_parameters([Parameter('command_timeout', value=-1.0),
+                                       Parameter('cart_sign', value=1),
+                                       Parameter('armed', value='yes')])
+    assert [r.successful for r in results] == [False, False, False]
+    assert all(r.reason for r in results)
+    assert rig.node.get_parameter('command_timeout').value == 0.05
