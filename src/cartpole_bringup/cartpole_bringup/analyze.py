@@ -125,6 +125,8 @@ class SeriesBuilder:
         if source is None:
             raise ValueError(f'no {TRUE_STATE} or {STATE} messages: nothing to analyse')
         rows = np.array(sorted(self.states[source]), dtype=float)
+        # A sample delivered twice (lockstep re-publishes sample 0 until the loop answers).
+        rows = rows[np.concatenate(([True], np.diff(rows[:, 0]) > 0))]
         t0 = 0.0 if lockstep else rows[0, 0]
         t = (rows[:, 0] - t0) * 1e-9
         forces = np.array(sorted(self.forces), dtype=float).reshape(-1, 2)

@@ -65,6 +65,19 @@ EXIT_TIMEOUT = 5.0
 """Wall seconds a child process gets after SIGINT (then SIGTERM, then SIGKILL)."""
 
 
+EXECUTORS = ('single', 'events')
+
+
+def make_executor(kind: str, context):
+    """The executor of the one-process graph (see :data:`EXECUTORS`)."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == 'single':
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f'executor must be one of {EXECUTORS}, got {kind!r}')
+
+
 class GraphError(RuntimeError):
     """The graph could not be started or driven (a node failed, a timeout)."""
 
@@ -91,6 +104,9 @@ class GraphSpec:
         Strings stored in the bag's ``custom_data``.
     log_level
         ROS log level of the nodes.
+    executor
+        One-process executor: ``'single'`` (rclpy's SingleThreadedExecutor) or
+        ``'events'`` (rclpy.experimental's EventsExecutor, C++).
     """
 
     plant: str
@@ -101,6 +117,7 @@ class GraphSpec:
     record: Path | None = None
     custom_data: dict[str, str] = field(default_factory=dict)
     log_level: str = 'warn'
+    executor: str = 'events'
 
     def __post_init__(self) -> None:
         if self.plant not in ('sim', 'hw_bridge'):
@@ -173,9 +190,19 @@ def _stamp_ns(stamp) -> int:
 
 
 class RunMonitor(Node):
-    """Watches a run (node ``cartpole_run``): series, sim time, forces; remote parameters."""
+    """Watches a run (node ``cartpole_run``): series, sim time, forces.
 
-    def __init__(self, **kwargs) -> None:
+    Parameters
+    ----------
+    state_topic
+        The state it times the run by (``/cartpole/true_state`` on the
+        simulator, ``/cartpole/state`` on the rig).
+    collect
+        Also subscribe the controller status (and the hw health) for the
+        in-memory summary; not needed when a bag is recorded.
+    """
+
+    def __init__(self, state_topic: str = TRUE_STATE, collect: bool = True, **kwargs) -> None:
         super().__init__('cartpole_run', **kwargs)
         self.builder = SeriesBuilder()
         self.last_stamp_ns: int | None = None
@@ -184,11 +211,12 @@ class RunMonitor(Node):
         self.last_force: float | None = None
         self.zero_forces = 0
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-        for topic in (TRUE_STATE, STATE):
-            self.create_subscription(JointState, topic, self._state_cb(topic), qos)
+        self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
         self.create_subscription(JointState, FORCE, self._on_force, qos)
-        self.create_subscription(DiagnosticArray, STATUS, self._diag_cb(STATUS), qos)
-        self.create_subscription(DiagnosticArray, HW_HEALTH, self._diag_cb(HW_HEALTH), qos)
+        if collect:
+            self.create_subscription(DiagnosticArray, STATUS, self._diag_cb(STATUS), qos)
+            if state_topic == STATE:
+                self.create_subscription(DiagnosticArray, HW_HEALTH, self._diag_cb(HW_HEALTH), qos)
 
     def _state_cb(self, topic: str) -> Callable[[JointState], None]:
         def callback(msg: JointState) -> None:
@@ -237,8 +265,9 @@ class Graph:
         self.spec = spec
         self.context = context
         self.should_stop = should_stop
-        self.executor = SingleThreadedExecutor(context=context)
-        self.monitor = RunMonitor(context=context)
+        self.executor = make_executor(spec.executor, context)
+        self.monitor = RunMonitor(state_topic=TRUE_STATE if spec.plant == 'sim' else STATE,
+                                  collect=spec.record is None, context=context)
         self.executor.add_node(self.monitor)
         self.nodes: dict[str, Node] = {}
         self.processes: dict[str, subprocess.Popen] = {}
@@ -294,7 +323,7 @@ class Graph:
         def ready() -> bool:
             self._check_processes()
             return (m.count_subscribers('/joint_states') >= 1 + rec
-                    and m.count_subscribers(STATE) >= 2 + rec  # manager, monitor, recorder
+                    and m.count_subscribers(STATE) >= 1 + rec
                     and m.count_publishers(FORCE) >= 1)
         if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
             raise GraphError(f'the nodes did not come up within {STARTUP_TIMEOUT:g} s; '

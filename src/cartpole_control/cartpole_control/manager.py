@@ -94,10 +94,6 @@ class ManagerOutput:
     fault_reason: str
 
 
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
-
-
 class ControllerManager:
     """Holds one swing-up and one stabiliser plugin and runs the cycle of the module docstring.
 
@@ -410,14 +406,17 @@ class ControllerManager:
         """One control cycle for the estimated ``state``; see the module docstring."""
         events: list[str] = []
         p = self.plant
-        if not _finite(state.t, state.x, state.theta, state.x_dot, state.theta_dot):
+        isfinite = math.isfinite
+        if not (isfinite(state.t) and isfinite(state.x) and isfinite(state.theta)
+                and isfinite(state.x_dot) and isfinite(state.theta_dot)):
             self._fault('non-finite state', events)
             self._last_force = 0.0
             self._energy = math.nan
             return self._output(state.t, 0.0, 0.0, 0.0, events)
         x_ddot, theta_ddot = accelerations(state.x, state.theta, state.x_dot, state.theta_dot,
                                            self._last_force, p)
-        state = dataclasses.replace(state, x_ddot=x_ddot, theta_ddot=theta_ddot)
+        state = ControllerState(state.t, state.x, state.theta, state.x_dot, state.theta_dot,
+                                x_ddot, theta_ddot)
         self._energy = pendulum_energy(state.theta, state.theta_dot, p)
 
         self._apply_pending(state, events)

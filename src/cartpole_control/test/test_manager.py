@@ -474,3 +474,31 @@ def test_switching_the_swingup_while_swinging_keeps_swinging():
     assert max(o.energy for o in outs) > energy_before
     assert outs[-1].catch_count >= 1 and outs[-1].mode == STABILIZING
     assert not plant.end_stop_contact
+
+
+def test_closed_loop_through_the_ekf_catches_and_switches_without_losing_the_pendulum():
+    """The architecture's cycle: quantised measurement -> EKF -> manager -> plant (ZOH)."""
+    ekf_module = pytest.importorskip('cartpole_estimation.ekf')
+    ekf = ekf_module.ExtendedKalmanFilter(P)
+    m = ControllerManager(P)
+    plant = Plant(P, Scenario(theta0=math.pi + 0.03))
+    force, angles, outs = 0.0, [], []
+    switches = {9.0: 'smc', 11.0: 'pid', 13.0: 'lqg'}
+    for k in range(int(15.0 / TS)):
+        t = k * TS
+        if round(t, 6) in switches:
+            assert m.set_parameters({'stabilizer': switches[round(t, 6)]}).successful
+        meas = plant.measure()
+        est = ekf.update(meas.t, meas.x, meas.theta, force)
+        out = m.update(ControllerState(est.t, est.x, est.theta, est.x_dot, est.theta_dot))
+        outs.append(out)
+        force = out.force
+        plant.step(force)
+        if t > 8.0:
+            angles.append(abs(wrap_angle(plant.state[1])))
+    assert outs[-1].catch_time is not None and outs[-1].catch_time < 8.0
+    assert [o.event for o in outs if o.event.startswith('switch')] == [
+        'switch:stabilizer=smc', 'switch:stabilizer=pid', 'switch:stabilizer=lqg']
+    assert outs[-1].mode == STABILIZING and outs[-1].fall_count == 0
+    assert max(angles) < math.radians(3.0)
+    assert not plant.end_stop_contact

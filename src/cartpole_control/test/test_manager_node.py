@@ -257,7 +257,10 @@ def test_installed_executable_takes_a_params_file_and_stops_on_sigint(
         assert h.get('stabilizer', 'lqg.r') == ['smc', 0.02]
         command, status_array = h.send_state(5.0)
         assert values_of(status_array)[1]['stabilizer'] == 'smc'
+        assert command.effort[0] != 0.0
         proc.send_signal(signal.SIGINT)
+        # Zero force on the way out.
+        assert spin_until(h.executor, lambda: h.commands[-1].effort[0] == 0.0, 20.0)
         assert proc.wait(timeout=20) == 0
         _, err = proc.communicate(timeout=5)
         assert b'Traceback' not in err, err.decode()

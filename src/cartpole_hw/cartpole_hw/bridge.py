@@ -358,6 +358,7 @@ class BridgeCore:
             'device': self.device_name,
             'armed': str(self.armed).lower(),
             'homed': str(self.homed).lower(),
+            'homing': str(self.homing).lower(),
             'samples': str(self.samples),
             'lost_samples': str(self.tracker.lost),
             'bad_lines': str(sum(self.bad_lines.values())),

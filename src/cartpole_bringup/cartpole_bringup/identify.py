@@ -1,0 +1,666 @@
+"""Plant parameter identification from recorded open-loop tests (no ROS).
+
+The thesis finds m_c, c_c,R and c_c,L by simulating the model (4.18) with
+the force pulses of a test and minimising the RMSE between the simulated and
+measured cart positions, summed per direction (4.22)-(4.26), and the pendulum
+friction c_p, v_p from the decay of free swings (section 4.3.2, Appendix E),
+then checks the whole model on the "Input" and "Oscillation" tests of
+section 4.6. This module does all of it in one fit:
+
+- every recording (:class:`Recording`: sample times, measured x and theta,
+  force command held over each sample period) is replayed open loop on
+  :class:`cartpole_sim.plant.Plant` (actuator (4.4), saturation, end stops,
+  mechanics (4.18) with the friction (4.20)/(4.21)/(4.27)) from its own
+  initial state;
+- the residuals are the simulated minus measured cart position and pendulum
+  angle, each recording normalised by the square root of its sample count,
+  so its share of the cost is its mean square error, as (4.22) gives every
+  direction's test the same say whatever its length;
+- :func:`scipy.optimize.least_squares` (trust-region reflective, bounded,
+  like the thesis's ``fmincon`` with bounds) varies any set of
+  :class:`~cartpole_sim.model.CartPoleParameters` fields, all recordings
+  sharing one parameter set; optionally each recording's initial state too.
+
+:func:`load_recording` is the thin bag loader (rosbag2/MCAP, via
+``rosbags``); :func:`simulate_test` synthesises a recording of a test on
+the simulated plant, to rehearse the procedure or to test this module.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.plant import Plant, Scenario
+
+JOINTS = '/joint_states'
+FORCE = '/cartpole/force_command'
+
+DEFAULT_FREE = ('m_c', 'c_c_right', 'c_c_left', 'c_p', 'v_p')
+"""Parameters fitted by default: the cart's (4.23) and the pendulum's (4.28)."""
+
+DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
+    'm_c': (0.5, 20.0),
+    'c_c_right': (0.0, 20.0),
+    'c_c_left': (0.0, 20.0),
+    'v_c': (0.0, 50.0),
+    'c_p': (0.0, 0.1),
+    'v_p': (0.0, 0.1),
+    'm_p': (0.01, 5.0),
+    'l': (0.05, 1.0),
+}
+"""Search bounds per parameter. The thesis bounded m_c, c_c,R, c_c,L to
+[1, 5] (4.23); these are wider so that a rig far from the thesis's is not
+cut off (the true m_c 4.75 of Table 4.1 sits next to 5). Fields not listed
+get [initial / 10, initial x 10]."""
+
+TYPICAL_SCALE: dict[str, float] = {
+    'v_c': 1.0, 'c_c_right': 3.0, 'c_c_left': 3.0, 'c_p': 0.004, 'v_p': 0.001,
+}
+"""Scale of a parameter whose initial value is zero (the search runs on
+value / scale, so every variable is of order one)."""
+
+INITIAL_STATE_SCALE = (1.0e-3, 1.0e-2, 1.0e-2, 1.0e-1)
+"""Scales of the per-recording initial state offsets [m, rad, m/s, rad/s]."""
+
+MIN_SAMPLES = 20
+"""Fewest samples of a usable recording (0.1 s at Ts = 5 ms)."""
+
+NOT_FITTABLE = ('pendulum_ticks_per_rev', 'cart_ticks_over_travel', 'counter_bits',
+                'sample_time', 'travel')
+"""Fields that describe the sampling and the encoders, not the dynamics."""
+
+_DIVERGED = 10.0
+"""Residual [m or rad] used in place of a non-finite simulated sample."""
+
+
+class IdentificationError(ValueError):
+    """Unusable input: a bag without the topics, too few samples, a bad option."""
+
+
+# -- recordings --------------------------------------------------------------------
+@dataclass(frozen=True)
+class Recording:
+    """One open-loop test: measured positions and the force commands that drove it.
+
+    Parameters
+    ----------
+    t
+        Sample times [s], strictly increasing (gaps allowed: the command is
+        held over them, as the device holds its last setpoint).
+    x, theta
+        Measured cart position [m] and pendulum angle [rad] (continuous,
+        pi hanging) at ``t``, quantised as the encoders give them.
+    force
+        Force command [N] applied from ``t[k]`` until ``t[k + 1]``
+        (zero-order hold; docs/architecture.md, one control cycle).
+    label
+        A name for reports (the bag's directory name).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    theta: np.ndarray
+    force: np.ndarray
+    label: str = ''
+
+    def __post_init__(self) -> None:
+        arrays = {}
+        for name in ('t', 'x', 'theta', 'force'):
+            a = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+            object.__setattr__(self, name, a)
+            arrays[name] = a
+        n = arrays['t'].size
+        name = self.label or 'recording'
+        if any(a.size != n for a in arrays.values()):
+            raise IdentificationError(
+                f'{name}: t, x, theta and force must have the same length, got '
+                + ', '.join(f'{k} {a.size}' for k, a in arrays.items()))
+        if n < MIN_SAMPLES:
+            raise IdentificationError(
+                f'{name}: {n} samples; at least {MIN_SAMPLES} are needed to fit anything')
+        for key, a in arrays.items():
+            if not np.all(np.isfinite(a)):
+                raise IdentificationError(f'{name}: {key} has non-finite values')
+        if not np.all(np.diff(arrays['t']) > 0.0):
+            raise IdentificationError(f'{name}: sample times must be strictly increasing')
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def window(self, t_start: float | None = None, t_end: float | None = None) -> 'Recording':
+        """The samples with t_start <= t - t[0] <= t_end (seconds from the first sample)."""
+        rel = self.t - self.t[0]
+        keep = np.ones(rel.size, dtype=bool)
+        if t_start is not None:
+            keep &= rel >= t_start - 1e-9
+        if t_end is not None:
+            keep &= rel <= t_end + 1e-9
+        return Recording(self.t[keep], self.x[keep], self.theta[keep], self.force[keep],
+                         self.label)
+
+
+def estimate_initial_state(rec: Recording, window: float = 0.05) -> np.ndarray:
+    """[x, theta, x_dot, theta_dot] at ``rec.t[0]`` from a quadratic fit of the first samples.
+
+    Positions and rates at the start, least squares over ``window`` seconds
+    (at least 3 samples): a rate from two quantised samples would be off by a
+    whole tick per 5 ms (18 mm/s, 0.6 rad/s); the fit averages that out. A
+    test started from rest gives rates close to zero.
+    """
+    rel = rec.t - rec.t[0]
+    n = max(3, int(np.searchsorted(rel, window, side='right')))
+    tt = rel[:n]
+    out = np.empty(4)
+    for i, y in enumerate((rec.x[:n], rec.theta[:n])):
+        c = np.polyfit(tt, y, 2)
+        out[i] = c[2]
+        out[2 + i] = c[1]
+    return out
+
+
+def simulate(rec: Recording, params: CartPoleParameters, initial_state: Sequence[float],
+             integration_step: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
+    """Replay a recording's force commands on the plant: simulated (x, theta) at ``rec.t``.
+
+    The plant (:class:`~cartpole_sim.plant.Plant`: actuator (4.4),
+    saturation, end stops, mechanics (4.18)) starts from ``initial_state``
+    (the cart clipped into the travel, so a start measured against a stop
+    does not begin inside the stop's spring) and holds ``rec.force[k]`` over
+    ``[t[k], t[k + 1])``. The true (unquantised) positions are returned;
+    samples after a non-finite state are NaN.
+    """
+    x0, theta0, x_dot0, theta_dot0 = (float(v) for v in initial_state)
+    x0 = min(max(x0, 0.0), params.travel)
+    plant = Plant(params, Scenario(x0=x0, theta0=theta0, x_dot0=x_dot0, theta_dot0=theta_dot0),
+                  integration_step=min(integration_step, params.sample_time))
+    n = rec.t.size
+    xs = np.full(n, np.nan)
+    thetas = np.full(n, np.nan)
+    dts = np.diff(rec.t)
+    force = rec.force
+    for k in range(n):
+        state = plant.state
+        if not (math.isfinite(state[0]) and math.isfinite(state[1])):
+            break
+        xs[k] = state[0]
+        thetas[k] = state[1]
+        if k < n - 1:
+            plant.step(float(force[k]), float(dts[k]))
+    return xs, thetas
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    """Root mean square of a - b (inf if any value is not finite)."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    return float(np.sqrt(np.mean(d * d))) if np.all(np.isfinite(d)) else math.inf
+
+
+# -- the fit -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RecordingFit:
+    """The fit of one recording: errors of the simulation before and after."""
+
+    label: str
+    samples: int
+    duration_s: float
+    initial_state: tuple[float, float, float, float]
+    """[x, theta, x_dot, theta_dot] the simulation started from (after the fit)."""
+    rmse_x_before_m: float
+    rmse_x_after_m: float
+    rmse_theta_before_rad: float
+    rmse_theta_after_rad: float
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """What :func:`identify` found.
+
+    ``values``, ``initial_values`` and ``std_errors`` are keyed by the free
+    parameter names. ``std_errors`` are approximate one-sigma errors from the
+    Jacobian at the solution, cov = s^2 (J^T J)^-1 with s^2 the residual
+    variance; they assume independent residuals of equal variance, which
+    model errors (correlated in time) violate, so read them as a lower
+    bound and as a check of identifiability (a huge error or a correlation
+    near +-1 means the tests do not tell the parameters apart).
+    """
+
+    params: CartPoleParameters
+    free: tuple[str, ...]
+    initial_values: dict[str, float]
+    values: dict[str, float]
+    std_errors: dict[str, float]
+    correlation: list[list[float]]
+    at_bound: tuple[str, ...]
+    recordings: tuple[RecordingFit, ...]
+    cost_before: float
+    cost_after: float
+    """The thesis's cost (4.22) generalised: the sum over recordings of the
+    cart position RMSE [m]."""
+    success: bool
+    message: str
+    nfev: int
+    njev: int
+    simulations: int
+    trajectories: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...] = field(
+        default=(), repr=False, compare=False)
+    """Per recording: simulated (x, theta) before and after the fit."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (no trajectories)."""
+        def num(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+        return {
+            'free': list(self.free),
+            'initial': {k: num(v) for k, v in self.initial_values.items()},
+            'fitted': {k: num(v) for k, v in self.values.items()},
+            'std_error': {k: num(v) for k, v in self.std_errors.items()},
+            'correlation': [[num(v) for v in row] for row in self.correlation],
+            'at_bound': list(self.at_bound),
+            'cost_before_m': num(self.cost_before),
+            'cost_after_m': num(self.cost_after),
+            'recordings': [{
+                'label': r.label, 'samples': r.samples, 'duration_s': r.duration_s,
+                'initial_state': list(r.initial_state),
+                'rmse_x_before_m': num(r.rmse_x_before_m), 'rmse_x_after_m': num(r.rmse_x_after_m),
+                'rmse_theta_before_rad': num(r.rmse_theta_before_rad),
+                'rmse_theta_after_rad': num(r.rmse_theta_after_rad),
+            } for r in self.recordings],
+            'success': self.success,
+            'message': self.message,
+            'nfev': self.nfev,
+            'njev': self.njev,
+            'simulations': self.simulations,
+        }
+
+
+def parse_free(text: str | Sequence[str]) -> tuple[str, ...]:
+    """``'m_c,c_c_right'`` (or a sequence) -> validated parameter names, in order, no repeats."""
+    names = [s.strip() for s in (text.split(',') if isinstance(text, str) else text)]
+    names = [s for s in names if s]
+    if not names:
+        raise IdentificationError('no free parameters given')
+    known = [f for f in CartPoleParameters.__dataclass_fields__]
+    fittable = [f for f in known if f not in NOT_FITTABLE]
+    for name in names:
+        if name not in known:
+            raise IdentificationError(f'unknown parameter {name!r}; fittable: {fittable}')
+        if name in NOT_FITTABLE:
+            raise IdentificationError(
+                f'{name} describes the sampling/encoders and cannot be fitted; fittable: {fittable}')
+    if len(set(names)) != len(names):
+        raise IdentificationError(f'free parameters repeat: {names}')
+    return tuple(names)
+
+
+def default_bounds(name: str, initial: float) -> tuple[float, float]:
+    """Search bounds of one parameter (:data:`DEFAULT_BOUNDS`, else initial / 10 .. x 10)."""
+    if name in DEFAULT_BOUNDS:
+        return DEFAULT_BOUNDS[name]
+    if initial > 0:
+        return initial / 10.0, initial * 10.0
+    if initial < 0:
+        return initial * 10.0, initial / 10.0
+    return 0.0, TYPICAL_SCALE.get(name, 1.0) * 10.0
+
+
+def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None = None, *,
+             free: Sequence[str] = DEFAULT_FREE,
+             bounds: Mapping[str, tuple[float, float]] | None = None,
+             weight_cart: float = 1.0, weight_pendulum: float | None = None,
+             fit_initial_state: bool = False, integration_step: float = 0.001,
+             max_nfev: int = 30, rel_step: float = 1.0e-3, tolerance: float = 1.0e-6,
+             progress: Callable[[str], None] | None = None) -> IdentificationResult:
+    """Fit plant parameters to open-loop tests, (4.22)-(4.26) and section 4.3.2.
+
+    Minimises, over the free parameters p (and, with ``fit_initial_state``,
+    each recording's initial state),
+
+        sum_b (1 / n_b) sum_k [ w_x^2 (x_sim - x_meas)^2 + w_theta^2 (theta_sim - theta_meas)^2 ]
+
+    with :func:`scipy.optimize.least_squares` (``trf``, bounded), forward
+    differences with a step of ``rel_step`` of each parameter's scale, and
+    every recording simulated by :func:`simulate`.
+
+    Parameters
+    ----------
+    recordings
+        The tests; all share one parameter set.
+    nominal
+        Starting values and every parameter that is not fitted (default: the
+        thesis values).
+    free
+        Names of :class:`~cartpole_sim.model.CartPoleParameters` fields to fit.
+    bounds
+        Name -> (low, high), overriding :func:`default_bounds`.
+    weight_cart, weight_pendulum
+        w_x [1/m] and w_theta [1/rad]; w_theta defaults to the pendulum length
+        l, so one radian of angle error counts as the tip's arc length in
+        metres, like a cart error.
+    fit_initial_state
+        Also fit each recording's [x, theta, x_dot, theta_dot] at its first
+        sample (for swings recorded already in motion); otherwise the state
+        comes from :func:`estimate_initial_state`.
+    integration_step
+        The plant's RK4 step [s].
+    max_nfev
+        Most residual evaluations (about the number of iterations).
+    tolerance
+        ``ftol`` and ``xtol`` of the solver.
+    progress
+        Called with a line of text after each residual evaluation.
+    """
+    from scipy.optimize import least_squares
+
+    recordings = list(recordings)
+    if not recordings:
+        raise IdentificationError('no recordings to fit')
+    nominal = nominal or CartPoleParameters()
+    free = parse_free(free)
+    if weight_pendulum is None:
+        weight_pendulum = nominal.l
+    if not (weight_cart >= 0 and weight_pendulum >= 0 and weight_cart + weight_pendulum > 0):
+        raise IdentificationError('weights must be >= 0 and not both zero')
+    if not 0.0 < integration_step <= nominal.sample_time:
+        raise IdentificationError(
+            f'integration step must be in (0, {nominal.sample_time}] s, got {integration_step}')
+    bounds = dict(bounds or {})
+    unknown = sorted(set(bounds) - set(free))
+    if unknown:
+        raise IdentificationError(f'bounds given for parameters that are not free: {unknown}')
+
+    p0 = np.array([float(getattr(nominal, name)) for name in free])
+    lo = np.empty(p0.size)
+    hi = np.empty(p0.size)
+    for i, name in enumerate(free):
+        lo[i], hi[i] = bounds.get(name, default_bounds(name, p0[i]))
+        if not lo[i] < hi[i]:
+            raise IdentificationError(f'bounds of {name} must have low < high, got {lo[i]}, {hi[i]}')
+    p0 = np.clip(p0, lo, hi)
+    scale = np.array([abs(v) if v != 0 else TYPICAL_SCALE.get(n, 1.0) for n, v in zip(free, p0)])
+
+    n_rec = len(recordings)
+    n_glob = p0.size
+    s0 = [estimate_initial_state(r) for r in recordings]
+    n_nuis = 4 if fit_initial_state else 0
+    state_scale = np.array(INITIAL_STATE_SCALE)
+    z0 = np.concatenate([p0 / scale, np.zeros(n_nuis * n_rec)])
+    lb = np.concatenate([lo / scale, np.full(n_nuis * n_rec, -np.inf)])
+    ub = np.concatenate([hi / scale, np.full(n_nuis * n_rec, np.inf)])
+    norms = [1.0 / math.sqrt(r.t.size) for r in recordings]
+    sizes = [2 * r.t.size for r in recordings]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    counter = {'sims': 0, 'nfev': 0}
+
+    def unpack(z: np.ndarray) -> tuple[CartPoleParameters, list[np.ndarray]]:
+        values = np.clip(z[:n_glob] * scale, lo, hi)
+        params = nominal.replace(**{name: float(v) for name, v in zip(free, values)})
+        states = []
+        for b in range(n_rec):
+            if n_nuis:
+                dz = z[n_glob + n_nuis * b:n_glob + n_nuis * (b + 1)]
+                states.append(s0[b] + dz * state_scale)
+            else:
+                states.append(s0[b])
+        return params, states
+
+    def rec_residual(b: int, params: CartPoleParameters, state: np.ndarray) -> np.ndarray:
+        rec = recordings[b]
+        counter['sims'] += 1
+        xs, thetas = simulate(rec, params, state, integration_step)
+        ex = np.nan_to_num(xs - rec.x, nan=_DIVERGED, posinf=_DIVERGED, neginf=-_DIVERGED)
+        et = np.nan_to_num(thetas - rec.theta, nan=_DIVERGED, posinf=_DIVERGED,
+                           neginf=-_DIVERGED)
+        return np.concatenate([weight_cart * ex, weight_pendulum * et]) * norms[b]
+
+    cache: dict[bytes, list[np.ndarray]] = {}
+
+    def parts(z: np.ndarray) -> list[np.ndarray]:
+        key = np.asarray(z, dtype=float).tobytes()
+        if key not in cache:
+            params, states = unpack(z)
+            cache.clear()
+            cache[key] = [rec_residual(b, params, states[b]) for b in range(n_rec)]
+        return cache[key]
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        r = np.concatenate(parts(z))
+        counter['nfev'] += 1
+        if progress is not None:
+            params, _ = unpack(z)
+            text = ', '.join(f'{n}={getattr(params, n):.5g}' for n in free)
+            progress(f'evaluation {counter["nfev"]}: cost {0.5 * float(r @ r):.6g}  {text}')
+        return r
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        base = parts(z)
+        r0 = np.concatenate(base)
+        jm = np.zeros((r0.size, z.size))
+        for j in range(z.size):
+            h = rel_step * max(abs(z[j]), 1.0)
+            if z[j] + h > ub[j]:
+                h = -h
+            zj = z.copy()
+            zj[j] += h
+            params, states = unpack(zj)
+            if j < n_glob:
+                affected = range(n_rec)
+            else:
+                affected = [(j - n_glob) // n_nuis]
+            for b in affected:
+                rb = rec_residual(b, params, states[b])
+                jm[offsets[b]:offsets[b + 1], j] = (rb - base[b]) / h
+        return jm
+
+    def report(z: np.ndarray) -> tuple[CartPoleParameters, list[np.ndarray],
+                                       list[tuple[np.ndarray, np.ndarray]]]:
+        params, states = unpack(z)
+        sims = []
+        for b, rec in enumerate(recordings):
+            counter['sims'] += 1
+            sims.append(simulate(rec, params, states[b], integration_step))
+        return params, states, sims
+
+    _, _, before = report(z0)
+    sol = least_squares(fun, z0, jac=jac, bounds=(lb, ub), method='trf', x_scale=1.0,
+                        ftol=tolerance, xtol=tolerance, gtol=1e-10, max_nfev=max_nfev)
+    params, states, after = report(sol.x)
+
+    values = {name: float(getattr(params, name)) for name in free}
+    std, corr = _standard_errors(sol.jac, sol.fun, n_glob, scale)
+    at_bound = tuple(name for i, name in enumerate(free)
+                     if np.isclose(values[name], lo[i], rtol=1e-6, atol=1e-12)
+                     or np.isclose(values[name], hi[i], rtol=1e-6, atol=1e-12))
+    fits = []
+    for b, rec in enumerate(recordings):
+        fits.append(RecordingFit(
+            label=rec.label or f'recording {b + 1}', samples=int(rec.t.size),
+            duration_s=rec.duration,
+            initial_state=tuple(float(v) for v in states[b]),
+            rmse_x_before_m=rmse(before[b][0], rec.x), rmse_x_after_m=rmse(after[b][0], rec.x),
+            rmse_theta_before_rad=rmse(before[b][1], rec.theta),
+            rmse_theta_after_rad=rmse(after[b][1], rec.theta)))
+    return IdentificationResult(
+        params=params, free=free,
+        initial_values={name: float(v) for name, v in zip(free, p0)},
+        values=values, std_errors=dict(zip(free, std)), correlation=corr,
+        at_bound=at_bound, recordings=tuple(fits),
+        cost_before=float(sum(f.rmse_x_before_m for f in fits)),
+        cost_after=float(sum(f.rmse_x_after_m for f in fits)),
+        success=bool(sol.success), message=str(sol.message), nfev=int(sol.nfev),
+        njev=int(sol.njev or 0), simulations=counter['sims'],
+        trajectories=tuple((before[b][0], before[b][1], after[b][0], after[b][1])
+                           for b in range(n_rec)))
+
+
+def _standard_errors(jm: np.ndarray, residual: np.ndarray, n_glob: int,
+                     scale: np.ndarray) -> tuple[list[float], list[list[float]]]:
+    """One-sigma errors and correlations of the first ``n_glob`` variables.
+
+    cov_z = s^2 (J^T J)^+ with s^2 = |r|^2 / (m - n) (Gauss-Newton), through
+    the SVD of J; directions with singular values below 1e-10 of the largest
+    are unidentifiable and give an infinite error. Variables are value /
+    scale, so cov = diag(scale) cov_z diag(scale).
+    """
+    m, n = jm.shape
+    dof = max(m - n, 1)
+    s2 = float(residual @ residual) / dof
+    _, sv, vt = np.linalg.svd(jm, full_matrices=False)
+    keep = sv > sv[0] * 1e-10 if sv.size and sv[0] > 0 else np.zeros(sv.size, dtype=bool)
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    cov_z = (vt.T * inv) @ vt * s2
+    var = np.diag(cov_z)[:n_glob].copy()
+    # A direction dropped from the pseudo-inverse leaves the variables it spans unknown.
+    null = vt[~keep] if np.any(~keep) else np.zeros((0, n))
+    unknown = np.any(np.abs(null[:, :n_glob]) > 1e-6, axis=0) if null.size else np.zeros(
+        n_glob, dtype=bool)
+    std = np.sqrt(np.maximum(var, 0.0)) * scale
+    std[unknown] = math.inf
+    sd = np.sqrt(np.maximum(np.diag(cov_z)[:n_glob], 0.0))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        corr = cov_z[:n_glob, :n_glob] / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), corr, np.nan)
+    return [float(v) for v in std], [[float(v) for v in row] for row in corr]
+
+
+# -- synthetic tests -------------------------------------------------------------------
+def pulse_forces(t: np.ndarray, pulses: Sequence[tuple[float, float, float]]) -> np.ndarray:
+    """Force commands of a pulse test (section 4.3.1) at sample times ``t``.
+
+    ``pulses`` are (start [s], length [s], force [N]); the command is the
+    pulse's force for start <= t < start + length, zero elsewhere.
+    """
+    t = np.asarray(t, dtype=float)
+    force = np.zeros(t.size)
+    for start, length, value in pulses:
+        force[(t >= start - 1e-9) & (t < start + length - 1e-9)] = value
+    return force
+
+
+def simulate_test(params: CartPoleParameters, force: Sequence[float] | np.ndarray,
+                  scenario: Scenario | None = None, *, integration_step: float = 0.001,
+                  label: str = 'simulated') -> Recording:
+    """A recording of an open-loop test on the simulated plant (encoders quantised).
+
+    ``force[k]`` is held over the k-th sample period (Ts = ``params.sample_time``);
+    the measurements are :meth:`Plant.measure` (quantised, noisy if the
+    scenario says so) at t = k Ts.
+    """
+    force = np.asarray(force, dtype=float)
+    plant = Plant(params, scenario or Scenario(), integration_step=integration_step)
+    n = force.size
+    t = np.empty(n)
+    x = np.empty(n)
+    theta = np.empty(n)
+    for k in range(n):
+        m = plant.measure()
+        t[k], x[k], theta[k] = m.t, m.x, m.theta
+        plant.step(float(force[k]))
+    return Recording(t, x, theta, force, label)
+
+
+# -- bags -----------------------------------------------------------------------------------
+def _stamp_ns(stamp_ns: int, log_ns: int) -> int:
+    return stamp_ns if stamp_ns > 0 else int(log_ns)
+
+
+def recording_from_messages(samples: Sequence[tuple[int, float, float]],
+                            commands: Sequence[tuple[int, float]], *,
+                            sample_time: float = 0.005, zero_force: bool = False,
+                            label: str = '') -> Recording:
+    """A :class:`Recording` from /joint_states samples and force commands.
+
+    ``samples`` are (time [ns], x, theta), ``commands`` (time [ns], F). The
+    sample times are snapped to the Ts grid of the first sample (the device
+    samples every Ts exactly; the host's receipt stamps jitter), duplicates
+    on one grid point keep the first. ``force[k]`` is the last command
+    stamped at or before sample k (a command carries the stamp of the sample
+    it answers, docs/architecture.md), zero before the first command.
+    """
+    name = label or 'recording'
+    if not samples:
+        raise IdentificationError(f'{name}: no {JOINTS} samples with cart and pendulum positions')
+    if not commands and not zero_force:
+        raise IdentificationError(
+            f'{name}: no {FORCE} messages; an open-loop test needs its force commands '
+            '(for a free swing with nothing commanding, pass --zero-force)')
+    rows = np.array(sorted(samples), dtype=float)
+    t_ns = rows[:, 0]
+    grid = np.round((t_ns - t_ns[0]) * 1e-9 / sample_time).astype(np.int64)
+    keep = np.zeros(grid.size, dtype=bool)
+    last = -1
+    for i, g in enumerate(grid):  # jitter can put two samples on one grid point
+        if g > last:
+            keep[i] = True
+            last = g
+    grid, rows, t_ns = grid[keep], rows[keep], t_ns[keep]
+    t = grid * sample_time
+    force = np.zeros(t.size)
+    if commands:
+        cmd = np.array(sorted(commands), dtype=float)
+        if cmd.shape[0] > 1 and cmd[0, 0] == cmd[-1, 0]:
+            raise IdentificationError(
+                f'{name}: all {cmd.shape[0]} {FORCE} messages carry the same time, so they '
+                'cannot be placed in time (published with a zero header.stamp and recorded '
+                "with log_time 'stamp'?); stamp the commands or record with log_time 'receive'")
+        # A command at or before a sample's (unsnapped) time, within half a period of jitter.
+        idx = np.searchsorted(cmd[:, 0], t_ns + 0.5 * sample_time * 1e9, side='right') - 1
+        force = np.where(idx >= 0, cmd[np.maximum(idx, 0), 1], 0.0)
+    return Recording(t, rows[:, 1], rows[:, 2], force, label)
+
+
+def load_recording(path: str | Path, *, t_start: float | None = None,
+                   t_end: float | None = None, sample_time: float = 0.005,
+                   zero_force: bool = False) -> Recording:
+    """Read a test from a rosbag2 bag (MCAP or sqlite3) written by the recorder.
+
+    Uses ``/joint_states`` (names ``cart``, ``pendulum``, positions x and
+    theta, ``header.stamp``) and ``/cartpole/force_command`` (``effort`` of
+    ``cart``, ``header.stamp``); a zero stamp falls back to the bag's log
+    time. ``t_start``/``t_end`` [s from the first sample] cut a window out.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from .analyze import parse_joint_state
+
+    path = Path(path)
+    label = path.name if path.name != 'bag' else path.parent.name
+    if not path.exists():
+        raise IdentificationError(f'{path}: no such bag')
+    if path.is_dir() and not (path / 'metadata.yaml').is_file():
+        raise IdentificationError(f'{path} is not a rosbag2 bag (no metadata.yaml)')
+    samples: list[tuple[int, float, float]] = []
+    commands: list[tuple[int, float]] = []
+    try:
+        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+            connections = [c for c in reader.connections if c.topic in (JOINTS, FORCE)
+                           and c.msgtype == 'sensor_msgs/msg/JointState']
+            for connection, log_ns, raw in reader.messages(connections=connections):
+                stamp, names, position, _, effort = parse_joint_state(raw)
+                when = _stamp_ns(stamp, log_ns)
+                if connection.topic == JOINTS:
+                    try:
+                        i_x, i_t = names.index('cart'), names.index('pendulum')
+                    except ValueError:
+                        i_x, i_t = 0, 1
+                    if position.size > max(i_x, i_t):
+                        samples.append((when, float(position[i_x]), float(position[i_t])))
+                else:
+                    i_f = names.index('cart') if 'cart' in names else 0
+                    if effort.size > i_f and math.isfinite(effort[i_f]):
+                        commands.append((when, float(effort[i_f])))
+    except IdentificationError:
+        raise
+    except Exception as error:  # rosbags raises its own types for broken bags
+        raise IdentificationError(f'{path}: cannot read the bag: {error}') from None
+    rec = recording_from_messages(samples, commands, sample_time=sample_time,
+                                  zero_force=zero_force, label=label)
+    if t_start is not None or t_end is not None:
+        rec = rec.window(t_start, t_end)
+    return rec
