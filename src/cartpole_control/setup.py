@@ -26,6 +26,8 @@ setup(
             'full_energy = cartpole_control.controllers.full_energy:FullEnergySwingUp',
             'pendulum_energy = cartpole_control.controllers.pendulum_energy:PendulumEnergySwingUp',
             'sign_based = cartpole_control.controllers.sign_based:SignBasedSwingUp',
+            'energy_saturated = cartpole_control.controllers.energy_saturated:EnergySaturatedSwingUp',
+            'time_optimal = cartpole_control.controllers.time_optimal:TimeOptimalSwingUp',
         ],
         'cartpole_control.stabilizer': [
             'lqg = cartpole_control.controllers.lqg:LqgStabilizer',

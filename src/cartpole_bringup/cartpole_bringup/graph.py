@@ -270,6 +270,7 @@ class Graph:
                                   collect=spec.record is None, context=context)
         self.executor.add_node(self.monitor)
         self.nodes: dict[str, Node] = {}
+        self._clients: dict = {}
         self.processes: dict[str, subprocess.Popen] = {}
         self.wall_start: float | None = None
         self.stopped = False
@@ -279,6 +280,9 @@ class Graph:
     def start(self) -> None:
         """Start every node (plant last) and wait until the loop is wired."""
         if self.spec.processes:
+            self._client(SetParameters, 'controller_manager', 'set_parameters')
+            if self.spec.plant == 'hw_bridge':
+                self._client(SetParameters, 'hw_bridge', 'set_parameters')
             self._start_processes()
         else:
             self._start_in_process()
@@ -371,42 +375,50 @@ class Graph:
             self.spin_until(lambda: self.elapsed() >= duration, None)
 
     # -- parameters ----------------------------------------------------------------------
+    def _client(self, srv_type, node: str, service: str):
+        """A service client of a graph node, kept for the whole run.
+
+        Created early (at start), so that discovery of the response path is
+        complete long before the stop needs it.
+        """
+        key = (node, service)
+        if key not in self._clients:
+            self._clients[key] = self.monitor.create_client(srv_type, f'/{node}/{service}')
+        return self._clients[key]
+
     def set_parameters(self, node: str, values: dict[str, Any],
-                       timeout: float = 5.0) -> list[tuple[bool, str]]:
+                       timeout: float = 5.0, attempts: int = 2) -> list[tuple[bool, str]]:
         """Set parameters of a graph node (in process, or through its service)."""
         params = [Parameter(k, value=v) for k, v in values.items()]
         if node in self.nodes:
             return [(r.successful, r.reason) for r in self.nodes[node].set_parameters(params)]
-        client = self.monitor.create_client(SetParameters, f'/{node}/set_parameters')
-        try:
-            if not self.spin_until(lambda: client.service_is_ready(), timeout):
-                return [(False, f'/{node}/set_parameters not available')] * len(params)
-            future = client.call_async(SetParameters.Request(
-                parameters=[p.to_parameter_msg() for p in params]))
-            if not self.spin_until(future.done, timeout) or future.result() is None:
-                return [(False, 'no answer')] * len(params)
-            return [(r.successful, r.reason) for r in future.result().results]
-        finally:
-            self.monitor.destroy_client(client)
+        client = self._client(SetParameters, node, 'set_parameters')
+        if not self.spin_until(client.service_is_ready, timeout):
+            return [(False, f'/{node}/set_parameters not available')] * len(params)
+        request = SetParameters.Request(parameters=[p.to_parameter_msg() for p in params])
+        for _ in range(attempts):  # a response can be lost while discovery completes
+            future = client.call_async(request)
+            if self.spin_until(future.done, timeout / attempts) and future.result() is not None:
+                return [(r.successful, r.reason) for r in future.result().results]
+            client.remove_pending_request(future)
+        return [(False, 'no answer')] * len(params)
 
     def get_parameter(self, node: str, name: str, timeout: float = 5.0) -> Any:
         """A parameter value of a graph node, None if it cannot be read."""
         if node in self.nodes:
             node_obj = self.nodes[node]
             return node_obj.get_parameter(name).value if node_obj.has_parameter(name) else None
-        client = self.monitor.create_client(GetParameters, f'/{node}/get_parameters')
-        try:
-            if not self.spin_until(lambda: client.service_is_ready(), timeout):
-                return None
-            future = client.call_async(GetParameters.Request(names=[name]))
-            if not self.spin_until(future.done, timeout) or future.result() is None:
-                return None
-            values = future.result().values
-            if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
-                return None
-            return parameter_value_to_python(values[0])
-        finally:
-            self.monitor.destroy_client(client)
+        client = self._client(GetParameters, node, 'get_parameters')
+        if not self.spin_until(client.service_is_ready, timeout):
+            return None
+        future = client.call_async(GetParameters.Request(names=[name]))
+        if not self.spin_until(future.done, timeout) or future.result() is None:
+            client.remove_pending_request(future)
+            return None
+        values = future.result().values
+        if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
+            return None
+        return parameter_value_to_python(values[0])
 
     # -- stop ----------------------------------------------------------------------------
     def stop(self) -> list[str]:
@@ -419,11 +431,11 @@ class Graph:
         warnings: list[str] = []
         m = self.monitor
         zeros_before = m.zero_forces
-        for (ok, reason) in self.set_parameters('controller_manager', {'enabled': False}, 2.0):
+        for (ok, reason) in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
             if not ok:
                 warnings.append(f'controller_manager enabled:=false refused: {reason}')
         if self.spec.plant == 'hw_bridge':
-            for (ok, reason) in self.set_parameters('hw_bridge', {'armed': False}, 2.0):
+            for (ok, reason) in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
                 if not ok:
                     warnings.append(f'hw_bridge armed:=false refused: {reason}')
         if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):

@@ -164,6 +164,54 @@ def estimate_initial_state(rec: Recording, window: float = 0.05) -> np.ndarray:
     return out
 
 
+def quiet_lead_in(rec: Recording, window: float) -> int:
+    """Samples from the start up to ``window`` seconds or the first non-zero command."""
+    rel = rec.t - rec.t[0]
+    n = int(np.searchsorted(rel, window, side='right'))
+    active = np.flatnonzero(rec.force[:n] != 0.0)
+    return int(active[0]) if active.size else n
+
+
+def fit_initial_state(rec: Recording, params: CartPoleParameters, *, window: float = 0.5,
+                      weight_cart: float = 1.0, weight_pendulum: float | None = None,
+                      integration_step: float = 0.001) -> np.ndarray:
+    """[x, theta, x_dot, theta_dot] at ``rec.t[0]`` fitted to the start of the recording.
+
+    Least squares of the simulated (:func:`simulate`, with ``params``) minus
+    measured positions over the quiet lead-in (:func:`quiet_lead_in`: up to
+    ``window`` s, ending at the first non-zero force command, so the fit
+    sees no pulse whose response depends on the parameters being sought),
+    starting from :func:`estimate_initial_state`. The model carries the
+    estimate through the quantisation steps (a pendulum released from rest
+    moves less than a tick in its first 10 ms), so a free swing starts with
+    the right phase. With fewer than 10 quiet samples the quadratic estimate
+    is returned as it is.
+    """
+    from scipy.optimize import least_squares
+
+    guess = estimate_initial_state(rec)
+    n = quiet_lead_in(rec, window)
+    if n < 10:
+        return guess
+    head = Recording(rec.t[:n], rec.x[:n], rec.theta[:n], rec.force[:n], rec.label)
+    w_theta = params.l if weight_pendulum is None else weight_pendulum
+    w_x = weight_cart if weight_cart > 0 else 1.0
+    w_theta = w_theta if w_theta > 0 else params.l
+    scale = np.array(INITIAL_STATE_SCALE)
+    lo = np.array([-guess[0] / scale[0], -np.inf, -np.inf, -np.inf])
+    hi = np.array([(params.travel - guess[0]) / scale[0], np.inf, np.inf, np.inf])
+    z0 = np.clip(np.zeros(4), lo + 1e-9, hi - 1e-9)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        xs, thetas = simulate(head, params, guess + z * scale, integration_step)
+        r = np.concatenate([w_x * (xs - head.x), w_theta * (thetas - head.theta)])
+        return np.nan_to_num(r, nan=_DIVERGED, posinf=_DIVERGED, neginf=-_DIVERGED)
+
+    sol = least_squares(fun, z0, bounds=(lo, hi), method='trf', diff_step=1e-3,
+                        x_scale=1.0, max_nfev=50)
+    return guess + sol.x * scale
+
+
 def simulate(rec: Recording, params: CartPoleParameters, initial_state: Sequence[float],
              integration_step: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
     """Replay a recording's force commands on the plant: simulated (x, theta) at ``rec.t``.
@@ -313,8 +361,9 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
              free: Sequence[str] = DEFAULT_FREE,
              bounds: Mapping[str, tuple[float, float]] | None = None,
              weight_cart: float = 1.0, weight_pendulum: float | None = None,
-             fit_initial_state: bool = False, integration_step: float = 0.001,
-             max_nfev: int = 30, rel_step: float = 1.0e-3, tolerance: float = 1.0e-6,
+             refine_initial_state: bool = False, initial_window: float = 0.5, passes: int = 2,
+             integration_step: float = 0.001,
+             max_nfev: int = 30, rel_step: float = 1.0e-3, tolerance: float = 1.0e-4,
              progress: Callable[[str], None] | None = None) -> IdentificationResult:
     """Fit plant parameters to open-loop tests, (4.22)-(4.26) and section 4.3.2.
 
@@ -342,16 +391,28 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
         w_x [1/m] and w_theta [1/rad]; w_theta defaults to the pendulum length
         l, so one radian of angle error counts as the tip's arc length in
         metres, like a cart error.
-    fit_initial_state
-        Also fit each recording's [x, theta, x_dot, theta_dot] at its first
-        sample (for swings recorded already in motion); otherwise the state
-        comes from :func:`estimate_initial_state`.
+    refine_initial_state
+        Each recording's initial state [x, theta, x_dot, theta_dot] comes
+        from :func:`fit_initial_state` over its quiet lead-in
+        (``initial_window`` s) with the starting parameters; with this flag
+        it is also fitted jointly with the parameters (about twice the
+        time; worth it when the lead-in is short or a swing was recorded
+        already in motion).
+    initial_window
+        Longest lead-in [s] used by :func:`fit_initial_state`.
+    passes
+        Without ``refine_initial_state``: how often the initial states are
+        fitted (with the parameters found so far) and the parameters fitted
+        again from there; the second pass starts near the solution and
+        costs a few iterations.
     integration_step
         The plant's RK4 step [s].
     max_nfev
         Most residual evaluations (about the number of iterations).
     tolerance
-        ``ftol`` and ``xtol`` of the solver.
+        ``ftol`` and ``xtol`` of the solver: stop when a step changes the cost
+        or the scaled parameters by less than this fraction (1e-4: the cost
+        of a fit down to the encoder quantisation only wanders below that).
     progress
         Called with a line of text after each residual evaluation.
     """
@@ -386,12 +447,18 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
 
     n_rec = len(recordings)
     n_glob = p0.size
-    s0 = [estimate_initial_state(r) for r in recordings]
-    n_nuis = 4 if fit_initial_state else 0
+    s0 = [fit_initial_state(r, nominal.replace(**dict(zip(free, p0))), window=initial_window,
+                            weight_cart=weight_cart, weight_pendulum=weight_pendulum,
+                            integration_step=integration_step) for r in recordings]
+    n_nuis = 4 if refine_initial_state else 0
     state_scale = np.array(INITIAL_STATE_SCALE)
     z0 = np.concatenate([p0 / scale, np.zeros(n_nuis * n_rec)])
     lb = np.concatenate([lo / scale, np.full(n_nuis * n_rec, -np.inf)])
     ub = np.concatenate([hi / scale, np.full(n_nuis * n_rec, np.inf)])
+    for b in range(n_rec if n_nuis else 0):  # the cart starts inside the travel
+        j = n_glob + n_nuis * b
+        lb[j] = -s0[b][0] / INITIAL_STATE_SCALE[0]
+        ub[j] = (nominal.travel - s0[b][0]) / INITIAL_STATE_SCALE[0]
     norms = [1.0 / math.sqrt(r.t.size) for r in recordings]
     sizes = [2 * r.t.size for r in recordings]
     offsets = np.concatenate([[0], np.cumsum(sizes)])
@@ -467,8 +534,20 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
         return params, states, sims
 
     _, _, before = report(z0)
-    sol = least_squares(fun, z0, jac=jac, bounds=(lb, ub), method='trf', x_scale=1.0,
-                        ftol=tolerance, xtol=tolerance, gtol=1e-10, max_nfev=max_nfev)
+    z = z0
+    nfev = njev = 0
+    for fit_pass in range(1 if n_nuis else max(1, int(passes))):
+        if fit_pass:  # the initial states again, with the parameters found so far
+            params, _ = unpack(z)
+            s0[:] = [fit_initial_state(r, params, window=initial_window,
+                                       weight_cart=weight_cart, weight_pendulum=weight_pendulum,
+                                       integration_step=integration_step) for r in recordings]
+            cache.clear()
+        sol = least_squares(fun, z, jac=jac, bounds=(lb, ub), method='trf', x_scale=1.0,
+                            ftol=tolerance, xtol=tolerance, gtol=1e-10, max_nfev=max_nfev)
+        z = sol.x
+        nfev += int(sol.nfev)
+        njev += int(sol.njev or 0)
     params, states, after = report(sol.x)
 
     values = {name: float(getattr(params, name)) for name in free}
@@ -492,8 +571,8 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
         at_bound=at_bound, recordings=tuple(fits),
         cost_before=float(sum(f.rmse_x_before_m for f in fits)),
         cost_after=float(sum(f.rmse_x_after_m for f in fits)),
-        success=bool(sol.success), message=str(sol.message), nfev=int(sol.nfev),
-        njev=int(sol.njev or 0), simulations=counter['sims'],
+        success=bool(sol.success), message=str(sol.message), nfev=nfev,
+        njev=njev, simulations=counter['sims'],
         trajectories=tuple((before[b][0], before[b][1], after[b][0], after[b][1])
                            for b in range(n_rec)))
 
@@ -571,8 +650,8 @@ def _stamp_ns(stamp_ns: int, log_ns: int) -> int:
 
 def recording_from_messages(samples: Sequence[tuple[int, float, float]],
                             commands: Sequence[tuple[int, float]], *,
-                            sample_time: float = 0.005, zero_force: bool = False,
-                            label: str = '') -> Recording:
+                            sample_time: float = 0.005, command_timeout: float = 0.05,
+                            zero_force: bool = False, label: str = '') -> Recording:
     """A :class:`Recording` from /joint_states samples and force commands.
 
     ``samples`` are (time [ns], x, theta), ``commands`` (time [ns], F). The
@@ -580,7 +659,9 @@ def recording_from_messages(samples: Sequence[tuple[int, float, float]],
     samples every Ts exactly; the host's receipt stamps jitter), duplicates
     on one grid point keep the first. ``force[k]`` is the last command
     stamped at or before sample k (a command carries the stamp of the sample
-    it answers, docs/architecture.md), zero before the first command.
+    it answers, docs/architecture.md), zero before the first command and
+    once the last command is older than ``command_timeout`` (the watchdogs
+    of the bridge and the device then set zero current, SPEC section 4).
     """
     name = label or 'recording'
     if not samples:
@@ -608,15 +689,18 @@ def recording_from_messages(samples: Sequence[tuple[int, float, float]],
                 f'{name}: all {cmd.shape[0]} {FORCE} messages carry the same time, so they '
                 'cannot be placed in time (published with a zero header.stamp and recorded '
                 "with log_time 'stamp'?); stamp the commands or record with log_time 'receive'")
-        # A command at or before a sample's (unsnapped) time, within half a period of jitter.
-        idx = np.searchsorted(cmd[:, 0], t_ns + 0.5 * sample_time * 1e9, side='right') - 1
-        force = np.where(idx >= 0, cmd[np.maximum(idx, 0), 1], 0.0)
+        # A command at or before a sample's (unsnapped) time, within half a period of jitter,
+        # and not older than the watchdog's hold time.
+        late = t_ns + 0.5 * sample_time * 1e9
+        idx = np.searchsorted(cmd[:, 0], late, side='right') - 1
+        fresh = (idx >= 0) & (late - cmd[np.maximum(idx, 0), 0] <= command_timeout * 1e9)
+        force = np.where(fresh, cmd[np.maximum(idx, 0), 1], 0.0)
     return Recording(t, rows[:, 1], rows[:, 2], force, label)
 
 
 def load_recording(path: str | Path, *, t_start: float | None = None,
                    t_end: float | None = None, sample_time: float = 0.005,
-                   zero_force: bool = False) -> Recording:
+                   command_timeout: float = 0.05, zero_force: bool = False) -> Recording:
     """Read a test from a rosbag2 bag (MCAP or sqlite3) written by the recorder.
 
     Uses ``/joint_states`` (names ``cart``, ``pendulum``, positions x and
@@ -641,7 +725,8 @@ def load_recording(path: str | Path, *, t_start: float | None = None,
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
             connections = [c for c in reader.connections if c.topic in (JOINTS, FORCE)
                            and c.msgtype == 'sensor_msgs/msg/JointState']
-            for connection, log_ns, raw in reader.messages(connections=connections):
+            messages = reader.messages(connections=connections) if connections else ()
+            for connection, log_ns, raw in messages:  # (an empty list would mean all topics)
                 stamp, names, position, _, effort = parse_joint_state(raw)
                 when = _stamp_ns(stamp, log_ns)
                 if connection.topic == JOINTS:
@@ -660,7 +745,8 @@ def load_recording(path: str | Path, *, t_start: float | None = None,
     except Exception as error:  # rosbags raises its own types for broken bags
         raise IdentificationError(f'{path}: cannot read the bag: {error}') from None
     rec = recording_from_messages(samples, commands, sample_time=sample_time,
-                                  zero_force=zero_force, label=label)
+                                  command_timeout=command_timeout, zero_force=zero_force,
+                                  label=label)
     if t_start is not None or t_end is not None:
         rec = rec.window(t_start, t_end)
     return rec

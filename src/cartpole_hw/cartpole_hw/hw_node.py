@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import threading
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -257,6 +259,9 @@ def main(args=None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ValueError, InvalidParameterValueException) as exc:
+        print(f'hw_bridge: error: {exc}', file=sys.stderr)
+        raise SystemExit(2)
     finally:
         if node is not None:
             node.destroy_node()

@@ -89,11 +89,14 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         }
         if args.tip_mass is not None:
             sim['tip_mass'] = float(args.tip_mass)
-        if args.plant_params is not None:
-            sim['plant_params_file'] = str(args.plant_params.resolve())
         out['sim'] = sim
     else:
         out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
+    if args.plant_params is not None:
+        # The nominal parameters of the plant model, the EKF and the controllers alike.
+        for node in ('sim', 'ekf', 'controller_manager'):
+            if node in out:
+                out[node]['plant_params_file'] = str(args.plant_params.resolve())
     return out
 
 
@@ -123,6 +126,8 @@ def _validate(args: argparse.Namespace) -> str | None:
         return f'--domain-id must be in [0, 232], got {args.domain_id}'
     if args.params is not None and not args.params.is_file():
         return f'--params {args.params}: no such file'
+    if args.plant_params is not None and not args.plant_params.is_file():
+        return f'--plant-params {args.plant_params}: no such file'
     if args.sim:
         try:
             scenario = options.scenario_from_args(args)

@@ -1,0 +1,232 @@
+"""``cartpole identify BAG [BAG ...]``: fit the plant parameters to recorded open-loop tests.
+
+Thesis (4.22)-(4.26) and section 4.3.2; the work is in
+:mod:`cartpole_bringup.identify`, this module reads the options, the bags,
+prints the result and writes the parameters file.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from ..options import add_output_arguments, nominal_parameters
+
+PROG = 'cartpole identify'
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..identify import DEFAULT_FREE
+
+    parser.add_argument('bags', nargs='+', type=Path, metavar='BAG',
+                        help='rosbag2 bags of open-loop tests (/joint_states and '
+                             '/cartpole/force_command); all are fitted with one parameter set')
+    fit = parser.add_argument_group('fit')
+    fit.add_argument('--free', default=','.join(DEFAULT_FREE), metavar='NAMES',
+                     help='comma-separated CartPoleParameters fields to fit '
+                          f'(default {",".join(DEFAULT_FREE)})')
+    fit.add_argument('--bound', action='append', default=[], metavar='NAME=LO:HI',
+                     help='search bounds of a free parameter (repeatable); the thesis used '
+                          'm_c=1:5, c_c_right=1:5, c_c_left=1:5')
+    fit.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
+                     help='starting values and the fixed parameters (CartPoleParameters YAML); '
+                          'default: thesis values')
+    fit.add_argument('--weight-cart', type=float, default=1.0, metavar='W',
+                     help='weight of the cart position error [1/m] (default 1)')
+    fit.add_argument('--weight-pendulum', type=float, default=None, metavar='W',
+                     help='weight of the pendulum angle error [1/rad] (default l = 0.3345, '
+                          'an angle error counted as the arc length at the tip)')
+    fit.add_argument('--refine-initial-state', action='store_true',
+                     help="fit every bag's initial state jointly with the parameters "
+                          '(about twice the time)')
+    fit.add_argument('--integration-step', type=float, default=0.001, metavar='S',
+                     help='RK4 step of the simulated plant [s] (default 0.001)')
+    fit.add_argument('--max-nfev', type=int, default=30, metavar='N',
+                     help='most residual evaluations per pass, about the iterations (default 30)')
+    data = parser.add_argument_group('data')
+    data.add_argument('--t-start', type=float, default=None, metavar='S',
+                      help='use samples from S seconds after the first one (every bag)')
+    data.add_argument('--t-end', type=float, default=None, metavar='S',
+                      help='use samples up to S seconds after the first one (every bag)')
+    data.add_argument('--zero-force', action='store_true',
+                      help='accept bags without /cartpole/force_command (free swings): zero force')
+    out = parser.add_argument_group('output')
+    out.add_argument('--output', '-o', type=Path, default=None, metavar='FILE.yaml',
+                     help='write the fitted parameters (CartPoleParameters YAML, for '
+                          '--plant-params and the nodes\' plant_params_file)')
+    out.add_argument('--plot', type=Path, default=None, metavar='FILE.png',
+                     help='measured vs simulated positions before and after the fit')
+    out.add_argument('--verbose', '-v', action='store_true',
+                     help='print every residual evaluation on stderr')
+    add_output_arguments(parser)
+
+
+def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
+    """``['m_c=1:5', ...]`` -> {'m_c': (1.0, 5.0)}; ValueError on a malformed item."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, rng = item.partition('=')
+        lo, sep2, hi = rng.partition(':')
+        try:
+            if not (sep and sep2 and name.strip()):
+                raise ValueError
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise ValueError(f"--bound {item!r} is not NAME=LO:HI (e.g. m_c=1:5)") from None
+    return out
+
+
+def _fail(message: str) -> int:
+    print(f'{PROG}: {message}', file=sys.stderr)
+    return 2
+
+
+def write_parameters(result, path: Path, bags: list[Path]) -> None:
+    """The fitted parameters as CartPoleParameters YAML, with a provenance comment.
+
+    Written to a temporary file first and renamed, so a failure never leaves
+    half a file (or destroys the previous one).
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix='.identify-', suffix='.yaml', dir=path.parent or '.')
+    os.close(fd)
+    try:
+        result.params.to_yaml(tmp)
+        body = Path(tmp).read_text()
+        stamp = _dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%dT%H:%M:%SZ')
+        lines = [f'# Plant parameters fitted by `cartpole identify` on {stamp}',
+                 f'# from: {", ".join(str(b) for b in bags)}',
+                 f'# free: {", ".join(result.free)}; cart RMSE sum (4.22) '
+                 f'{result.cost_before:.4g} m -> {result.cost_after:.4g} m']
+        for name in result.free:
+            lines.append(f'#   {name} = {result.values[name]:.6g} +/- '
+                         f'{result.std_errors[name]:.2g} (was {result.initial_values[name]:.6g})')
+        Path(tmp).write_text('\n'.join(lines) + '\n' + body)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_plot(result, recordings, path: Path) -> Path:
+    """Measured and simulated x and theta per recording, before and after the fit."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    n = len(recordings)
+    fig, axes = plt.subplots(2, n, figsize=(5.5 * n, 6.0), squeeze=False, sharex='col')
+    for b, (rec, traj) in enumerate(zip(recordings, result.trajectories)):
+        t = rec.t - rec.t[0]
+        x_before, th_before, x_after, th_after = traj
+        for row, (meas, before, after, unit) in enumerate(
+                ((rec.x, x_before, x_after, 'x [m]'),
+                 (rec.theta, th_before, th_after, 'theta [rad]'))):
+            ax = axes[row][b]
+            ax.plot(t, meas, 'k', lw=1.2, label='measured')
+            ax.plot(t, before, 'C1--', lw=1.0, label='model, initial parameters')
+            ax.plot(t, after, 'C0', lw=1.0, label='model, fitted parameters')
+            ax.set_ylabel(unit)
+            ax.grid(True, alpha=0.3)
+        axes[0][b].set_title(result.recordings[b].label)
+        axes[1][b].set_xlabel('t [s]')
+        force_ax = axes[0][b].twinx()
+        force_ax.step(t, rec.force, 'C2', lw=0.8, where='post', alpha=0.6)
+        force_ax.set_ylabel('force command [N]', color='C2')
+    axes[0][0].legend(loc='best', fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def main(args: argparse.Namespace) -> int:
+    from ..identify import IdentificationError, identify, load_recording, parse_free
+
+    try:
+        nominal = nominal_parameters(args)
+        free = parse_free(args.free)
+        bounds = parse_bounds(args.bound)
+    except (OSError, ValueError) as error:
+        return _fail(str(error))
+    for target in (args.output, args.plot):
+        if target is not None and not Path(target).resolve().parent.is_dir():
+            return _fail(f'{target}: the directory does not exist')
+    if args.max_nfev < 1:
+        return _fail('--max-nfev must be >= 1')
+    recordings = []
+    for bag in args.bags:
+        try:
+            recordings.append(load_recording(bag, t_start=args.t_start, t_end=args.t_end,
+                                             sample_time=nominal.sample_time,
+                                             zero_force=args.zero_force))
+        except (OSError, ValueError) as error:
+            return _fail(f'{bag}: {error}' if str(bag) not in str(error) else str(error))
+    progress = (lambda line: print(line, file=sys.stderr)) if args.verbose else None
+    try:
+        result = identify(recordings, nominal, free=free, bounds=bounds,
+                          weight_cart=args.weight_cart, weight_pendulum=args.weight_pendulum,
+                          refine_initial_state=args.refine_initial_state,
+                          integration_step=args.integration_step, max_nfev=args.max_nfev,
+                          progress=progress)
+    except IdentificationError as error:
+        return _fail(str(error))
+    written = []
+    try:
+        if args.output is not None:
+            write_parameters(result, args.output, list(args.bags))
+            written.append(str(args.output))
+        if args.plot is not None:
+            written.append(str(write_plot(result, recordings, args.plot)))
+    except OSError as error:
+        return _fail(f'cannot write: {error}')
+    if not result.success:
+        print(f'{PROG}: warning: the fit did not converge ({result.message}); the result is the '
+              'best point found, raise --max-nfev or check the data', file=sys.stderr)
+    if args.json:
+        out = result.to_dict()
+        out['bags'] = [str(b) for b in args.bags]
+        out['output'] = str(args.output) if args.output is not None else None
+        out['plot'] = str(args.plot) if args.plot is not None else None
+        print(json.dumps(out))
+        return 0
+    print('\n'.join(format_report(result)))
+    for path in written:
+        print(f'wrote: {path}')
+    return 0
+
+
+def format_report(result) -> list[str]:
+    """The result as text: parameters, errors per recording, the solver's word."""
+    lines = [f'{"parameter":<12} {"initial":>11} {"fitted":>11} {"std. error":>11}'
+             f' {"change":>8}']
+    for name in result.free:
+        v0, v, se = result.initial_values[name], result.values[name], result.std_errors[name]
+        change = f'{(v - v0) / v0 * 100:+.1f} %' if v0 else ''
+        flag = '  (at a bound)' if name in result.at_bound else ''
+        lines.append(f'{name:<12} {v0:>11.5g} {v:>11.5g} {se:>11.2g} {change:>8}{flag}')
+    lines.append('')
+    lines.append(f'{"recording":<20} {"samples":>7} {"RMSE x [mm]":>21} '
+                 f'{"RMSE theta [mrad]":>21}')
+    lines.append(f'{"":<20} {"":>7} {"before":>10} {"after":>10} {"before":>10} {"after":>10}')
+    for r in result.recordings:
+        lines.append(f'{r.label[:20]:<20} {r.samples:>7} {r.rmse_x_before_m * 1e3:>10.3f} '
+                     f'{r.rmse_x_after_m * 1e3:>10.3f} {r.rmse_theta_before_rad * 1e3:>10.3f} '
+                     f'{r.rmse_theta_after_rad * 1e3:>10.3f}')
+    lines.append('')
+    lines.append(f'cost (4.22), sum of cart RMSE: {result.cost_before * 1e3:.3f} mm -> '
+                 f'{result.cost_after * 1e3:.3f} mm')
+    strong = [(result.free[i], result.free[j], result.correlation[i][j])
+              for i in range(len(result.free)) for j in range(i + 1, len(result.free))
+              if abs(result.correlation[i][j]) > 0.95]
+    for a, b, c in strong:
+        lines.append(f'note: {a} and {b} are strongly correlated ({c:+.3f}); the tests '
+                     'barely tell them apart')
+    lines.append(f'solver: {result.message} ({result.nfev} evaluations, '
+                 f'{result.simulations} simulations)')
+    return lines

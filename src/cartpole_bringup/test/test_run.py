@@ -1,0 +1,129 @@
+"""`cartpole run`: options -> node parameters, process command lines, refusals, Ctrl-C."""
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from cartpole_bringup import cli
+from cartpole_bringup.commands import run as run_cmd
+
+
+def parse(*argv):
+    return cli.build_parser().parse_args(['run', *argv])
+
+
+def test_options_become_node_parameters():
+    args = parse('--sim', '--lockstep', '--tip-mass', '0.2', '--x0', '0.1', '--theta0', '3.0',
+                 '--noise', '--seed', '7', '--swingup', 'full_energy', '--stabilizer', 'smc')
+    p = run_cmd.node_parameters(args)
+    assert p['sim'] == {'x0': 0.1, 'theta0': 3.0, 'friction_scale': 1.0, 'encoder_offset': 0.0,
+                        'noise': True, 'seed': 7, 'tip_mass': 0.2}
+    assert p['controller_manager'] == {'swingup': 'full_energy', 'stabilizer': 'smc'}
+    assert 'hw_bridge' not in p
+    hw = run_cmd.node_parameters(parse('--hw', '--port', '/dev/ttyACM1'))
+    assert hw['hw_bridge'] == {'port': '/dev/ttyACM1', 'armed': False}  # never armed by default
+    assert run_cmd.node_parameters(parse('--hw', '--port', 'X', '--hw-arm'))['hw_bridge']['armed']
+
+
+def test_graph_spec_and_process_command_lines(tmp_path):
+    from cartpole_bringup.graph import GraphSpec, command_line, ros_value_text
+
+    spec = GraphSpec(plant='sim', lockstep=True, processes=True, record=tmp_path / 'bag',
+                     params_file=tmp_path / 'p.yaml', custom_data={'x_ref': '0.3845'},
+                     parameters={'sim': {'theta0': 3.0, 'noise': True},
+                                 'controller_manager': {'stabilizer': 'pid'}})
+    assert spec.nodes == ['recorder', 'ekf', 'controller_manager', 'sim']  # plant last
+    cmd = command_line(spec, 'sim')
+    assert cmd[0].endswith('/lib/cartpole_sim/sim_node') and os.access(cmd[0], os.X_OK)
+    assert cmd[1:] == ['--ros-args', '--log-level', 'warn', '--params-file',
+                       str(tmp_path / 'p.yaml'), '-p', 'theta0:=3.0', '-p', 'noise:=true',
+                       '-p', 'lockstep:=true', '-p', 'use_sim_time:=true']
+    rec = command_line(spec, 'recorder')
+    assert f'output:={ros_value_text(str(tmp_path / "bag"))}' in rec
+    assert "custom_data:=['x_ref=0.3845']" in rec
+    assert ros_value_text("it's") == "'it''s'"
+    with pytest.raises(ValueError, match='lockstep needs the simulator'):
+        GraphSpec(plant='hw_bridge', lockstep=True)
+
+
+def test_run_directory_is_named_by_time_and_controllers(tmp_path):
+    now = dt.datetime(2025, 3, 4, 5, 6, 7, tzinfo=dt.timezone.utc)
+    names = {'swingup': 'pendulum_energy', 'stabilizer': 'lqg'}
+    first = run_cmd.run_directory(tmp_path, names, now)
+    assert first == tmp_path / '20250304T050607Z_pendulum_energy_lqg'
+    first.mkdir()
+    assert run_cmd.run_directory(tmp_path, names, now).name == '20250304T050607Z_pendulum_energy_lqg_2'
+
+
+@pytest.mark.parametrize('argv, reason', [
+    (['--hw'], '--hw needs --port'),
+    (['--sim', '--port', '/dev/x'], 'are for --hw'),
+    (['--hw', '--port', 'X', '--lockstep'], '--lockstep needs --sim'),
+    (['--sim', '--duration', '0'], '--duration must be > 0'),
+    (['--sim', '--plots'], '--plots without DIR needs --record'),
+    (['--sim', '--x0', '0.9'], 'outside the travel'),
+    (['--sim', '--tip-mass', '-1'], '--tip-mass must be > 0'),
+    (['--sim', '--domain-id', '300'], '--domain-id must be in'),
+])
+def test_bad_options_are_refused_before_anything_starts(argv, reason, capsys, tmp_path):
+    try:
+        code = cli.main(['run', *argv])
+    except SystemExit as exc:  # options.scenario_from_args exits with the reason
+        code, err = 2, str(exc)
+    else:
+        err = capsys.readouterr().err
+    assert code == 2 and reason in err
+
+
+def cartpole_exe() -> str:
+    from ament_index_python.packages import get_package_prefix
+    path = Path(get_package_prefix('cartpole_bringup')) / 'lib' / 'cartpole_bringup' / 'cartpole'
+    assert os.access(path, os.X_OK), f'{path} missing; run make build'
+    return str(path)
+
+
+@pytest.mark.ros
+def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until, tmp_path):
+    """Ctrl-C: zero force last, bag closed, summary printed, exit 0."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    node = Node('run_probe', context=ros_context)
+    truth = []
+    node.create_subscription(JointState, '/cartpole/true_state', truth.append, 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    proc = subprocess.Popen([cartpole_exe(), 'run', '--sim', '--record', str(tmp_path), '--json'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # Real time: wait for 0.5 s of samples, then Ctrl-C.
+        assert spin_until(executor, lambda: len(truth) >= 100, 60.0), 'graph did not run'
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        node.destroy_node()
+    assert proc.returncode == 0, err
+    result = json.loads(out.strip().splitlines()[-1])
+    assert result['lockstep'] is False and result['elapsed_s'] > 0.4
+    assert result['catch_time_s'] is None and result['success'] is False  # far too short
+    bag = Path(result['bag'])
+    assert (bag / 'metadata.yaml').is_file()
+    from rosbags.highlevel import AnyReader
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == '/cartpole/force_command']
+        forces = [reader.deserialize(raw, c.msgtype).effort[0]
+                  for c, _, raw in reader.messages(connections=conns)]
+    assert len(forces) >= 50 and forces[-1] == 0.0
+    assert any(abs(f) > 0.0 for f in forces), 'the swing-up never pushed'
+    assert not math.isnan(result['x_err_max_m'])
