@@ -193,8 +193,13 @@ def test_commands_without_times_are_refused():
 
 # -- bags and the command ---------------------------------------------------------------------------
 def write_bag(path, rec, *, t_origin: float = 1.7e9, topics=('/joint_states',
-                                                                          '/cartpole/force_command')):
-    """A rosbag2 (MCAP, ROS2_JAZZY types) as the recorder writes it from the rig."""
+                                                                          '/cartpole/force_command'),
+              zero_command_stamps: bool = False):
+    """A rosbag2 (MCAP, ROS2_JAZZY types) as the recorder writes it from the rig.
+
+    With ``zero_command_stamps`` the commands carry no stamp (``ros2 topic pub``)
+    and the bag is logged with receive times, 1 ms after each sample.
+    """
     from rosbags.typesys import Stores, get_typestore
 
     from cartpole_bringup.bag import BagWriter
@@ -211,14 +216,21 @@ def write_bag(path, rec, *, t_origin: float = 1.7e9, topics=('/joint_states',
                velocity=np.array([], dtype=float), effort=np.array(effort, dtype=float))
         return ts.serialize_cdr(m, 'sensor_msgs/msg/JointState')
 
-    with BagWriter(path) as bag:
+    log_time = 'receive' if zero_command_stamps else 'stamp'
+    with BagWriter(path, log_time=log_time) as bag:
         for k in range(rec.t.size):
             t = t_origin + rec.t[k]
             if '/joint_states' in topics:
                 bag.write('/joint_states', msg(t, ('cart', 'pendulum'),
-                                               (rec.x[k], rec.theta[k])), 0)
+                                               (rec.x[k], rec.theta[k])), _ns(t))
             if '/cartpole/force_command' in topics:
-                bag.write('/cartpole/force_command', msg(t, ('cart',), effort=(rec.force[k],)), 0)
+                if zero_command_stamps:
+                    if rec.force[k] != 0.0:  # only the pulses are published
+                        bag.write('/cartpole/force_command',
+                                  msg(0.0, ('cart',), effort=(rec.force[k],)), _ns(t + 0.001))
+                else:
+                    bag.write('/cartpole/force_command',
+                              msg(t, ('cart',), effort=(rec.force[k],)), _ns(t))
             if not topics:
                 clock = ts.types['rosgraph_msgs/msg/Clock'](clock=time(sec=int(t), nanosec=0))
                 bag.write('/clock', ts.serialize_cdr(clock, 'rosgraph_msgs/msg/Clock'), 0)
@@ -235,6 +247,18 @@ def test_bag_loader_reads_back_the_recording(tmp_path, recordings):
     np.testing.assert_array_equal(back.force, rec.force)
     window = load_recording(tmp_path / 'pulses', t_start=1.0, t_end=2.0)
     assert window.t.size == 201 and window.t[0] == pytest.approx(1.0)
+
+
+def test_unstamped_commands_use_the_receive_time(tmp_path, recordings):
+    """``ros2 topic pub`` pulses (zero stamps) recorded with ``log_time:=receive``."""
+    rec = recordings[0]
+    write_bag(tmp_path / 'pub', rec, zero_command_stamps=True)
+    back = load_recording(tmp_path / 'pub')
+    # Pulses land on their samples; after the last command of a pulse the device keeps the
+    # setpoint until the 50 ms watchdog zeroes it: 9 more samples (45 ms) of the pulse's force.
+    t = rec.t
+    expected = pulse_forces(t, [(start, length + 9 * TS, f) for start, length, f in PULSES])
+    np.testing.assert_array_equal(back.force, expected)
 
 
 def test_identify_command_on_a_bag(tmp_path, recordings, capsys):
@@ -267,10 +291,13 @@ def test_identify_command_on_a_bag(tmp_path, recordings, capsys):
 def test_identify_command_prints_a_table(tmp_path, recordings, capsys):
     bag = tmp_path / 'pulses'
     write_bag(bag, recordings[0])
+    plot = tmp_path / 'fit.png'
     code = cli.main(['identify', str(bag), '--free', 'm_c', '--integration-step', '0.005',
-                     '--max-nfev', '3'])
+                     '--max-nfev', '3', '--plot', str(plot)])
     out = capsys.readouterr().out
     assert code == 0
+    assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert f'wrote: {plot}' in out
     assert out.splitlines()[0].split() == ['parameter', 'initial', 'fitted', 'std.', 'error',
                                            'change']
     assert 'cost (4.22)' in out and 'pulses' in out

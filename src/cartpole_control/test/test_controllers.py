@@ -148,6 +148,13 @@ def test_full_energy_integral_term_pumps_with_theta_dot_cos_theta():
     assert fe.integral == pytest.approx(PARAMS.upright_energy, rel=1e-9)
     swinging = consistent_state(1.005, X_REF, math.pi, 0.0, 2.0)  # theta_dot cos theta = -2
     assert fe.update(swinging) < 0.0
+    # Above E* the integral term is gated off: only the (7.20) part remains.
+    above = consistent_state(1.01, X_REF, math.pi, 0.0, 12.0)
+    assert fe.energy_error(above) < 0.0
+    without = make(SWINGUP, 'full_energy', k_x=0.0, k_d=0.0, k_i=0.0)
+    without.activate(above)
+    assert fe.update(above) == pytest.approx(without.update(above))
+    assert fe.integral > 0.0
 
 
 # -- stabiliser directions -----------------------------------------------------------

@@ -211,8 +211,11 @@ def accelerations(x: float, theta: float, x_dot: float, theta_dot: float,
     c = math.cos(theta)
     m_p, l, m_c = p.m_p, p.l, p.m_c
     if friction:
-        b_c = cart_friction(x_dot, p)
-        b_p = pendulum_friction(theta_dot, p)
+        # cart_friction and pendulum_friction, inlined: this is the innermost
+        # function of every simulation (test_model checks they agree).
+        b_c = ((p.c_c_right if x_dot >= 0.0 else p.c_c_left)
+               * math.tanh(p.friction_steepness_cart * x_dot) + p.v_c * x_dot)
+        b_p = p.c_p * math.tanh(p.friction_steepness_pendulum * theta_dot) + p.v_p * theta_dot
     else:
         b_c = b_p = 0.0
     # Generalised forces minus C and G, (4.17).

@@ -174,16 +174,30 @@ class Plant:
         return x_dot, theta_dot, x_ddot, theta_ddot
 
     def _rk4(self, h: float, force: float) -> None:
-        s = self.state
-        k1 = self._derivative(s, force)
-        s2 = [s[i] + 0.5 * h * k1[i] for i in range(4)]
-        k2 = self._derivative(s2, force)
-        s3 = [s[i] + 0.5 * h * k2[i] for i in range(4)]
-        k3 = self._derivative(s3, force)
-        s4 = [s[i] + h * k3[i] for i in range(4)]
-        k4 = self._derivative(s4, force)
-        self.state = [s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-                      for i in range(4)]
+        """One RK4 step of (4.18) with end stops; the same sums as :meth:`_derivative`, unrolled.
+
+        This is the inner loop of every offline run, so the four stages are
+        written out with local names instead of calling helpers (about 3x
+        faster in CPython); :meth:`_derivative` is the readable reference and a
+        test checks the two agree to the last bit.
+        """
+        p = self.true_params
+        acc = accelerations
+        stop = self._end_stop_force
+        x, th, v, w = self.state
+        a1, b1 = acc(x, th, v, w, force + stop(x, v), p)
+        hh = 0.5 * h
+        x2, th2, v2, w2 = x + hh * v, th + hh * w, v + hh * a1, w + hh * b1
+        a2, b2 = acc(x2, th2, v2, w2, force + stop(x2, v2), p)
+        x3, th3, v3, w3 = x + hh * v2, th + hh * w2, v + hh * a2, w + hh * b2
+        a3, b3 = acc(x3, th3, v3, w3, force + stop(x3, v3), p)
+        x4, th4, v4, w4 = x + h * v3, th + h * w3, v + h * a3, w + h * b3
+        a4, b4 = acc(x4, th4, v4, w4, force + stop(x4, v4), p)
+        h6 = h / 6.0
+        self.state = [x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
+                      th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
+                      v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+                      w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)]
 
     def step(self, force_command: float, duration: float | None = None) -> None:
         """Advance by ``duration`` (one sample period by default) holding ``force_command``.

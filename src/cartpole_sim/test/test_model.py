@@ -257,3 +257,22 @@ def test_unknown_and_non_numeric_keys_refused(tmp_path):
 def test_parameters_are_immutable():
     with pytest.raises(dataclasses.FrozenInstanceError):
         NOMINAL.m_p = 0.2
+
+
+@pytest.mark.parametrize('x_dot,theta_dot', [(0.3, -2.0), (-0.01, 0.004), (0.0, 0.0), (-1.5, 7.0)])
+def test_accelerations_use_the_friction_laws(x_dot, theta_dot):
+    # accelerations() inlines cart_friction/pendulum_friction; (4.17) with B from the
+    # friction functions must give the same numbers.
+    from cartpole_sim.model import cart_friction, pendulum_friction
+    p = CartPoleParameters()
+    theta, force = 0.7, 3.0
+    with_friction = accelerations(0.2, theta, x_dot, theta_dot, force, p)
+    # Friction enters (4.17) exactly like an opposing force on the cart and torque on the pendulum.
+    no_friction = accelerations(0.2, theta, x_dot, theta_dot, force - cart_friction(x_dot, p), p,
+                                friction=False)
+    det = p.m_p * p.l ** 2 * (p.m_c + p.m_p * math.sin(theta) ** 2)
+    b_p = pendulum_friction(theta_dot, p)
+    expected_x = no_friction[0] - p.m_p * p.l * math.cos(theta) * b_p / det
+    expected_th = no_friction[1] - (p.m_c + p.m_p) * b_p / det
+    assert with_friction[0] == pytest.approx(expected_x, rel=1e-12, abs=1e-12)
+    assert with_friction[1] == pytest.approx(expected_th, rel=1e-12, abs=1e-12)

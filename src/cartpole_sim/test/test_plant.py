@@ -227,3 +227,17 @@ def test_reset_restores_initial_state_and_noise_sequence():
 def test_integration_step_longer_than_sample_time_refused():
     with pytest.raises(ValueError, match='integration_step'):
         Plant(NOMINAL, integration_step=0.01)
+
+
+def test_unrolled_rk4_matches_the_reference_stages_bit_for_bit():
+    # Plant._rk4 is the unrolled inner loop; Plant._derivative is its readable reference.
+    plant = Plant(NOMINAL, Scenario(x0=0.01, theta0=2.0, x_dot0=-0.5, theta_dot0=3.0))
+    h, force = 0.001, 12.5
+    s = list(plant.state)
+    k1 = plant._derivative(s, force)
+    k2 = plant._derivative([s[i] + 0.5 * h * k1[i] for i in range(4)], force)
+    k3 = plant._derivative([s[i] + 0.5 * h * k2[i] for i in range(4)], force)
+    k4 = plant._derivative([s[i] + h * k3[i] for i in range(4)], force)
+    expected = [s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(4)]
+    plant._rk4(h, force)
+    assert plant.state == expected
