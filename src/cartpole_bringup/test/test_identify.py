@@ -86,7 +86,7 @@ def test_fit_recovers_the_true_parameters(fit):
         assert fit.values[name] == pytest.approx(TRUE[name], rel=0.01), name
     for name in ('c_p', 'v_p'):
         assert fit.values[name] == pytest.approx(TRUE[name], rel=0.05), name
-    # And away from where it started (the thesis values are 4-50 % off).
+    # And away from where it started (the thesis values are 12-33 % off).
     assert fit.initial_values == {k: getattr(THESIS, k) for k in TRUE}
     assert fit.at_bound == ()
 
@@ -121,6 +121,28 @@ def test_fitted_parameters_reproduce_a_test_they_did_not_see(fit):
     x_thesis, _ = simulate(check, THESIS, (0.6, math.pi, 0.0, 0.0), FIT_STEP)
     assert np.max(np.abs(x_fit - check.x)) < 1e-3
     assert np.max(np.abs(x_thesis - check.x)) > 0.02
+
+
+def test_a_swing_recorded_in_motion_needs_the_joint_initial_state(recordings):
+    """No quiet lead-in (the recording starts mid-swing): the initial state is fitted too.
+
+    The quadratic start estimate of a fast swing is off by a fraction of a tick
+    and the phase error it leaves is absorbed into c_p/v_p (c_p twice the truth,
+    v_p zero); fitting the initial state jointly brings the fit down to the
+    quantisation floor. 10 % here: 3.7 s of swing barely separate Coulomb from
+    viscous loss.
+    """
+    swing = recordings[1].window(t_start=0.3)
+    start = THESIS.replace(**{k: TRUE[k] for k in ('m_c', 'c_c_right', 'c_c_left')})
+    plain = identify([swing], start, free=['c_p', 'v_p'], integration_step=FIT_STEP)
+    res = identify([swing], start, free=['c_p', 'v_p'], refine_initial_state=True,
+                   integration_step=FIT_STEP)
+    for name in ('c_p', 'v_p'):
+        assert res.values[name] == pytest.approx(TRUE[name], rel=0.10), name
+    fit = res.recordings[0]
+    assert fit.rmse_theta_after_rad < 2.0 * PEND_TICK / math.sqrt(12)
+    assert plain.recordings[0].rmse_theta_after_rad > 1.2 * fit.rmse_theta_after_rad
+    assert abs(fit.initial_state[3]) > 3.0  # released 0.3 s earlier: swinging fast
 
 
 def test_only_the_free_parameters_change(recordings):

@@ -65,6 +65,9 @@ SMOOTH_FRICTION_STEEPNESS = 100.0
 DEFAULT_GUESSES: tuple[tuple[float, float], ...] = ((0.4, 1.0), (0.8, -1.0), (0.4, -1.0), (0.8, 1.0))
 """(pumping acceleration in g, first push direction) of the multi-start initial guesses."""
 
+RELEASE_TIME = 0.3
+"""[s] over which the rail margin is released for a start inside it (see ``_solve_nlp``)."""
+
 FORMAT_VERSION = 1
 """Bumped when a change of this module invalidates cached plans."""
 
@@ -338,6 +341,19 @@ def _solve_nlp(problem: MinimumTimeProblem, n: int, x_guess: np.ndarray, u_guess
         ref = p.x_middle if problem.terminal_cart_ref is None else problem.terminal_cart_ref
         lbx_x[n, 0] = max(lbx_x[n, 0], ref - problem.terminal_cart_window)
         ubx_x[n, 0] = min(ubx_x[n, 0], ref + problem.terminal_cart_window)
+    # A start inside the margin (e.g. at the left stop): the bound moves from x_0 to the
+    # margin m over RELEASE_TIME, x_k >= x_0 + (m - x_0) min(1, t_k / RELEASE_TIME)^2.
+    t_k = h * ca.DM(np.arange(n + 1)).T
+    for side, inside in ((1.0, x0[0] < problem.rail_margin),
+                         (-1.0, x0[0] > p.travel - problem.rail_margin)):
+        if not inside:
+            continue
+        edge = problem.rail_margin if side > 0 else p.travel - problem.rail_margin
+        depth = edge - x0[0]
+        progress = ca.fmin(1.0, t_k / RELEASE_TIME) ** 2
+        g_parts.append(ca.reshape(side * (X[0, :] - x0[0] - depth * progress), -1, 1))
+        lbg += [0.0] * (n + 1)
+        ubg += [inf] * (n + 1)
     lbu = np.full(n, p.force_min * problem.force_scale)
     ubu = np.full(n, p.force_max * problem.force_scale)
     scale_u = max(p.force_max, -p.force_min)
@@ -532,7 +548,7 @@ def tracking_gains(problem: MinimumTimeProblem, trajectory: Trajectory, q: Seque
     s = ca.SX.sym('s', 4)
     u = ca.SX.sym('u')
     y = step(s, u, trajectory.dt)
-    jac = ca.Function('jac', [s, u], [ca.jacobian(y, s), ca.jacobian(y, u)])
+    jac = ca.Function('linearised_step', [s, u], [ca.jacobian(y, s), ca.jacobian(y, u)])
     n = len(trajectory.forces)
     jm = jac.map(n)
     a_all, b_all = jm(trajectory.states[:-1].T, trajectory.forces.reshape(1, -1))
@@ -544,7 +560,7 @@ def tracking_gains(problem: MinimumTimeProblem, trajectory: Trajectory, q: Seque
     for k in range(n - 1, -1, -1):
         a = a_all[:, k, :]
         b = b_all[:, k].reshape(4, 1)
-        s_mat = r + float(b.T @ p_mat @ b)
+        s_mat = r + (b.T @ p_mat @ b).item()
         kk = (b.T @ p_mat @ a) / s_mat
         gains[k] = kk.ravel()
         p_mat = qm + a.T @ p_mat @ (a - b @ kk)

@@ -22,6 +22,7 @@ from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
+from cartpole_control.controllers.lqg import LqgStabilizer  # noqa: E402
 from cartpole_control.manager_node import STATUS_KEYS, ControllerManagerNode  # noqa: E402
 from cartpole_sim.model import CartPoleParameters  # noqa: E402
 
@@ -174,7 +175,7 @@ def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
     (result,) = h.set(x_ref='middle')  # wrong type: rclpy refuses
     assert not result.successful
     assert h.get('stabilizer', 'lqg.r', 'lqg.q', 'fall.angle_deg', 'x_ref') == [
-        'lqg', 0.01, [100.0, 400.0, 100.0, 400.0], 45.0, pytest.approx(P.travel / 2)]
+        'lqg', 0.01, list(LqgStabilizer.defaults()['q']), 45.0, pytest.approx(P.travel / 2)]
     _, status_array = h.send_state(2.0)
     assert values_of(status_array)[1]['stabilizer'] == 'lqg'
     # A good gain is taken.

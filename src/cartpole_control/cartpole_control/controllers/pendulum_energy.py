@@ -17,12 +17,12 @@ keeps pumping and overshoots (the thesis saw "several full revolutions").
 """
 from __future__ import annotations
 
+import math
+
 from cartpole_sim.model import pendulum_energy
 
 from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
 from . import StepClock, acceleration_to_force
-
-import math
 
 
 class PendulumEnergySwingUp(Controller):

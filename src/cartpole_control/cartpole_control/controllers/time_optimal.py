@@ -76,7 +76,9 @@ def plan_problem(params: CartPoleParameters, x_ref: float, x0: float, gains) -> 
     """The minimum-time problem the plugin plans for a start at rest hanging at ``x0``."""
     x0 = min(max(round(float(x0), 2), 0.0), params.travel)
     return MinimumTimeProblem(
-        params, (x0, math.pi, 0.0, 0.0), CatchRegion(),
+        params, (x0, math.pi, 0.0, 0.0),
+        CatchRegion(angle=math.radians(float(gains['terminal_angle_deg'])),
+                    energy_tolerance=float(gains['terminal_energy_tolerance'])),
         force_scale=float(gains['force_scale']), rail_margin=float(gains['rail_margin']),
         friction=True, terminal_cart_speed=float(gains['terminal_speed']),
         terminal_cart_window=float(gains['terminal_window']), terminal_cart_ref=float(x_ref))
@@ -106,6 +108,11 @@ class TimeOptimalSwingUp(Controller):
                       low=0.3, high=1.0),
         ParameterSpec('rail_margin', 0.05, 'distance the plan keeps from each end stop [m]',
                       low=0.0, high=0.2),
+        ParameterSpec('terminal_angle_deg', 10.0, 'plan: |theta_w| at the final time below '
+                      'this [deg] (the issue\'s catch region: 10)', low=1.0, high=30.0),
+        ParameterSpec('terminal_energy_tolerance', 0.02, 'plan: |E_p - E*| <= this E* at the '
+                      'final time (tighter than the catch trigger\'s 0.05: calmer hand-over)',
+                      low=0.005, high=0.2),
         ParameterSpec('terminal_speed', 0.5, 'plan: |x_dot| at the final time below this [m/s]',
                       low=0.0, high=5.0),
         ParameterSpec('terminal_window', 0.2, 'plan: |x - x*| at the final time below this [m]',

@@ -1,0 +1,71 @@
+"""`cartpole bound`: the minimum-time swing-up bounds of issue #7 for the parameters in use.
+
+Solves, by direct multiple shooting with free final time (CasADi + IPOPT,
+:mod:`cartpole_control.trajectory_optimization`), the fastest swing-up with
+the amplifier's force limits and the cart kept on the rail:
+
+- ``middle``: from hanging rest in the middle of the rail to the catch region
+  (|theta_w| <= 10 deg, energy within 5 %);
+- ``left_stop``: the same from the left end stop;
+- ``upright_at_rest``: from the middle to upright at rest.
+
+No ROS.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+from ..options import nominal_parameters
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from cartpole_control.trajectory_optimization import BOUND_CASES
+    parser.add_argument('--plant-params', type=__import__('pathlib').Path, default=None,
+                        metavar='FILE.yaml',
+                        help='plant parameters (CartPoleParameters YAML); default: thesis values')
+    parser.add_argument('--case', action='append', choices=BOUND_CASES, default=None,
+                        help='compute only this bound (repeatable); default: all three')
+    parser.add_argument('--no-friction', action='store_true',
+                        help='frictionless model (default: the smoothed Coulomb/viscous friction)')
+    parser.add_argument('--intervals', type=int, default=70, metavar='N',
+                        help='shooting intervals of the multi-start solves (default 70)')
+    parser.add_argument('--refine', type=int, default=140, metavar='N',
+                        help='intervals of the final refinement, 0 for none (default 140)')
+    parser.add_argument('--json', action='store_true', help='print one JSON object instead of a table')
+
+
+def main(args: argparse.Namespace) -> int:
+    from cartpole_control.trajectory_optimization import BOUND_CASES, ISSUE_BOUNDS, swingup_bounds
+    if args.intervals < 5:
+        raise SystemExit(f'--intervals must be >= 5, got {args.intervals}')
+    if args.refine < 0:
+        raise SystemExit(f'--refine must be >= 0, got {args.refine}')
+    params = nominal_parameters(args)
+    cases = tuple(args.case) if args.case else BOUND_CASES
+    results = swingup_bounds(params, cases, n_intervals=args.intervals,
+                             refine_intervals=args.refine or None,
+                             friction=not args.no_friction)
+    out = {}
+    for case, traj in results.items():
+        forces = traj.forces
+        switches = int(sum(1 for a, b in zip(forces[:-1], forces[1:])
+                           if (a > 0.5 * params.force_max) != (b > 0.5 * params.force_max)))
+        out[case] = {'time_s': round(traj.final_time, 4) if traj.success else None,
+                     'converged': traj.success,
+                     'intervals': len(forces),
+                     'full_force_switches': switches,
+                     'x_range_m': [round(float(traj.states[:, 0].min()), 4),
+                                   round(float(traj.states[:, 0].max()), 4)],
+                     'solve_s': round(traj.solve_time, 2),
+                     'issue_s': ISSUE_BOUNDS[case] if params == type(params)() else None}
+    if args.json:
+        print(json.dumps(out))
+        return 0 if all(v['converged'] for v in out.values()) else 1
+    print(f'{"case":<16} {"bound [s]":>9} {"issue [s]":>9} {"switches":>8} {"x range [m]":>16} {"solve [s]":>9}')
+    for case, v in out.items():
+        t = f'{v["time_s"]:.3f}' if v['time_s'] is not None else 'failed'
+        issue = f'{v["issue_s"]:.2f}' if v['issue_s'] is not None else '-'
+        xr = f'{v["x_range_m"][0]:.3f}..{v["x_range_m"][1]:.3f}'
+        print(f'{case:<16} {t:>9} {issue:>9} {v["full_force_switches"]:>8} {xr:>16} {v["solve_s"]:>9.1f}')
+    return 0 if all(v['converged'] for v in out.values()) else 1
