@@ -24,6 +24,9 @@ section 4.6. This module does all of it in one fit:
 :func:`load_recording` is the thin bag loader (rosbag2/MCAP, via
 ``rosbags``); :func:`simulate_test` synthesises a recording of a test on
 the simulated plant, to rehearse the procedure or to test this module.
+:class:`PulsePlayer` plays a pulse test sample by sample with a rail guard
+(the node :mod:`cartpole_bringup.identify_node` puts it on ROS), and
+:func:`rehearse` plays it on the simulated plant first.
 """
 from __future__ import annotations
 
@@ -367,7 +370,7 @@ def identify(recordings: Sequence[Recording], nominal: CartPoleParameters | None
              progress: Callable[[str], None] | None = None) -> IdentificationResult:
     """Fit plant parameters to open-loop tests, (4.22)-(4.26) and section 4.3.2.
 
-    Minimises, over the free parameters p (and, with ``fit_initial_state``,
+    Minimises, over the free parameters p (and, with ``refine_initial_state``,
     each recording's initial state),
 
         sum_b (1 / n_b) sum_k [ w_x^2 (x_sim - x_meas)^2 + w_theta^2 (theta_sim - theta_meas)^2 ]
@@ -643,9 +646,215 @@ def simulate_test(params: CartPoleParameters, force: Sequence[float] | np.ndarra
     return Recording(t, x, theta, force, label)
 
 
+# -- playing a pulse test -------------------------------------------------------------------
+@dataclass(frozen=True)
+class Pulse:
+    """One force pulse of a test (section 4.3.1): ``force`` [N] held for ``length`` [s]."""
+
+    force: float
+    length: float
+
+
+MAX_PULSE_LENGTH = 1.0
+"""Longest pulse [s]; at 15 N the cart gains about 2.5 m/s in a second, far beyond the rail."""
+
+
+def parse_pulse_plan(text: str, params: CartPoleParameters | None = None) -> tuple[Pulse, ...]:
+    """``'15:0.25,-12:0.25'`` -> pulses (force [N] : length [s], comma-separated).
+
+    Forces must be non-zero and within what the amplifier gives
+    (``params.force_min`` .. ``params.force_max``); lengths in (0, 1] s.
+    """
+    params = params or CartPoleParameters()
+    pulses = []
+    for item in (s.strip() for s in str(text).split(',')):
+        if not item:
+            continue
+        force, sep, length = item.partition(':')
+        try:
+            if not sep:
+                raise ValueError
+            pulse = Pulse(float(force), float(length))
+        except ValueError:
+            raise IdentificationError(
+                f'pulse {item!r} is not FORCE:LENGTH (e.g. 15:0.25 for 15 N over 0.25 s)') from None
+        if not (math.isfinite(pulse.force) and pulse.force != 0.0
+                and params.force_min <= pulse.force <= params.force_max):
+            raise IdentificationError(
+                f'pulse force {pulse.force} N must be non-zero and within '
+                f'[{params.force_min:.4g}, {params.force_max:.4g}] N')
+        if not (math.isfinite(pulse.length) and 0.0 < pulse.length <= MAX_PULSE_LENGTH):
+            raise IdentificationError(
+                f'pulse length {pulse.length} s must be in (0, {MAX_PULSE_LENGTH}] s')
+        pulses.append(pulse)
+    if not pulses:
+        raise IdentificationError('the pulse plan is empty')
+    return tuple(pulses)
+
+
+@dataclass
+class PulsePlayer:
+    """Plays a pulse test sample by sample, with a rail guard (no ROS).
+
+    Call :meth:`update` with every sample's time and measured cart position;
+    it returns the force command for that sample (held until the next):
+
+    1. zero for ``lead_in`` s (the quiet start :func:`fit_initial_state` uses);
+    2. each pulse's force for its length, then zero until the cart has stood
+       still (within two cart ticks) for ``settle`` s, or ``max_wait`` s
+       passed; then the next pulse;
+    3. zero once every pulse has settled (:attr:`done`).
+
+    Rail guard: a pulse pushing towards a stop while the cart is within
+    ``margin`` of that stop is cut to zero, and the rest of the plan is
+    dropped (:attr:`reason` says why). Zero force lets the cart coast on its
+    friction; it does not brake, so size the pulses with :func:`rehearse`.
+    """
+
+    pulses: tuple[Pulse, ...]
+    params: CartPoleParameters = field(default_factory=CartPoleParameters)
+    lead_in: float = 0.5
+    settle: float = 1.0
+    margin: float = 0.1
+    max_wait: float = 10.0
+    done: bool = field(default=False, init=False)
+    reason: str = field(default='', init=False)
+    """Empty while all is well; the guard's reason when it cut the plan short."""
+    index: int = field(default=0, init=False)
+    """The pulse being played or settled after."""
+    _t0: float | None = field(default=None, init=False, repr=False)
+    _phase: str = field(default='lead_in', init=False, repr=False)
+    _t_phase: float = field(default=0.0, init=False, repr=False)
+    _samples: int = field(default=0, init=False, repr=False)
+    _anchor: tuple[float, float] = field(default=(0.0, 0.0), init=False, repr=False)
+
+    def update(self, t: float, x: float) -> float:
+        """The force command [N] for the sample at ``t`` [s] with cart position ``x`` [m]."""
+        if self._t0 is None:
+            self._t0 = t
+            self._t_phase = t
+            self._anchor = (t, x)
+        if abs(x - self._anchor[1]) > 2.0 * self.params.cart_resolution:
+            self._anchor = (t, x)  # the cart moved: stillness counts from here
+        if self.done:
+            return 0.0
+        if self._phase == 'lead_in':
+            if t - self._t0 < self.lead_in - 1e-9:
+                return 0.0
+            self._begin('pulse', t)
+        if self._phase == 'settle':
+            still = t - self._anchor[0] >= self.settle - 1e-9
+            if not (still or t - self._t_phase >= self.max_wait - 1e-9):
+                return 0.0
+            if self.index + 1 >= len(self.pulses):
+                self.done = True
+                return 0.0
+            self.index += 1
+            self._begin('pulse', t)
+        pulse = self.pulses[self.index]
+        if self._samples >= max(1, int(round(pulse.length / self.params.sample_time))):
+            self._begin('settle', t)
+            return 0.0
+        if (pulse.force > 0 and x > self.params.travel - self.margin) or \
+                (pulse.force < 0 and x < self.margin):
+            self.reason = (f'rail guard: pulse {self.index + 1} ({pulse.force:g} N) cut at '
+                           f'x = {x:.3f} m, within {self.margin:g} m of the stop it pushes to')
+            self.index = len(self.pulses) - 1
+            self._begin('settle', t)
+            return 0.0
+        self._samples += 1
+        return pulse.force
+
+    def _begin(self, phase: str, t: float) -> None:
+        self._phase, self._t_phase, self._samples = phase, t, 0
+
+
+def rehearse(pulses: Sequence[Pulse], params: CartPoleParameters | None = None, *,
+             x0: float = 0.0, theta0: float = math.pi, lead_in: float = 0.5,
+             settle: float = 1.0, margin: float = 0.1, max_duration: float = 60.0,
+             integration_step: float = 0.001) -> tuple[Recording, PulsePlayer]:
+    """Play a pulse plan on the simulated plant: the predicted test and the player.
+
+    The same :class:`PulsePlayer` the rig will see, driven by
+    :class:`~cartpole_sim.plant.Plant` measurements; use it to size the
+    pulses before trying them (where does the cart stop? does the guard
+    trip?).
+    """
+    params = params or CartPoleParameters()
+    player = PulsePlayer(tuple(pulses), params, lead_in=lead_in, settle=settle, margin=margin)
+    plant = Plant(params, Scenario(x0=x0, theta0=theta0), integration_step=integration_step)
+    t, x, theta, force = [], [], [], []
+    n_max = int(round(max_duration / params.sample_time))
+    for _ in range(n_max):
+        m = plant.measure()
+        f = player.update(m.t, m.x)
+        t.append(m.t)
+        x.append(m.x)
+        theta.append(m.theta)
+        force.append(f)
+        if player.done:
+            break
+        plant.step(f)
+    return Recording(np.array(t), np.array(x), np.array(theta), np.array(force),
+                     'rehearsal'), player
+
+
+def rehearsal_warnings(rec: Recording, player: PulsePlayer) -> list[str]:
+    """Why a rehearsed pulse plan is unsafe to play on the rig ([] if it is not).
+
+    Unsafe: the rail guard cut a pulse; the cart reached the travel's ends;
+    or, once it has left the stop zones (``player.margin`` from each end),
+    it came back within them (a coasting cart is not braked by anything but
+    its friction).
+    """
+    p = player.params
+    out = []
+    if player.reason:
+        out.append(player.reason)
+    if not player.done:
+        out.append(f'the plan did not finish within {rec.duration:.1f} s')
+    if np.any(rec.x < 0.0) or np.any(rec.x > p.travel):
+        out.append(f'the cart reaches an end stop (x from {rec.x.min():.3f} to '
+                   f'{rec.x.max():.3f} m, travel {p.travel} m)')
+    inside = (rec.x >= player.margin) & (rec.x <= p.travel - player.margin)
+    if np.any(inside):
+        first = int(np.argmax(inside))
+        if not np.all(inside[first:]):
+            k = first + int(np.argmin(inside[first:]))
+            out.append(f'the cart coasts to x = {rec.x[k]:.3f} m at t = {rec.t[k]:.2f} s, within '
+                       f'{player.margin:g} m of a stop')
+    return out
+
+
 # -- bags -----------------------------------------------------------------------------------
 def _stamp_ns(stamp_ns: int, log_ns: int) -> int:
     return stamp_ns if stamp_ns > 0 else int(log_ns)
+
+
+def sample_indices(t: np.ndarray, sample_time: float, window: int = 20) -> np.ndarray:
+    """Sample numbers of samples taken every ``sample_time`` but stamped late and irregularly.
+
+    A stamp is the true sample time plus a latency >= 0 (receipt on the host:
+    serial buffering delivers lines in bursts). Counting the samples gives
+    their numbers, except where samples were lost. With e_k = (t_k - t_0) / Ts
+    - k, a loss raises e permanently by one, latency only for a while; the
+    minimum of e over the next ``window`` samples is the latency-free part,
+    and its rise since the start, rounded and never decreasing, is the number
+    of samples lost so far (a loss within the last ``window`` samples goes
+    unnoticed rather than a late burst at the end being taken for one).
+    """
+    t = np.asarray(t, dtype=float)
+    n = t.size
+    k = np.arange(n)
+    if n < 2:
+        return k
+    e = (t - t[0]) / sample_time - k
+    w = max(1, min(int(window), n))
+    # The last window's minimum closes the series: a burst at the very end is not a loss.
+    padded = np.concatenate([e, np.full(w - 1, e[-w:].min())])
+    floor = np.lib.stride_tricks.sliding_window_view(padded, w).min(axis=1)
+    lost = np.maximum.accumulate(np.maximum(np.round(floor - floor[0]), 0.0)).astype(np.int64)
+    return k + lost
 
 
 def recording_from_messages(samples: Sequence[tuple[int, float, float]],
@@ -655,9 +864,9 @@ def recording_from_messages(samples: Sequence[tuple[int, float, float]],
     """A :class:`Recording` from /joint_states samples and force commands.
 
     ``samples`` are (time [ns], x, theta), ``commands`` (time [ns], F). The
-    sample times are snapped to the Ts grid of the first sample (the device
-    samples every Ts exactly; the host's receipt stamps jitter), duplicates
-    on one grid point keep the first. ``force[k]`` is the last command
+    sample times become k Ts (:func:`sample_indices`: the device samples
+    every Ts exactly, the host's receipt stamps jitter and come in bursts;
+    lost samples leave gaps). ``force[k]`` is the last command
     stamped at or before sample k (a command carries the stamp of the sample
     it answers, docs/architecture.md), zero before the first command and
     once the last command is older than ``command_timeout`` (the watchdogs
@@ -670,15 +879,10 @@ def recording_from_messages(samples: Sequence[tuple[int, float, float]],
         raise IdentificationError(
             f'{name}: no {FORCE} messages; an open-loop test needs its force commands '
             '(for a free swing with nothing commanding, pass --zero-force)')
-    rows = np.array(sorted(samples), dtype=float)
+    rows = np.array(sorted(set(samples)), dtype=float)  # a re-published sample counts once
     t_ns = rows[:, 0]
-    grid = np.round((t_ns - t_ns[0]) * 1e-9 / sample_time).astype(np.int64)
-    keep = np.zeros(grid.size, dtype=bool)
-    last = -1
-    for i, g in enumerate(grid):  # jitter can put two samples on one grid point
-        if g > last:
-            keep[i] = True
-            last = g
+    grid = sample_indices(t_ns * 1e-9, sample_time)
+    keep = np.concatenate([[True], np.diff(grid) > 0])
     grid, rows, t_ns = grid[keep], rows[keep], t_ns[keep]
     t = grid * sample_time
     force = np.zeros(t.size)

@@ -185,14 +185,14 @@ def test_messages_become_a_zoh_recording_on_the_sample_grid():
     t0 = 1.7e9  # a wall-clock epoch, as the hw bridge stamps
     jitter = [0.0, 0.0004, -0.0006, 0.0011, 0.0, -0.0002]
     samples = []
-    for k in range(40):
+    for k in range(80):
         samples.append((_ns(t0 + k * TS + jitter[k % 6]), 0.001 * k, math.pi))
     samples.append(samples[7])  # a duplicate sample is dropped
     del samples[20]  # a lost sample leaves a 10 ms gap
     # Commands answer samples 5..9 with their stamps, then stop.
     commands = [(samples[k][0], 10.0 + k) for k in range(5, 10)]
     rec = recording_from_messages(samples, commands)
-    assert rec.t.size == 39
+    assert rec.t.size == 79
     assert rec.t[0] == 0.0
     np.testing.assert_allclose(np.diff(rec.t)[:18], TS, atol=1e-12)
     assert rec.t[20] - rec.t[19] == pytest.approx(2 * TS)
@@ -201,6 +201,20 @@ def test_messages_become_a_zoh_recording_on_the_sample_grid():
     # The last command is held until the watchdog (50 ms) zeroes the current.
     np.testing.assert_array_equal(rec.force[10:19], 19.0)
     np.testing.assert_array_equal(rec.force[20:], 0.0)
+
+
+def test_bursty_receipt_stamps_keep_the_sample_count():
+    """USB serial delivers samples in bursts: pairs 10 ms apart, a 30 ms stall, one loss."""
+    from cartpole_bringup.identify import sample_indices
+    true_k = np.array([k for k in range(200) if k != 120])  # sample 120 lost
+    latency = np.where(true_k % 2 == 0, TS - 0.0001, 0.0003)  # an even one waits for the next
+    t = true_k * TS + latency
+    late = (true_k >= 60) & (true_k < 66)
+    t[late] = 66 * TS + 0.0002 + 1e-5 * np.arange(late.sum())  # a 30 ms stall
+    assert np.all(t >= true_k * TS) and np.all(np.diff(t) > 0)
+    np.testing.assert_array_equal(sample_indices(t, TS), true_k)
+    # Snapping each stamp to the nearest 5 ms would have got them wrong.
+    assert np.any(np.round((t - t[0]) / TS) != true_k)
 
 
 def test_commands_without_times_are_refused():
@@ -365,3 +379,97 @@ def test_bad_options_give_a_clear_error(tmp_path, recordings, capsys, argv, mess
                     if '--free' not in argv else ['identify', str(bag), '--max-nfev', '1', *argv])
     err = capsys.readouterr().err
     assert code == 2 and message in err and 'Traceback' not in err
+
+
+# -- playing a pulse test ---------------------------------------------------------------------------
+def test_pulse_plan_is_parsed_and_checked():
+    from cartpole_bringup.identify import Pulse, parse_pulse_plan
+    assert parse_pulse_plan('15:0.25, -9:0.2') == (Pulse(15.0, 0.25), Pulse(-9.0, 0.2))
+    for bad, message in (('15', 'FORCE:LENGTH'), ('40:0.2', 'within'), ('0:0.2', 'non-zero'),
+                         ('10:2', 'length'), ('', 'empty')):
+        with pytest.raises(IdentificationError, match=message):
+            parse_pulse_plan(bad)
+
+
+def test_rehearsal_plays_the_plan_and_flags_unsafe_plans():
+    from cartpole_bringup.identify import parse_pulse_plan, rehearsal_warnings, rehearse
+    rec, player = rehearse(parse_pulse_plan('15:0.25,-9:0.25'), THESIS)
+    assert player.done and rehearsal_warnings(rec, player) == []
+    # Zero for the 0.5 s lead-in, then 50 samples of 15 N, later 50 of -9 N.
+    assert np.all(rec.force[:100] == 0.0) and np.sum(rec.force == 15.0) == 50
+    assert np.sum(rec.force == -9.0) == 50
+    k = int(np.flatnonzero(rec.force == -9.0)[0])
+    assert np.ptp(rec.x[k - 200:k]) <= 2 * CART_TICK  # it waited for the cart to stand still
+    assert 0.25 < rec.x.max() < 0.4
+    # Too hard: the guard cuts the pulse near the far stop, the cart still coasts into it.
+    rec, player = rehearse(parse_pulse_plan('30:0.5,-9:0.25'), THESIS)
+    problems = rehearsal_warnings(rec, player)
+    assert player.reason.startswith('rail guard: pulse 1')
+    assert any('end stop' in p for p in problems)
+    # The return pulse too strong: coasts back into the left stop zone.
+    rec, player = rehearse(parse_pulse_plan('15:0.25,-12:0.25'), THESIS)
+    assert any('within 0.1 m of a stop' in p for p in rehearsal_warnings(rec, player))
+
+
+def test_rehearse_option_prints_the_prediction(capsys):
+    assert cli.main(['identify', '--pulse-plan', '15:0.25,-9:0.25', '--rehearse', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['rehearsal']['problems'] == []
+    assert out['rehearsal']['x_after_pulses'][0] == pytest.approx(0.32, abs=0.01)
+    assert cli.main(['identify', '--pulse-plan', '15:0.25', '--rehearse', '--x0', '0.769']) == 1
+    assert 'rail guard' in capsys.readouterr().out
+
+
+@pytest.mark.ros
+def test_pulse_plan_on_the_lockstep_simulator_records_a_bag_that_fits(tmp_path, ros_context):
+    """Play, record, fit: the pulse player drives the simulator node, the bag gives m_c, c_c."""
+    from rclpy.parameter import Parameter
+
+    from cartpole_bringup.identify import PulsePlayer, parse_pulse_plan
+    from cartpole_bringup.identify_node import play_pulse_plan
+    from cartpole_sim.sim_node import SimNode
+
+    truth = tmp_path / 'truth.yaml'
+    _true_params().to_yaml(truth)
+    sim = SimNode(context=ros_context, parameter_overrides=[
+        Parameter('lockstep', value=True), Parameter('plant_params_file', value=str(truth))])
+    player = PulsePlayer(parse_pulse_plan('15:0.25,-12:0.25'), THESIS, lead_in=0.3, settle=0.3)
+    try:
+        played = play_pulse_plan(player, context=ros_context, record=tmp_path / 'bag',
+                                 extra_nodes=[sim], timeout=60.0, log=lambda line: None)
+    finally:
+        sim.destroy_node()
+    assert played['guard'] is None and player.done
+    rec = load_recording(tmp_path / 'bag')
+    assert np.sum(rec.force == 15.0) == 50 and np.sum(rec.force == -12.0) == 50
+    assert rec.x.max() == pytest.approx(0.43, abs=0.01)
+    start = THESIS.replace(c_p=TRUE['c_p'], v_p=TRUE['v_p'])
+    res = identify([rec], start, free=['m_c', 'c_c_right', 'c_c_left'], integration_step=FIT_STEP)
+    for name in ('m_c', 'c_c_right', 'c_c_left'):
+        assert res.values[name] == pytest.approx(TRUE[name], rel=0.01), name
+
+
+@pytest.mark.ros
+def test_pulse_player_refuses_without_samples_or_with_an_unsafe_plan(tmp_path, ros_context):
+    from rclpy.parameter import Parameter
+
+    from cartpole_bringup.identify import PulsePlayer, parse_pulse_plan
+    from cartpole_bringup.identify_node import play_pulse_plan
+    from cartpole_sim.sim_node import SimNode
+
+    player = PulsePlayer(parse_pulse_plan('15:0.25'), THESIS)
+    with pytest.raises(RuntimeError, match='no /joint_states sample'):
+        play_pulse_plan(player, context=ros_context, sample_wait=0.3, log=lambda line: None)
+    sim = SimNode(context=ros_context, parameter_overrides=[Parameter('lockstep', value=True),
+                                                            Parameter('x0', value=0.7)])
+    seen = []
+    try:
+        with pytest.raises(RuntimeError, match='refused.*too close'):
+            play_pulse_plan(player, context=ros_context, extra_nodes=[sim],
+                            check=lambda x, theta: seen.append(x) or ['too close'],
+                            log=lambda line: None)
+        # The check saw the simulator's cart; no command was answered, the sim never stepped.
+        assert seen == [pytest.approx(0.7, abs=2 * CART_TICK)]
+        assert sim._runner.index == 0 and not player.done
+    finally:
+        sim.destroy_node()

@@ -62,7 +62,7 @@ from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energ
 SMOOTH_FRICTION_STEEPNESS = 100.0
 """k [s/m, s/rad] of the smoothed Coulomb friction tanh(k v) in the optimisation model."""
 
-DEFAULT_GUESSES: tuple[tuple[float, float], ...] = ((0.4, 1.0), (0.8, -1.0), (0.4, -1.0), (0.8, 1.0))
+DEFAULT_GUESSES: tuple[tuple[float, float], ...] = ((0.8, -1.0), (0.8, 1.0), (0.6, -1.0), (0.4, 1.0))
 """(pumping acceleration in g, first push direction) of the multi-start initial guesses."""
 
 RELEASE_TIME = 0.3
@@ -111,6 +111,9 @@ class MinimumTimeProblem:
         If set, |x(T) - terminal_cart_ref| <= this [m].
     terminal_cart_ref
         Reference of ``terminal_cart_window`` [m]; None is the middle of the travel.
+    terminal_hold
+        The energy band and the terminal cart bounds hold over the last this many
+        seconds, not only at T [s] (a catch trigger firing early still sees a calm state).
     """
 
     params: CartPoleParameters
@@ -122,6 +125,7 @@ class MinimumTimeProblem:
     terminal_cart_speed: float | None = None
     terminal_cart_window: float | None = None
     terminal_cart_ref: float | None = None
+    terminal_hold: float = 0.0
 
     def __post_init__(self) -> None:
         start = tuple(float(v) for v in self.start)
@@ -145,7 +149,7 @@ class MinimumTimeProblem:
             'force_scale': self.force_scale, 'rail_margin': self.rail_margin,
             'friction': self.friction, 'steepness': SMOOTH_FRICTION_STEEPNESS,
             'terminal': [self.terminal_cart_speed, self.terminal_cart_window,
-                         self.terminal_cart_ref],
+                         self.terminal_cart_ref, self.terminal_hold],
             'grid': grid,
         }
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
@@ -315,11 +319,16 @@ def _solve_nlp(problem: MinimumTimeProblem, n: int, x_guess: np.ndarray, u_guess
     e_star = p.upright_energy
     r = problem.region
     g_parts, lbg, ubg = [gaps], [0.0] * (4 * n), [0.0] * (4 * n)
+    step_guess = fixed_dt if fixed_dt is not None else t_guess / n
+    hold = min(n, max(0, int(round(problem.terminal_hold / step_guess))))
+    held = range(n - hold, n + 1)
     if not r.at_rest:
-        energy = 0.5 * p.m_p * p.l ** 2 * X[3, n] ** 2 + p.m_p * p.g * p.l * (ca.cos(X[1, n]) + 1.0)
-        g_parts.append(energy)
-        lbg.append((1.0 - r.energy_tolerance) * e_star)
-        ubg.append((1.0 + r.energy_tolerance) * e_star)
+        for k in held:
+            energy = (0.5 * p.m_p * p.l ** 2 * X[3, k] ** 2
+                      + p.m_p * p.g * p.l * (ca.cos(X[1, k]) + 1.0))
+            g_parts.append(energy)
+            lbg.append((1.0 - r.energy_tolerance) * e_star)
+            ubg.append((1.0 + r.energy_tolerance) * e_star)
     # bounds on the decision vector [T?, X (column-major), U]
     x0 = problem.start
     lo_x = min(problem.rail_margin, x0[0])
@@ -334,13 +343,14 @@ def _solve_nlp(problem: MinimumTimeProblem, n: int, x_guess: np.ndarray, u_guess
         lbx_x[n, 3] = ubx_x[n, 3] = 0.0
     else:
         lbx_x[n, 1], ubx_x[n, 1] = target - r.angle, target + r.angle
-    if problem.terminal_cart_speed is not None:
-        lbx_x[n, 2] = max(lbx_x[n, 2], -problem.terminal_cart_speed)
-        ubx_x[n, 2] = min(ubx_x[n, 2], problem.terminal_cart_speed)
-    if problem.terminal_cart_window is not None:
-        ref = p.x_middle if problem.terminal_cart_ref is None else problem.terminal_cart_ref
-        lbx_x[n, 0] = max(lbx_x[n, 0], ref - problem.terminal_cart_window)
-        ubx_x[n, 0] = min(ubx_x[n, 0], ref + problem.terminal_cart_window)
+    for k in held:
+        if problem.terminal_cart_speed is not None:
+            lbx_x[k, 2] = max(lbx_x[k, 2], -problem.terminal_cart_speed)
+            ubx_x[k, 2] = min(ubx_x[k, 2], problem.terminal_cart_speed)
+        if problem.terminal_cart_window is not None:
+            ref = p.x_middle if problem.terminal_cart_ref is None else problem.terminal_cart_ref
+            lbx_x[k, 0] = max(lbx_x[k, 0], ref - problem.terminal_cart_window)
+            ubx_x[k, 0] = min(ubx_x[k, 0], ref + problem.terminal_cart_window)
     # A start inside the margin (e.g. at the left stop): the bound moves from x_0 to the
     # margin m over RELEASE_TIME, x_k >= x_0 + (m - x_0) min(1, t_k / RELEASE_TIME)^2.
     t_k = h * ca.DM(np.arange(n + 1)).T

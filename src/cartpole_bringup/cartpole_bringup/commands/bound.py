@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from ..options import nominal_parameters
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from cartpole_control.trajectory_optimization import BOUND_CASES
-    parser.add_argument('--plant-params', type=__import__('pathlib').Path, default=None,
+    parser.add_argument('--plant-params', type=Path, default=None,
                         metavar='FILE.yaml',
                         help='plant parameters (CartPoleParameters YAML); default: thesis values')
     parser.add_argument('--case', action='append', choices=BOUND_CASES, default=None,
@@ -48,9 +49,9 @@ def main(args: argparse.Namespace) -> int:
                              friction=not args.no_friction)
     out = {}
     for case, traj in results.items():
+        signs = [f > 0.0 for f in traj.forces if abs(f) > 0.5 * params.force_max]
+        switches = int(sum(1 for a, b in zip(signs[:-1], signs[1:]) if a != b))
         forces = traj.forces
-        switches = int(sum(1 for a, b in zip(forces[:-1], forces[1:])
-                           if (a > 0.5 * params.force_max) != (b > 0.5 * params.force_max)))
         out[case] = {'time_s': round(traj.final_time, 4) if traj.success else None,
                      'converged': traj.success,
                      'intervals': len(forces),

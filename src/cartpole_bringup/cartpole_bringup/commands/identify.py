@@ -22,7 +22,7 @@ PROG = 'cartpole identify'
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..identify import DEFAULT_FREE
 
-    parser.add_argument('bags', nargs='+', type=Path, metavar='BAG',
+    parser.add_argument('bags', nargs='*', type=Path, metavar='BAG',
                         help='rosbag2 bags of open-loop tests (/joint_states and '
                              '/cartpole/force_command); all are fitted with one parameter set')
     fit = parser.add_argument_group('fit')
@@ -62,6 +62,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help='measured vs simulated positions before and after the fit')
     out.add_argument('--verbose', '-v', action='store_true',
                      help='print every residual evaluation on stderr')
+    pulse = parser.add_argument_group(
+        'pulse test (instead of BAGs): play force pulses open loop on the rig or the simulator')
+    pulse.add_argument('--pulse-plan', default=None, metavar='F:L,...',
+                       help='pulses FORCE[N]:LENGTH[s], e.g. 15:0.25,-9:0.25 (starting with a '
+                            'negative force: --pulse-plan=-15:0.25,9:0.25); each after the '
+                            'cart has stood still; rehearsed on the model first and refused if '
+                            'the cart would come near a stop')
+    pulse.add_argument('--rehearse', action='store_true',
+                       help='only rehearse the plan on the model (--plant-params) and print it')
+    pulse.add_argument('--x0', type=float, default=0.0, metavar='M',
+                       help='start of the rehearsal (default 0, the left stop); live, the '
+                            'first sample')
+    pulse.add_argument('--record', type=Path, default=None, metavar='DIR',
+                       help='record the test into this bag (in-process recorder)')
+    pulse.add_argument('--arm', action='store_true',
+                       help='arm the hw bridge (/hw_bridge/arm) after the rehearsal')
+    pulse.add_argument('--margin', type=float, default=0.1, metavar='M',
+                       help='rail guard: no pulse towards a stop closer than this, and the '
+                            'rehearsal must keep the cart this far from both stops (default 0.1)')
+    pulse.add_argument('--settle', type=float, default=1.0, metavar='S',
+                       help='the cart stands still this long before the next pulse (default 1)')
+    pulse.add_argument('--lead-in', type=float, default=0.5, metavar='S',
+                       help='zero force at the start of the test (default 0.5)')
+    pulse.add_argument('--timeout', type=float, default=120.0, metavar='S',
+                       help='give up after this many wall seconds (default 120)')
     add_output_arguments(parser)
 
 
@@ -145,9 +170,94 @@ def write_plot(result, recordings, path: Path) -> Path:
     return path
 
 
+def pulse_main(args: argparse.Namespace) -> int:
+    """``--pulse-plan``: rehearse a pulse test on the model, then play (and record) it."""
+    import math
+
+    from ..identify import PulsePlayer, parse_pulse_plan, rehearsal_warnings, rehearse
+
+    if args.bags:
+        return _fail('give either BAGs to fit or --pulse-plan to play, not both')
+    try:
+        params = nominal_parameters(args)
+        pulses = parse_pulse_plan(args.pulse_plan, params)
+    except (OSError, ValueError) as error:
+        return _fail(str(error))
+    for name in ('margin', 'settle', 'lead_in', 'timeout'):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value >= 0):
+            return _fail(f'--{name.replace("_", "-")} must be >= 0, got {value}')
+    if not 0.0 <= args.x0 <= params.travel:
+        return _fail(f'--x0 must be within the travel [0, {params.travel}] m')
+    if args.record is not None and args.record.exists():
+        return _fail(f'{args.record} already exists; choose a new bag directory')
+    options = dict(lead_in=args.lead_in, settle=args.settle, margin=args.margin)
+
+    def check(x0: float, theta0: float) -> tuple[list[str], object]:
+        rec, player = rehearse(pulses, params, x0=min(max(x0, 0.0), params.travel),
+                               theta0=theta0, **options)
+        return rehearsal_warnings(rec, player), rec
+
+    problems, rec = check(args.x0, math.pi)
+    stops = _settled_positions(rec)
+    summary = {'pulses': [[p.force, p.length] for p in pulses], 'rehearsal': {
+        'x0': args.x0, 'x_min': float(rec.x.min()), 'x_max': float(rec.x.max()),
+        'x_after_pulses': stops, 'duration_s': rec.duration, 'problems': problems}}
+    if args.rehearse:
+        if args.json:
+            print(json.dumps(summary))
+        else:
+            print(f'rehearsal on the model from x = {args.x0:g} m: cart between '
+                  f'{rec.x.min():.3f} and {rec.x.max():.3f} m, stands after the pulses at '
+                  + (', '.join(f'{x:.3f} m' for x in stops) or '(none played)')
+                  + f'; {rec.duration:.1f} s')
+            for problem in problems:
+                print(f'unsafe: {problem}')
+        return 0 if not problems else 1
+
+    from ..identify_node import run_pulse_plan
+
+    player = PulsePlayer(pulses, params, **options)
+    try:
+        played = run_pulse_plan(player, record=args.record, arm=args.arm, timeout=args.timeout,
+                                check=lambda x0, theta0: check(x0, theta0)[0],
+                                log=lambda line: print(line, file=sys.stderr))
+    except RuntimeError as error:
+        return _fail(str(error))
+    except KeyboardInterrupt:
+        return _fail('interrupted; zero force sent')
+    summary['played'] = played
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f'played {played["pulses"]} pulse(s) over {played["samples"]} samples'
+              + (f'; {played["guard"]}' if played['guard'] else ''))
+        if played['bag']:
+            print(f'recorded: {played["bag"]}; fit with: cartpole identify {played["bag"]}')
+    return 0 if not played['guard'] else 1
+
+
+def _settled_positions(rec) -> list[float]:
+    """Cart positions at the end of each zero-force stretch that follows a pulse."""
+    import numpy as np
+    active = rec.force != 0.0
+    ends = np.flatnonzero(active[:-1] & ~active[1:])  # last sample of each pulse
+    starts = np.flatnonzero(~active[:-1] & active[1:])
+    out = []
+    for e in ends:
+        nxt = starts[starts > e]
+        k = int(nxt[0]) if nxt.size else rec.x.size - 1
+        out.append(float(rec.x[k]))
+    return out
+
+
 def main(args: argparse.Namespace) -> int:
     from ..identify import IdentificationError, identify, load_recording, parse_free
 
+    if args.pulse_plan is not None:
+        return pulse_main(args)
+    if not args.bags:
+        return _fail('give one or more BAGs to fit (or --pulse-plan to record a test)')
     try:
         nominal = nominal_parameters(args)
         free = parse_free(args.free)

@@ -45,10 +45,10 @@ from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
 from . import saturation
 
 DEFAULT_GAINS: dict[str, float] = {
-    'k': 20.0,
+    'k': 10.0,
     'n': 0.7,
-    'k_x': 3.0,
-    'k_v': 1.0,
+    'k_x': 2.0,
+    'k_v': 3.0,
     'a_max': 7.0,
     'sign_width': 0.3,
     'kick_energy': 0.02,

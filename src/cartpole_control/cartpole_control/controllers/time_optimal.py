@@ -81,7 +81,8 @@ def plan_problem(params: CartPoleParameters, x_ref: float, x0: float, gains) -> 
                     energy_tolerance=float(gains['terminal_energy_tolerance'])),
         force_scale=float(gains['force_scale']), rail_margin=float(gains['rail_margin']),
         friction=True, terminal_cart_speed=float(gains['terminal_speed']),
-        terminal_cart_window=float(gains['terminal_window']), terminal_cart_ref=float(x_ref))
+        terminal_cart_window=float(gains['terminal_window']), terminal_cart_ref=float(x_ref),
+        terminal_hold=float(gains['terminal_hold']))
 
 
 def solve_plan(problem: MinimumTimeProblem, cache: TrajectoryCache, grid: float) -> Trajectory:
@@ -104,19 +105,22 @@ class TimeOptimalSwingUp(Controller):
     kind = SWINGUP
     name = 'time_optimal'
     parameters = (
-        ParameterSpec('force_scale', 0.85, 'fraction of the amplifier limits the plan may use',
+        ParameterSpec('force_scale', 0.9, 'fraction of the amplifier limits the plan may use',
                       low=0.3, high=1.0),
         ParameterSpec('rail_margin', 0.05, 'distance the plan keeps from each end stop [m]',
                       low=0.0, high=0.2),
         ParameterSpec('terminal_angle_deg', 10.0, 'plan: |theta_w| at the final time below '
                       'this [deg] (the issue\'s catch region: 10)', low=1.0, high=30.0),
-        ParameterSpec('terminal_energy_tolerance', 0.02, 'plan: |E_p - E*| <= this E* at the '
+        ParameterSpec('terminal_energy_tolerance', 0.03, 'plan: |E_p - E*| <= this E* at the '
                       'final time (tighter than the catch trigger\'s 0.05: calmer hand-over)',
                       low=0.005, high=0.2),
-        ParameterSpec('terminal_speed', 0.5, 'plan: |x_dot| at the final time below this [m/s]',
+        ParameterSpec('terminal_speed', 0.15, 'plan: |x_dot| at the final time below this [m/s]',
                       low=0.0, high=5.0),
-        ParameterSpec('terminal_window', 0.2, 'plan: |x - x*| at the final time below this [m]',
+        ParameterSpec('terminal_window', 0.1, 'plan: |x - x*| at the final time below this [m]',
                       low=0.0, high=0.4),
+        ParameterSpec('terminal_hold', 0.15, 'plan: the energy band and the cart bounds hold '
+                      'over the last this many seconds (the catch trigger may fire there) [s]',
+                      low=0.0, high=0.5),
         ParameterSpec('q', (300.0, 300.0, 10.0, 10.0), 'TV-LQR state weights on the deviation '
                       'from the plan (x, theta, x_dot, theta_dot)', low=0.0, high=1e6, length=4),
         ParameterSpec('r', 0.02, 'TV-LQR force weight [1/N^2]', low=1e-6, high=1e3),
@@ -132,6 +136,8 @@ class TimeOptimalSwingUp(Controller):
                       'rates [m/s, rad/s]', low=0.0, high=2.0),
         ParameterSpec('precompute', True, 'on configure, solve (in the background) the plan for '
                       'the default start plan_x0'),
+        ParameterSpec('plan_on_activation', True, 'on an activation from a hanging rest with '
+                      'no plan, solve one in the background for the next swing-up from there'),
         ParameterSpec('plan_x0', 0.0, 'default start: cart position of the hanging rest to plan '
                       'for on configure [m] (0: the left stop, the thesis procedure)',
                       low=0.0, high=0.769),
@@ -241,8 +247,9 @@ class TimeOptimalSwingUp(Controller):
             problem = self.problem_for(state.x)
             plan = self.cache.get(problem.key(self.context.sample_time))
             if plan is None:
-                reason = 'no plan for this start yet (solving in the background)'
-                self.request_plan(state.x)
+                reason = 'no plan for this start yet'
+                if self.gains['plan_on_activation'] and self.request_plan(state.x):
+                    reason += ' (solving in the background)'
             elif not plan.success:
                 reason = 'the optimiser found no plan for this start'
             elif abs(plan.states[0, 0] - state.x) > self.gains['start_tolerance_x']:

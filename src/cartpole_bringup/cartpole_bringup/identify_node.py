@@ -1,0 +1,158 @@
+"""The pulse player node ``pulse_player``: an open-loop pulse test on the rig or the simulator.
+
+A thin adapter around :class:`cartpole_bringup.identify.PulsePlayer`: it
+answers every ``/joint_states`` sample with one ``/cartpole/force_command``
+(``name=['cart']``, ``effort=[F]``, ``header.stamp`` = the sample's stamp,
+as the controller manager does, so a lockstep simulator steps on it and the
+hw bridge's stale-command check applies). :func:`play_pulse_plan` runs it
+(with a recorder, optionally arming the hw bridge) for
+``cartpole identify --pulse-plan``.
+
+When the plan ends, or on any error or Ctrl-C, the node publishes zero
+force once and stops publishing; the hw bridge's watchdog then disarms
+(zero current) 50 ms later.
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+
+from .identify import PulsePlayer
+
+CART = 'cart'
+PENDULUM = 'pendulum'
+
+
+class PulsePlayerNode(Node):
+    """Answers each sample with the plan's force once :attr:`playing` is set."""
+
+    def __init__(self, player: PulsePlayer, **kwargs) -> None:
+        super().__init__('pulse_player', **kwargs)
+        self.player = player
+        self.playing = False
+        """Set to start answering samples (before, samples are only watched)."""
+        self.first_sample: tuple[float, float, float] | None = None
+        """(t, x, theta) of the first sample seen."""
+        self.answered = 0
+        self._pub = self.create_publisher(JointState, '/cartpole/force_command', 10)
+        self.create_subscription(JointState, '/joint_states', self._on_sample, 10)
+
+    def _on_sample(self, msg: JointState) -> None:
+        try:
+            x = float(msg.position[list(msg.name).index(CART)])
+            theta = float(msg.position[list(msg.name).index(PENDULUM)])
+        except (ValueError, IndexError):
+            return
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if self.first_sample is None:
+            self.first_sample = (t, x, theta)
+        if not self.playing:
+            return
+        force = self.player.update(t, x) if math.isfinite(x) else 0.0
+        self.publish_force(force, msg.header.stamp)
+        self.answered += 1
+
+    def publish_force(self, force: float, stamp=None) -> None:
+        msg = JointState(name=[CART], effort=[float(force)])
+        if stamp is not None:
+            msg.header.stamp = stamp
+        else:
+            msg.header.stamp = self.get_clock().now().to_msg()
+        self._pub.publish(msg)
+
+
+def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = None,
+                    arm: bool = False, sample_wait: float = 5.0, timeout: float = 120.0,
+                    check: Callable[[float, float], list[str]] | None = None,
+                    extra_nodes: Sequence[Node] = (),
+                    log: Callable[[str], None] = print) -> dict:
+    """Play a pulse test on whatever publishes ``/joint_states`` (hw bridge or simulator).
+
+    Steps: wait up to ``sample_wait`` s for the first sample; ``check(x,
+    theta)`` (e.g. a rehearsal on the model from that state) may refuse with
+    reasons; arm the bridge (``/hw_bridge/arm``) if asked; answer samples
+    until the plan is done or ``timeout`` wall seconds passed. ``record``
+    adds a :class:`~cartpole_bringup.record.RecorderNode` writing that bag.
+    ``extra_nodes`` (e.g. a simulator) are spun in the same executor.
+
+    Returns a summary dict; raises RuntimeError with the reason on failure
+    (no sample, refused check, arming refused, timeout).
+    """
+    nodes: list[Node] = []
+    executor = SingleThreadedExecutor(context=context)
+    node = PulsePlayerNode(player, context=context)
+    nodes.append(node)
+    recorder = None
+    try:
+        if record is not None:
+            from .record import RecorderNode
+            recorder = RecorderNode(context=context, parameter_overrides=[
+                Parameter('output', value=str(record))])
+            nodes.append(recorder)
+        for n in (*nodes, *extra_nodes):
+            executor.add_node(n)
+
+        def spin_until(predicate, seconds: float) -> bool:
+            deadline = time.monotonic() + seconds
+            while not predicate():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                executor.spin_once(timeout_sec=min(0.1, remaining))
+            return True
+
+        if not spin_until(lambda: node.first_sample is not None, sample_wait):
+            raise RuntimeError(f'no /joint_states sample within {sample_wait:g} s: is the hw '
+                               'bridge (or the simulator) running?')
+        _, x0, theta0 = node.first_sample
+        if check is not None:
+            problems = check(x0, theta0)
+            if problems:
+                raise RuntimeError('refused, the rehearsal on the model says: '
+                                   + '; '.join(problems))
+        if arm:
+            from std_srvs.srv import SetBool
+            client = node.create_client(SetBool, '/hw_bridge/arm')
+            if not spin_until(client.service_is_ready, 2.0):
+                raise RuntimeError('/hw_bridge/arm is not available: is the hw bridge running?')
+            future = client.call_async(SetBool.Request(data=True))
+            if not spin_until(future.done, 2.0) or not future.result().success:
+                reason = future.result().message if future.done() else 'no answer'
+                raise RuntimeError(f'the hw bridge refused to arm: {reason}')
+            log('hw bridge armed')
+        node.playing = True
+        log(f'playing {len(player.pulses)} pulse(s) from x = {x0:.3f} m')
+        if not spin_until(lambda: player.done, timeout):
+            raise RuntimeError(f'the plan did not finish within {timeout:g} s')
+        return {'pulses': len(player.pulses), 'samples': node.answered,
+                'guard': player.reason or None,
+                'bag': str(recorder.bag_path) if recorder is not None else None,
+                'x0': x0, 'theta0': theta0}
+    finally:
+        node.playing = False
+        try:
+            node.publish_force(0.0)
+        except Exception:  # the context may already be shut down (Ctrl-C)
+            pass
+        for n in (*nodes, *extra_nodes):
+            executor.remove_node(n)
+        for n in reversed(nodes):
+            n.destroy_node()
+        executor.shutdown()
+
+
+def run_pulse_plan(player: PulsePlayer, **kwargs) -> dict:
+    """:func:`play_pulse_plan` in its own rclpy context (the command line)."""
+    rclpy.init()
+    try:
+        return play_pulse_plan(player, **kwargs)
+    finally:
+        rclpy.try_shutdown()
