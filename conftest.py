@@ -5,6 +5,7 @@ concurrent runs on one machine (and the network) never see each other. Set
 before any rclpy import and inherited by every subprocess a test starts.
 """
 import os
+import tempfile
 import time
 
 import pytest
@@ -14,6 +15,8 @@ os.environ['ROS_DOMAIN_ID'] = str(os.environ.get('CARTPOLE_TEST_DOMAIN_ID')
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 os.environ.setdefault('MPLBACKEND', 'Agg')
+# time_optimal's plan cache: a fresh one per session, never the user's ~/.cache.
+os.environ['CARTPOLE_CACHE_DIR'] = tempfile.mkdtemp(prefix='cartpole-test-cache-')
 
 
 @pytest.fixture

@@ -118,6 +118,10 @@ class ControlContext:
     """Cart reference x* [m]."""
     sample_time: float
     """Control period Ts [s]."""
+    validation_only: bool = False
+    """True when the manager configures a scratch instance only to check a
+    change of gains (it is never activated): do no expensive or side-effecting
+    work then (no background solves, no files), just refuse bad gains."""
 
 
 class Controller(ABC):

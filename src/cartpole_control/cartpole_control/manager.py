@@ -258,7 +258,7 @@ class ControllerManager:
         candidate = dict(self._values)
         candidate.update(out)
         self._build_blocks(candidate)  # cross-checks, e.g. the fall angle above the catch angle
-        context = self._make_context(candidate)
+        context = dataclasses.replace(self._make_context(candidate), validation_only=True)
         context_changed = candidate['x_ref'] != self._values['x_ref']
         for kind in KINDS:
             for name in self._registry[kind]:

@@ -169,3 +169,21 @@ def test_switching_by_parameter_set_like_any_swingup(ros_context, spin_until, tm
         executor.remove_node(client_node)
         client_node.destroy_node()
         node.destroy_node()
+
+
+def test_validating_a_change_starts_no_background_solve(tmp_path, monkeypatch):
+    # The manager checks gains on scratch instances (ControlContext.validation_only);
+    # those must not start IPOPT, only the instance that will run may.
+    import dataclasses as _dc
+    from cartpole_control.controller import ControlContext
+    from cartpole_control.controllers.time_optimal import TimeOptimalSwingUp
+    from cartpole_sim.model import CartPoleParameters
+    monkeypatch.setenv('CARTPOLE_CACHE_DIR', str(tmp_path))
+    p = CartPoleParameters()
+    context = ControlContext(plant=p, x_ref=p.x_middle, sample_time=p.sample_time)
+    started = []
+    monkeypatch.setattr(TimeOptimalSwingUp, 'request_plan', lambda self, x0: started.append(x0))
+    TimeOptimalSwingUp().configure({}, _dc.replace(context, validation_only=True))
+    assert started == []
+    TimeOptimalSwingUp().configure({}, context)
+    assert len(started) == 1

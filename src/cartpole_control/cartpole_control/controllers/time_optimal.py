@@ -181,7 +181,7 @@ class TimeOptimalSwingUp(Controller):
         if self.gains['plan_x0'] > c.plant.travel:
             raise ValueError(f'plan_x0 {self.gains["plan_x0"]:g} is beyond the travel '
                              f'{c.plant.travel:g} m')
-        if self.gains['precompute']:
+        if self.gains['precompute'] and not c.validation_only:
             self.request_plan(self.gains['plan_x0'])
 
     def request_plan(self, x0: float) -> bool:
