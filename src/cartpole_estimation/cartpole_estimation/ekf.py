@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters, accelerations, wrap_angle
+from cartpole_sim.model import CartPoleParameters, acceleration_function, wrap_angle
 
 __all__ = ['EkfConfig', 'StateEstimate', 'ExtendedKalmanFilter']
 
@@ -234,6 +234,7 @@ class ExtendedKalmanFilter:
         k = cfg.friction_steepness
         self.model = self.params.replace(friction_steepness_cart=k,
                                          friction_steepness_pendulum=k)
+        self._acc = acceleration_function(self.model)  # (4.18) with the filter's friction
         self.sample_time = cfg.sample_time if cfg.sample_time is not None \
             else self.params.sample_time
         self._q = np.diag(cfg.q_diag)
@@ -325,15 +326,15 @@ class ExtendedKalmanFilter:
             ``config.jacobian_step``.
         """
         x, th, xd, thd = state
-        m = self.model
+        acc = self._acc
         eps = self.config.jacobian_step
-        a0, b0 = accelerations(x, th, xd, thd, force, m)
+        a0, b0 = acc(x, th, xd, thd, force)
         # Forward differences (5.21) of the accelerations; the first two rows
         # of f_k are x + h x_dot and theta + h theta_dot, whose derivatives are exact.
-        a1, b1 = accelerations(x + eps, th, xd, thd, force, m)
-        a2, b2 = accelerations(x, th + eps, xd, thd, force, m)
-        a3, b3 = accelerations(x, th, xd + eps, thd, force, m)
-        a4, b4 = accelerations(x, th, xd, thd + eps, force, m)
+        a1, b1 = acc(x + eps, th, xd, thd, force)
+        a2, b2 = acc(x, th + eps, xd, thd, force)
+        a3, b3 = acc(x, th, xd + eps, thd, force)
+        a4, b4 = acc(x, th, xd, thd + eps, force)
         g = h / eps
         f_k = np.array([
             [1.0, 0.0, h, 0.0],
@@ -409,7 +410,7 @@ class ExtendedKalmanFilter:
     def _estimate(self, t: float, force: float, innovation: tuple[float, float], dt: float,
                   missed: int, reset: bool, reason: str, warning: str = '') -> StateEstimate:
         x, th, xd, thd = self._s
-        x_ddot, theta_ddot = accelerations(x, th, xd, thd, force, self.model)
+        x_ddot, theta_ddot = self._acc(x, th, xd, thd, force)
         est = StateEstimate(
             t=t, x=x, theta=th, x_dot=xd, theta_dot=thd, theta_w=wrap_angle(th),
             x_ddot=x_ddot, theta_ddot=theta_ddot,

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .model import CartPoleParameters, accelerations
+from .model import CartPoleParameters, acceleration_function, accelerations
 
 
 @dataclass(frozen=True)
@@ -126,6 +126,8 @@ class Plant:
         if not (0.0 < self.integration_step <= self.params.sample_time):
             raise ValueError('integration_step must be in (0, sample_time]')
         self.true_params = self.scenario.plant_parameters(self.params)
+        self._acc = acceleration_function(self.true_params)
+        self._travel = self.true_params.travel
         self.reset()
 
     # -- state -------------------------------------------------------------------
@@ -181,18 +183,19 @@ class Plant:
         faster in CPython); :meth:`_derivative` is the readable reference and a
         test checks the two agree to the last bit.
         """
-        p = self.true_params
-        acc = accelerations
+        acc = self._acc
+        travel = self._travel
         stop = self._end_stop_force
         x, th, v, w = self.state
-        a1, b1 = acc(x, th, v, w, force + stop(x, v), p)
+        # The end-stop force is zero inside the travel; skip the call there.
+        a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
         hh = 0.5 * h
         x2, th2, v2, w2 = x + hh * v, th + hh * w, v + hh * a1, w + hh * b1
-        a2, b2 = acc(x2, th2, v2, w2, force + stop(x2, v2), p)
+        a2, b2 = acc(x2, th2, v2, w2, force if 0.0 <= x2 <= travel else force + stop(x2, v2))
         x3, th3, v3, w3 = x + hh * v2, th + hh * w2, v + hh * a2, w + hh * b2
-        a3, b3 = acc(x3, th3, v3, w3, force + stop(x3, v3), p)
+        a3, b3 = acc(x3, th3, v3, w3, force if 0.0 <= x3 <= travel else force + stop(x3, v3))
         x4, th4, v4, w4 = x + h * v3, th + h * w3, v + h * a3, w + h * b3
-        a4, b4 = acc(x4, th4, v4, w4, force + stop(x4, v4), p)
+        a4, b4 = acc(x4, th4, v4, w4, force if 0.0 <= x4 <= travel else force + stop(x4, v4))
         h6 = h / 6.0
         self.state = [x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
                       th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),

@@ -276,3 +276,12 @@ def test_accelerations_use_the_friction_laws(x_dot, theta_dot):
     expected_th = no_friction[1] - (p.m_c + p.m_p) * b_p / det
     assert with_friction[0] == pytest.approx(expected_x, rel=1e-12, abs=1e-12)
     assert with_friction[1] == pytest.approx(expected_th, rel=1e-12, abs=1e-12)
+
+
+def test_acceleration_function_is_accelerations_to_the_last_bit():
+    from cartpole_sim.model import acceleration_function
+    rng = np.random.default_rng(3)
+    for p in (CartPoleParameters(), CartPoleParameters(m_p=0.2, v_c=0.3, c_c_left=1.0)):
+        acc = acceleration_function(p)
+        for x, th, xd, thd, f in rng.normal(0.0, 3.0, size=(200, 5)):
+            assert acc(x, th, xd, thd, f) == accelerations(x, th, xd, thd, f, p)
