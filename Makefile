@@ -7,7 +7,7 @@ VENV := .venv
 STAMP_VENV := $(VENV)/.installed
 STAMP_BUILD := install/.built
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
-RUN_ARGS ?= --sim --duration 30 --record runs
+RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
 .PHONY: run test build venv clean bench help
 

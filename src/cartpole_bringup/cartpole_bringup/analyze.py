@@ -17,8 +17,9 @@ What is taken from where:
   ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
 - end-stop contact: the true cart position outside [0, travel] (simulator);
-  on hardware, a limit flag ``limit_left`` / ``limit_right`` reading true in
-  ``/cartpole/hw/health``; with neither, the estimate outside [0, travel];
+  on hardware, a limit flag ``limit_left`` / ``limit_right`` of
+  ``/cartpole/hw/health`` closing after it was seen open (the cart starts on
+  the left switch); with neither, the estimate outside [0, travel];
 - x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
   the travel.
 """
@@ -82,6 +83,7 @@ class SeriesBuilder:
     limit_flag: bool = False
     hw_health_seen: bool = False
     status_count: int = 0
+    _limit_open: dict[str, bool] = field(default_factory=dict)
 
     def joint_state(self, topic: str, stamp_ns: int, position: Sequence[float],
                     velocity: Sequence[float], effort: Sequence[float]) -> None:
@@ -103,9 +105,20 @@ class SeriesBuilder:
             self.catch_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
 
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
+        """Limit switches: a flag closing after it was seen open is a contact.
+
+        The cart starts at the left stop (SPEC 1a), where the left switch may
+        be closed; that is the starting position, not a contact.
+        """
         self.hw_health_seen = True
-        if any(_truthy(values.get(key, '')) for key in HW_LIMIT_KEYS):
-            self.limit_flag = True
+        for key in HW_LIMIT_KEYS:
+            if key not in values:
+                continue
+            closed = _truthy(values[key])
+            if closed and self._limit_open.get(key, False):
+                self.limit_flag = True
+            if not closed:
+                self._limit_open[key] = True
 
     @property
     def source(self) -> str | None:

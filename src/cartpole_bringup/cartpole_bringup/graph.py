@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
@@ -44,6 +43,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from .analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
 
@@ -61,6 +61,9 @@ STARTUP_TIMEOUT = 30.0
 """Wall seconds for the graph to come up (processes import rclpy and numpy first)."""
 ZERO_FORCE_TIMEOUT = 2.0
 """Wall seconds to wait for the zero force command after disabling the controllers."""
+LOOP_START_TIMEOUT = 3.0
+"""Lockstep: wall seconds for the loop to answer its first sample before the remedy."""
+LOOP_START_ATTEMPTS = 3
 EXIT_TIMEOUT = 5.0
 """Wall seconds a child process gets after SIGINT (then SIGTERM, then SIGKILL)."""
 
@@ -275,6 +278,8 @@ class Graph:
         self.wall_start: float | None = None
         self.stopped = False
         self.closed = False
+        self.warnings: list[str] = []
+        """Things that went other than planned while starting (reported at the end)."""
 
     # -- start ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -292,6 +297,34 @@ class Graph:
                 return
             raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
                              f'{self._process_report()}')
+        if self.spec.lockstep:
+            self._ensure_loop_started()
+        self.wall_start = time.monotonic()
+
+    def _ensure_loop_started(self) -> None:
+        """Lockstep: make sure the loop got past its first sample.
+
+        The simulator re-publishes its first sample until the answering force
+        command arrives. With one process a node, that first command can be
+        published before the simulator's subscription is matched and be lost;
+        the EKF then ignores the repeated sample (same stamp) and the loop
+        would wait forever. The remedy is the simulator's ``~/reset``: the
+        initial state again, as a new sample one period later.
+        """
+        first = self.monitor.last_stamp_ns
+        moved = lambda: self.monitor.last_stamp_ns > first  # noqa: E731
+        for _ in range(LOOP_START_ATTEMPTS):
+            if self.spin_until(moved, LOOP_START_TIMEOUT) or self.should_stop():
+                return
+            self.warnings.append('lockstep loop did not answer the first sample; '
+                                 'reset the simulator (the run starts one period later)')
+            client = self._client(Trigger, 'sim', 'reset')
+            if self.spin_until(client.service_is_ready, 5.0):
+                future = client.call_async(Trigger.Request())
+                self.spin_until(future.done, 5.0)
+            first = self.monitor.last_stamp_ns
+        if not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop():
+            raise GraphError('the lockstep loop does not start; ' + self._process_report())
 
     def _start_in_process(self) -> None:
         import importlib
@@ -492,9 +525,9 @@ class Graph:
         """Stop (if not yet), destroy the monitor, make sure no child is left."""
         if self.closed:
             return []
-        warnings: list[str] = []
+        warnings: list[str] = list(self.warnings)
         try:
-            warnings = self.stop()
+            warnings += self.stop()
         finally:
             self.closed = True
             for node in list(self.nodes.values()):

@@ -16,14 +16,16 @@ on Ctrl-C and on SIGTERM alike.
 from __future__ import annotations
 
 import datetime as _dt
+import signal
 import sys
 from pathlib import Path
 
 import rclpy
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from .bag import TOPICS, BagWriter
 
@@ -113,12 +115,53 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
+def _raise_keyboard_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _executor():
+    """The C++ EventsExecutor (about 3x less overhead per message), else rclpy's own.
+
+    The recorder takes every message of the graph (about 1200 per second), so
+    the executor's overhead decides whether it keeps up.
+    """
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return SingleThreadedExecutor()
+    return EventsExecutor()
+
+
+def drain(node: RecorderNode, executor, quiet_spins: int = 3) -> None:
+    """Write what has already arrived: spin until ``quiet_spins`` spins in a row bring nothing."""
+    quiet = 0
+    while quiet < quiet_spins:
+        before = sum(node.counts.values())
+        executor.spin_once(timeout_sec=0.01)
+        quiet = quiet + 1 if sum(node.counts.values()) == before else 0
+
+
 def main(args=None) -> None:
-    rclpy.init(args=args)
+    # SIGINT and SIGTERM raise KeyboardInterrupt in the spinning thread, so the
+    # context is still valid afterwards: the messages that had arrived are
+    # written (drain), then the bag is closed. (rclpy's own SIGTERM handler
+    # shuts the context down under the spinning executor, which may end in an
+    # RCLError instead of a clean exit.)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _raise_keyboard_interrupt)
     node = None
+    executor = _executor()
     try:
         node = RecorderNode()
-        rclpy.spin(node)
+        executor.add_node(node)
+        try:
+            while True:  # short waits, so that the signal handler gets to run
+                executor.spin_once(timeout_sec=0.1)
+        except KeyboardInterrupt:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)  # one signal is enough; finish the bag
+            drain(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, OSError) as error:  # bad parameter, existing bag: say so, exit 1
@@ -127,6 +170,7 @@ def main(args=None) -> None:
     finally:
         if node is not None:
             node.destroy_node()
+        executor.shutdown()
         rclpy.try_shutdown()
 
 

@@ -83,9 +83,11 @@ def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset
             bag.write('/cartpole/controller_status',
                       diagnostic(ts, tk, 'controller_manager', values, mode), 0)
             if hw_limits is not None and k % 20 == 0:
-                flag = 'true' if hw_limits and k > t.size // 2 else 'false'
+                # The left switch is closed at the start (cart at the left stop), then opens.
+                left = 'true' if k < 40 else 'false'
+                right = 'true' if hw_limits and k > t.size // 2 else 'false'
                 bag.write('/cartpole/hw/health',
-                          diagnostic(ts, tk, 'hw_bridge', {'limit_left': 'false',
-                                                           'limit_right': flag,
+                          diagnostic(ts, tk, 'hw_bridge', {'limit_left': left,
+                                                           'limit_right': right,
                                                            'limit_inhibits': '3'}), 0)
     return t, x, theta

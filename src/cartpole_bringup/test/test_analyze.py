@@ -4,7 +4,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +69,18 @@ def test_hardware_bag_uses_the_estimate_and_the_limit_flags(tmp_path):
     assert a.summary['catch_time_s'] == pytest.approx(bag_synth.CATCH_TIME, abs=1e-6)
     assert a.summary['end_stop_contact'] is False and a.summary['success'] is True
     assert analyze_bag(hit).summary['end_stop_contact'] is True
+
+
+def test_limit_switch_contact_is_a_switch_closing_after_it_opened():
+    from cartpole_bringup.analyze import SeriesBuilder
+    b = SeriesBuilder()
+    for flags in [('true', 'false')] * 3:  # resting on the left switch at the start
+        b.hw_health(0, dict(zip(('limit_left', 'limit_right'), flags)))
+    assert not b.limit_flag
+    b.hw_health(0, {'limit_left': 'false', 'limit_right': 'false'})
+    assert not b.limit_flag
+    b.hw_health(0, {'limit_left': 'true', 'limit_right': 'false'})
+    assert b.limit_flag
 
 
 def test_a_bag_without_states_is_refused(tmp_path):

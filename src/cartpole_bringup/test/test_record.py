@@ -143,29 +143,47 @@ def installed(package, exe):
     return path
 
 
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
-def test_installed_recorder_closes_the_bag_on_signal(ros_context, spin_until, tmp_path, sig):
+def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, spin_until,
+                                                                  tmp_path):
+    """Two recorders at once: one stopped by SIGINT, one by SIGTERM; both write every
+    message that had arrived and close their bags."""
+    from rclpy.duration import Duration
     from rclpy.executors import SingleThreadedExecutor
 
-    bag = tmp_path / 'bag'
-    proc = subprocess.Popen([str(installed('cartpole_bringup', 'recorder')), '--ros-args',
-                             '-p', f'output:={bag}'], stderr=subprocess.PIPE, text=True)
+    exe = str(installed('cartpole_bringup', 'recorder'))
+    bags = {sig: tmp_path / sig.name for sig in (signal.SIGINT, signal.SIGTERM)}
+    procs = {sig: subprocess.Popen([exe, '--ros-args', '-p', f'output:={bag}'],
+                                   stderr=subprocess.PIPE, text=True)
+             for sig, bag in bags.items()}
     source = Publisher(ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(source.node)
     try:
-        assert spin_until(executor, source.matched, 20.0), 'recorder did not subscribe'
+        assert spin_until(executor, lambda: source.matched(2), 20.0), 'recorders did not subscribe'
         for k in range(50):
             source.publish(k)
             executor.spin_once(timeout_sec=0.0)
-        proc.send_signal(sig)
-        _, err = proc.communicate(timeout=10)
-        assert proc.returncode == 0, err
+        # Every message is in both recorders' readers (acknowledged); a recorder writes
+        # what has arrived before it closes the bag.
+        for pub in source.pubs.values():
+            assert pub.wait_for_all_acked(Duration(seconds=10))
+        for sig, proc in procs.items():
+            proc.send_signal(sig)
+        for sig, proc in procs.items():
+            _, err = proc.communicate(timeout=10)
+            assert proc.returncode == 0, f'{sig.name}: {err}'
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
         source.node.destroy_node()
-    assert (bag / 'metadata.yaml').is_file(), 'bag not closed'
-    types, messages = read_bag(bag)
-    assert '/joint_states' in types and 0 < len(messages) <= 5 * 50
+    for sig, bag in bags.items():
+        assert (bag / 'metadata.yaml').is_file(), f'{sig.name}: bag not closed'
+        types, messages = read_bag(bag)
+        counts = {}
+        for topic, _, _ in messages:
+            counts[topic] = counts.get(topic, 0) + 1
+        assert counts == {'/joint_states': 50, '/cartpole/true_state': 50,
+                          '/cartpole/force_command': 50, '/cartpole/controller_status': 5,
+                          '/clock': 50}, sig.name

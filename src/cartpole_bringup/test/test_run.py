@@ -29,7 +29,8 @@ def test_options_become_node_parameters():
     assert 'hw_bridge' not in p
     hw = run_cmd.node_parameters(parse('--hw', '--port', '/dev/ttyACM1'))
     assert hw['hw_bridge'] == {'port': '/dev/ttyACM1', 'armed': False}  # never armed by default
-    assert run_cmd.node_parameters(parse('--hw', '--port', 'X', '--hw-arm'))['hw_bridge']['armed']
+    armed = run_cmd.node_parameters(parse('--hw', '--port', 'X', '--hw-arm'))['hw_bridge']
+    assert armed == {'port': 'X', 'armed': True, 'home_on_start': True}
 
 
 def test_graph_spec_and_process_command_lines(tmp_path):
@@ -127,3 +128,46 @@ def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until,
     assert len(forces) >= 50 and forces[-1] == 0.0
     assert any(abs(f) > 0.0 for f in forces), 'the swing-up never pushed'
     assert not math.isnan(result['x_err_max_m'])
+
+
+@pytest.mark.ros
+def test_lockstep_start_recovers_when_the_first_command_is_lost(ros_context):
+    """The race of one process a node, made deterministic in one process.
+
+    The EKF answers the simulator's first sample before any controller
+    exists, so that answer is lost; the EKF then ignores the re-published
+    sample (same stamp). The graph must notice and reset the simulator
+    (a new sample one period later), after which the loop runs.
+    """
+    from rclpy.parameter import Parameter
+
+    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_control.manager_node import ControllerManagerNode
+    from cartpole_estimation.ekf_node import EkfNode
+    from cartpole_sim.sim_node import SimNode
+
+    class LateController(Graph):
+        def _start_in_process(self):
+            sim_time = [Parameter('use_sim_time', value=True)]
+            ekf = EkfNode(context=self.context, parameter_overrides=sim_time)
+            self.nodes['ekf'] = ekf
+            self.executor.add_node(ekf)
+            sim = SimNode(context=self.context,
+                          parameter_overrides=sim_time + [Parameter('lockstep', value=True)])
+            self.nodes['sim'] = sim
+            self.executor.add_node(sim)
+            assert self.spin_until(lambda: ekf.samples >= 1, 10.0), 'EKF did not answer sample 0'
+            manager = ControllerManagerNode(context=self.context, parameter_overrides=sim_time)
+            self.nodes['controller_manager'] = manager
+            self.executor.add_node(manager)
+
+    graph = LateController(GraphSpec(plant='sim', lockstep=True), ros_context)
+    try:
+        graph.start()
+        assert any('reset the simulator' in w for w in graph.warnings)
+        graph.run_for(0.5)
+        assert graph.elapsed() >= 0.5
+        assert graph.nodes['sim'].runner.index >= 100
+    finally:
+        warnings = graph.close()
+    assert not [w for w in warnings if 'zero force' in w]

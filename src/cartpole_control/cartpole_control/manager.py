@@ -30,7 +30,7 @@ import threading
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
 
 from .catch import CatchTrigger
 from .controller import KINDS, STABILIZER, SWINGUP, ControlContext, Controller, ControllerState, \
@@ -94,6 +94,40 @@ class ManagerOutput:
     fault_reason: str
 
 
+_new_object = object.__new__
+_set_attribute = object.__setattr__
+
+
+def _controller_state(t: float, x: float, theta: float, x_dot: float, theta_dot: float,
+                      x_ddot: float, theta_ddot: float) -> ControllerState:
+    """``ControllerState(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)``, built directly.
+
+    The same object the frozen dataclass's ``__init__`` makes (it only sets
+    the fields), without its per-field ``object.__setattr__`` calls: about
+    0.8 us instead of 1.7 us, once per cycle. A test checks both are equal.
+    """
+    state = _new_object(ControllerState)
+    _set_attribute(state, '__dict__', {'t': t, 'x': x, 'theta': theta, 'x_dot': x_dot,
+                                       'theta_dot': theta_dot, 'x_ddot': x_ddot,
+                                       'theta_ddot': theta_ddot})
+    return state
+
+
+def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
+                    raw_force, feedforward, event, catch_count, fall_count, catch_time,
+                    fault_reason) -> ManagerOutput:
+    """``ManagerOutput(...)`` with every field positional, built directly (see
+    :func:`_controller_state`); a test checks it equals the dataclass's own."""
+    out = _new_object(ManagerOutput)
+    _set_attribute(out, '__dict__', {
+        't': t, 'force': force, 'mode': mode, 'swingup': swingup, 'stabilizer': stabilizer,
+        'enabled': enabled, 'energy': energy, 'energy_error': energy_error,
+        'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
+        'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
+        'fault_reason': fault_reason})
+    return out
+
+
 class ControllerManager:
     """Holds one swing-up and one stabiliser plugin and runs the cycle of the module docstring.
 
@@ -119,6 +153,12 @@ class ControllerManager:
             raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
         self.plant = plant
         self.sample_time = float(sample_time)
+        # Read once: the model (4.18) under the last force, the actuator's limits
+        # (Appendix C) and E* (6.8), which every cycle needs.
+        self._acc = acceleration_function(plant)
+        self._force_min = plant.force_min
+        self._force_max = plant.force_max
+        self._upright_energy = plant.upright_energy
         self._registry = self._checked_registry(registry)
         self._specs = self._build_specs()
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
@@ -358,6 +398,11 @@ class ControllerManager:
 
     def _apply_pending(self, state: ControllerState, events: list[str]) -> None:
         """Apply the queued changes and requests: the ``do_switch`` between two cycles."""
+        if not self._pending and not self._restart_requested:
+            # Nothing queued (the usual cycle): skip the lock and the copy of
+            # the values. A change queued by another thread right now is taken
+            # at the next cycle, as it would be had it come just after the swap.
+            return
         with self._lock:
             pending, self._pending = self._pending, {}
             restart, values = self._restart_requested, dict(self._values)
@@ -403,59 +448,71 @@ class ControllerManager:
 
     # -- the cycle ----------------------------------------------------------------------------
     def update(self, state: ControllerState) -> ManagerOutput:
-        """One control cycle for the estimated ``state``; see the module docstring."""
+        """One control cycle for the estimated ``state``; see the module docstring.
+
+        Only ``t``, ``x``, ``theta``, ``x_dot`` and ``theta_dot`` of ``state``
+        are used; the accelerations are completed here (step 2).
+        """
+        return self.update_values(state.t, state.x, state.theta, state.x_dot, state.theta_dot)
+
+    def update_values(self, t: float, x: float, theta: float, x_dot: float,
+                      theta_dot: float) -> ManagerOutput:
+        """:meth:`update` for the estimate given as numbers (no ControllerState to build)."""
         events: list[str] = []
-        p = self.plant
         isfinite = math.isfinite
-        if not (isfinite(state.t) and isfinite(state.x) and isfinite(state.theta)
-                and isfinite(state.x_dot) and isfinite(state.theta_dot)):
+        if not (isfinite(t) and isfinite(x) and isfinite(theta) and isfinite(x_dot)
+                and isfinite(theta_dot)):
             self._fault('non-finite state', events)
             self._last_force = 0.0
             self._energy = math.nan
-            return self._output(state.t, 0.0, 0.0, 0.0, events)
-        x_ddot, theta_ddot = accelerations(state.x, state.theta, state.x_dot, state.theta_dot,
-                                           self._last_force, p)
-        state = ControllerState(state.t, state.x, state.theta, state.x_dot, state.theta_dot,
-                                x_ddot, theta_ddot)
-        self._energy = pendulum_energy(state.theta, state.theta_dot, p)
+            return self._output(t, 0.0, 0.0, 0.0, events)
+        x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
+        state = _controller_state(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
+        p = self.plant
+        self._energy = energy = pendulum_energy(theta, theta_dot, p)
 
         self._apply_pending(state, events)
 
-        if self.mode == SWINGUP_MODE and self._trigger.should_catch(state.theta, state.theta_dot, p):
+        mode = self.mode
+        trigger = self._trigger
+        # (6.4): CatchTrigger.should_catch with the energy (7.3) computed above.
+        if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._upright_energy) \
+                and trigger.angle_condition(theta):
             self._set_mode(STABILIZING, state)
             self.catch_count += 1
             if self.catch_time is None:
-                self.catch_time = state.t
+                self.catch_time = t
             events.append('catch')
-        elif self.mode == STABILIZING and self._trigger.has_fallen(state.theta):
+        elif mode == STABILIZING and trigger.has_fallen(theta):
             self._set_mode(SWINGUP_MODE, state)
             self.fall_count += 1
             events.append('fall')
-        elif self.mode in _KIND_OF_MODE and self._active is None:
-            self._set_mode(self.mode, state)  # first cycle: activate from this state
+        elif mode in _KIND_OF_MODE and self._active is None:
+            self._set_mode(mode, state)  # first cycle: activate from this state
 
         raw = feedforward = force = 0.0
-        if self._active is not None:
+        active = self._active
+        if active is not None:
             try:
-                raw = float(self._active.update(state))
+                raw = float(active.update(state))
             except Exception as error:  # a plugin bug: fail safe, say why
-                logger.exception('controller %s failed', self._active.name)
-                self._fault(f'{self._active.name} failed: {type(error).__name__}: {error}', events)
+                logger.exception('controller %s failed', active.name)
+                self._fault(f'{active.name} failed: {type(error).__name__}: {error}', events)
                 raw = 0.0
             else:
-                if not math.isfinite(raw):
-                    self._fault(f'{self._active.name} gave a non-finite force', events)
+                if not isfinite(raw):
+                    self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    feedforward = self._feedforward(state.x_dot, raw)
-                    force = min(max(raw + feedforward, p.force_min), p.force_max)
-        if self.mode in _KIND_OF_MODE or self._guard.status == BRAKING:
-            action = self._guard.check(state.x, state.x_dot, state.theta_dot, force)
-            force = action.force
-            if action.tripped:
+                    feedforward = self._feedforward(x_dot, raw)
+                    force = min(max(raw + feedforward, self._force_min), self._force_max)
+        guard = self._guard
+        if self.mode in _KIND_OF_MODE or guard.status == BRAKING:
+            force, tripped = guard.command(x, x_dot, theta_dot, force)
+            if tripped:
                 self._fault('rail guard', events)
         self._last_force = force
-        return self._output(state.t, force, raw, feedforward, events)
+        return self._output(t, force, raw, feedforward, events)
 
     def stale(self, t: float) -> ManagerOutput:
         """No state for ``state_timeout``: zero force and fault 'stale state' (until restart)."""
@@ -484,10 +541,9 @@ class ControllerManager:
     def _output(self, t: float, force: float, raw: float, feedforward: float,
                 events: list[str]) -> ManagerOutput:
         energy = self._energy
-        return ManagerOutput(
-            t=t, force=force, mode=self.mode, swingup=self._names[SWINGUP],
-            stabilizer=self._names[STABILIZER], enabled=self._enabled, energy=energy,
-            energy_error=self.plant.upright_energy - energy, raw_force=raw,
-            feedforward=feedforward, event=';'.join(events), catch_count=self.catch_count,
-            fall_count=self.fall_count, catch_time=self.catch_time,
-            fault_reason=self.fault_reason)
+        names = self._names
+        return _manager_output(t, force, self.mode, names[SWINGUP], names[STABILIZER],
+                               self._enabled, energy, self._upright_energy - energy, raw,
+                               feedforward, ';'.join(events) if events else '',
+                               self.catch_count, self.fall_count, self.catch_time,
+                               self.fault_reason)

@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help='serial device of the rig (with --hw), e.g. /dev/ttyACM0 or an '
                          '`cartpole emulate` pseudo-terminal')
     hw.add_argument('--hw-arm', action='store_true',
-                    help='arm the bridge (enable the amplifier) at start; never armed by default')
+                    help='home the encoders at start (cart at the left stop, pendulum hanging '
+                         'still) and arm the bridge (enable the amplifier); never armed by default')
     g = parser.add_argument_group('graph')
     g.add_argument('--lockstep', action='store_true',
                    help='simulator in lockstep: one Ts per force command, /clock, all nodes on '
@@ -92,6 +93,10 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         out['sim'] = sim
     else:
         out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
+        if args.hw_arm:
+            # The bridge arms only with homed encoders: home them at start (SPEC 1a start:
+            # cart at the left stop, pendulum hanging still).
+            out['hw_bridge']['home_on_start'] = True
     if args.plant_params is not None:
         # The nominal parameters of the plant model, the EKF and the controllers alike.
         for node in ('sim', 'ekf', 'controller_manager'):
