@@ -16,16 +16,14 @@ on Ctrl-C and on SIGTERM alike.
 from __future__ import annotations
 
 import datetime as _dt
-import signal
-import sys
 from pathlib import Path
 
-import rclpy
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
+
+from cartpole_sim.node_main import run_node
 
 from .bag import TOPICS, BagWriter
 
@@ -115,10 +113,6 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
-def _raise_keyboard_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
-
-
 def _executor():
     """The C++ EventsExecutor (about 3x less overhead per message), else rclpy's own.
 
@@ -142,36 +136,8 @@ def drain(node: RecorderNode, executor, quiet_spins: int = 3) -> None:
 
 
 def main(args=None) -> None:
-    # SIGINT and SIGTERM raise KeyboardInterrupt in the spinning thread, so the
-    # context is still valid afterwards: the messages that had arrived are
-    # written (drain), then the bag is closed. (rclpy's own SIGTERM handler
-    # shuts the context down under the spinning executor, which may end in an
-    # RCLError instead of a clean exit.)
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _raise_keyboard_interrupt)
-    node = None
-    executor = _executor()
-    try:
-        node = RecorderNode()
-        executor.add_node(node)
-        try:
-            while True:  # short waits, so that the signal handler gets to run
-                executor.spin_once(timeout_sec=0.1)
-        except KeyboardInterrupt:
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, signal.SIG_IGN)  # one signal is enough; finish the bag
-            drain(node, executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as error:  # bad parameter, existing bag: say so, exit 1
-        print(f'recorder: {error}', file=sys.stderr)
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown()
+    """Record until SIGINT/SIGTERM, then write what had arrived (drain) and close the bag."""
+    run_node(RecorderNode, args, name='recorder', make_executor=_executor, on_interrupt=drain)
 
 
 if __name__ == '__main__':

@@ -26,19 +26,15 @@ Wiring only; every decision is the manager's.
 from __future__ import annotations
 
 import array
-import signal
 import sys
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -46,6 +42,7 @@ from cartpole_sim.model import CartPoleParameters
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
+from cartpole_sim.node_main import run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -284,34 +281,12 @@ def status_message(out: ManagerOutput, stamp) -> DiagnosticArray:
 
 
 def main(args=None) -> None:
-    """Run the node until Ctrl-C / SIGTERM, then command zero force.
+    """Run the node until Ctrl-C / SIGTERM; its destroy_node commands zero force.
 
-    The STYLE.md pattern, with one change: rclpy's own SIGINT handler shuts the
-    context down before ``finally`` runs, so the zero force could not be
-    published any more. Here SIGINT and SIGTERM raise KeyboardInterrupt and
-    the executor wakes at least every 0.1 s to let them in; the context is
-    still alive when :meth:`ControllerManagerNode.destroy_node` publishes zero.
+    :func:`cartpole_sim.node_main.run_node` keeps the context alive while the
+    node shuts down, so the last zero force is still published.
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
-    node = None
-    try:
-        node = ControllerManagerNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
-
-def _raise_keyboard_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
+    run_node(ControllerManagerNode, args, name='controller_manager')
 
 if __name__ == '__main__':
     main()

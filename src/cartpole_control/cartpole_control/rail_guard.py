@@ -94,6 +94,17 @@ class RailGuard:
         if not self.rest_speed > 0.0:
             raise ValueError(f'rest_speed must be > 0, got {rest_speed!r}')
         self.status = ARMED
+        # Constants of the per-cycle arithmetic, computed once (the guard's
+        # settings are fixed after construction; the manager builds a new guard
+        # when they change). Each is the very expression the methods below
+        # evaluate, so the numbers are the same to the last bit.
+        self._mass = params.m_c + params.m_p
+        self._dead_time = self.dead_time
+        self._high = params.travel - self.margin
+        self._friction = 0.5 * min(params.c_c_right, params.c_c_left)
+        self._brake_pos = self.brake_force(1.0)
+        self._brake_neg = self.brake_force(-1.0)
+        self._min_deceleration = 0.05 * self._mass
 
     @property
     def tripped(self) -> bool:
@@ -118,17 +129,15 @@ class RailGuard:
     def deceleration(self, direction: float, theta_dot: float) -> float:
         """a_b, a conservative braking deceleration [m/s^2] (module docstring)."""
         p = self.params
-        mass = p.m_c + p.m_p
-        friction = 0.5 * min(p.c_c_right, p.c_c_left)
         pendulum_pull = p.m_p * (p.l * theta_dot * theta_dot + p.g)
-        return max(self.brake_force(direction) + friction - pendulum_pull, 0.05 * mass) / mass
+        brake = self._brake_pos if direction > 0.0 else self._brake_neg  # brake_force(direction)
+        return max(brake + self._friction - pendulum_pull, self._min_deceleration) / self._mass
 
     def stopping_position(self, x: float, x_dot: float, theta_dot: float,
                           force: float) -> float:
         """Where a full brake starting after the dead time would stop the cart [m]."""
-        p = self.params
-        mass = p.m_c + p.m_p
-        t_d = self.dead_time
+        mass = self._mass
+        t_d = self._dead_time
         a_d = force / mass
         v_1 = x_dot + a_d * t_d
         x_1 = x + x_dot * t_d + 0.5 * a_d * t_d * t_d
@@ -140,30 +149,38 @@ class RailGuard:
     # -- one cycle --------------------------------------------------------------------
     def check(self, x: float, x_dot: float, theta_dot: float, force: float) -> GuardAction:
         """Pass, withhold or override ``force`` for the state (x, x_dot, theta_dot)."""
-        if self.status == BRAKING or self.status == STOPPED:
-            return GuardAction(self._brake(x_dot), self.status, False)
-        low, high = self.margin, self.params.travel - self.margin
+        force, tripped = self.command(x, x_dot, theta_dot, force)
+        return GuardAction(force, self.status, tripped)
+
+    def command(self, x: float, x_dot: float, theta_dot: float,
+                force: float) -> tuple[float, bool]:
+        """:meth:`check` as ``(force, tripped)``, the status left in :attr:`status`.
+
+        The manager's per-cycle call (no GuardAction to build).
+        """
+        status = self.status
+        if status == BRAKING or status == STOPPED:
+            return self._brake(x_dot), False
         stop = self.stopping_position(x, x_dot, theta_dot, force)
-        towards_right = stop > high and stop > x
-        towards_left = stop < low and stop < x
+        towards_right = stop > self._high and stop > x
+        towards_left = stop < self.margin and stop < x
         if not (towards_right or towards_left):
             self.status = ARMED
-            return GuardAction(force, ARMED, False)
+            return force, False
         if abs(x_dot) <= self.rest_speed:
             # At rest near a stop: never push further in, but allow pushing out.
-            withheld = min(force, 0.0) if towards_right else max(force, 0.0)
             self.status = LIMITED
-            return GuardAction(withheld, LIMITED, False)
+            return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
-        return GuardAction(self._brake(x_dot), BRAKING, True)
+        return self._brake(x_dot), True
 
     def _brake(self, x_dot: float) -> float:
         if abs(x_dot) <= self.rest_speed:
             self.status = STOPPED
             return 0.0
         self.status = BRAKING
-        p = self.params
         direction = math.copysign(1.0, x_dot)
         # Full brake; the last step only what stops the cart within one sample.
-        magnitude = min(self.brake_force(direction), (p.m_c + p.m_p) * abs(x_dot) / p.sample_time)
+        brake = self._brake_pos if direction > 0.0 else self._brake_neg
+        magnitude = min(brake, self._mass * abs(x_dot) / self.params.sample_time)
         return -direction * magnitude

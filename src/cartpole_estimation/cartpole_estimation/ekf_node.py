@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import math
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -24,6 +22,7 @@ from std_srvs.srv import Trigger
 from cartpole_sim.model import CartPoleParameters
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
+from cartpole_sim.node_main import run_node
 
 JOINT_NAMES = ('cart', 'pendulum')
 
@@ -278,18 +277,7 @@ class EkfNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = EkfNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(EkfNode, args, name='ekf_node')
 
 if __name__ == '__main__':
     main()

@@ -19,15 +19,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import threading
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-from rclpy.exceptions import InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -36,6 +32,7 @@ from std_srvs.srv import SetBool, Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
+from cartpole_sim.node_main import run_node
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -252,21 +249,7 @@ class HwBridgeNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = HwBridgeNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, InvalidParameterValueException) as exc:
-        print(f'hw_bridge: error: {exc}', file=sys.stderr)
-        raise SystemExit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(HwBridgeNode, args, name='hw_bridge')
 
 if __name__ == '__main__':
     main()

@@ -79,6 +79,21 @@ class Measurement:
     """Pendulum angle [rad] from the unwrapped count, pi hanging after reset."""
 
 
+def _measurement(t: float, cart_ticks: int, pendulum_ticks: int, x: float,
+                 theta: float) -> Measurement:
+    """``Measurement(t, cart_ticks, pendulum_ticks, x, theta)``, built directly.
+
+    The same object the frozen dataclass's ``__init__`` makes (it only sets
+    the fields) without its per-field ``object.__setattr__``; once per sample
+    of every offline run. A test checks both are equal.
+    """
+    m = object.__new__(Measurement)
+    object.__setattr__(m, '__dict__', {'t': t, 'cart_ticks': cart_ticks,
+                                       'pendulum_ticks': pendulum_ticks, 'x': x,
+                                       'theta': theta})
+    return m
+
+
 def wrap_counter(ticks: int, bits: int = 16) -> int:
     """A count as a ``bits``-wide two's complement counter shows it."""
     half = 1 << (bits - 1)
@@ -128,6 +143,13 @@ class Plant:
         self.true_params = self.scenario.plant_parameters(self.params)
         self._acc = acceleration_function(self.true_params)
         self._travel = self.true_params.travel
+        p, tp = self.params, self.true_params
+        # Per-step constants, computed once with the very expressions step()
+        # and measure() used to evaluate each time (same numbers to the bit).
+        self._cart_resolution = p.cart_resolution
+        self._pendulum_resolution = p.pendulum_resolution
+        self._current_gain = tp.actuator_gain / tp.actuator_pole
+        self._default_substeps = self._substeps(p.sample_time)
         self.reset()
 
     # -- state -------------------------------------------------------------------
@@ -157,8 +179,19 @@ class Plant:
     def _current_target(self, force_command: float) -> float:
         p = self.true_params
         i_ref = force_command / p.force_per_ampere
-        i_ss = p.actuator_gain / p.actuator_pole * i_ref
+        i_ss = self._current_gain * i_ref  # p.actuator_gain / p.actuator_pole * i_ref
         return min(max(i_ss, p.current_min), p.current_max)
+
+    def _substeps(self, duration: float) -> tuple[int, float, float, float]:
+        """(n, h, decay, mean_factor) of a hold of ``duration``: n RK4 steps of h,
+        and the current loop's exact factors over one step (see :meth:`step`)."""
+        n = max(1, int(round(duration / self.integration_step)))
+        h = duration / n
+        pole = self.true_params.actuator_pole
+        decay = math.exp(-pole * h)
+        # Mean of i(t) = i_target + (i0 - i_target) e^{-a t} over one step.
+        mean_factor = (1.0 - decay) / (pole * h)
+        return n, h, decay, mean_factor
 
     # -- integration ----------------------------------------------------------------
     def _end_stop_force(self, x: float, x_dot: float) -> float:
@@ -176,17 +209,22 @@ class Plant:
         return x_dot, theta_dot, x_ddot, theta_ddot
 
     def _rk4(self, h: float, force: float) -> None:
-        """One RK4 step of (4.18) with end stops; the same sums as :meth:`_derivative`, unrolled.
+        """One RK4 step of (4.18) with end stops on :attr:`state` (see :meth:`_rk4_step`)."""
+        self.state = list(self._rk4_step(*self.state, h, force))
 
-        This is the inner loop of every offline run, so the four stages are
-        written out with local names instead of calling helpers (about 3x
-        faster in CPython); :meth:`_derivative` is the readable reference and a
-        test checks the two agree to the last bit.
+    def _rk4_step(self, x: float, th: float, v: float, w: float, h: float,
+                  force: float) -> tuple[float, float, float, float]:
+        """One RK4 step of (4.18) with end stops from (x, th, v, w); the new state.
+
+        The same sums as :meth:`_derivative`, unrolled: this is the inner loop
+        of every offline run, so the four stages are written out with local
+        names instead of calling helpers (about 3x faster in CPython);
+        :meth:`_derivative` is the readable reference and a test checks the two
+        agree to the last bit.
         """
         acc = self._acc
         travel = self._travel
         stop = self._end_stop_force
-        x, th, v, w = self.state
         # The end-stop force is zero inside the travel; skip the call there.
         a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
         hh = 0.5 * h
@@ -197,10 +235,10 @@ class Plant:
         x4, th4, v4, w4 = x + h * v3, th + h * w3, v + h * a3, w + h * b3
         a4, b4 = acc(x4, th4, v4, w4, force if 0.0 <= x4 <= travel else force + stop(x4, v4))
         h6 = h / 6.0
-        self.state = [x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
-                      th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
-                      v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
-                      w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)]
+        return (x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
+                th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
+                v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+                w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4))
 
     def step(self, force_command: float, duration: float | None = None) -> None:
         """Advance by ``duration`` (one sample period by default) holding ``force_command``.
@@ -210,23 +248,31 @@ class Plant:
         """
         if not math.isfinite(force_command):
             force_command = 0.0
-        duration = self.params.sample_time if duration is None else duration
-        n = max(1, int(round(duration / self.integration_step)))
-        h = duration / n
-        p = self.true_params
+        if duration is None:
+            n, h, decay, mean_factor = self._default_substeps
+        else:
+            n, h, decay, mean_factor = self._substeps(duration)
         i_target = self._current_target(force_command)
-        decay = math.exp(-p.actuator_pole * h)
-        # Mean of i(t) = i_target + (i0 - i_target) e^{-a t} over one step.
-        mean_factor = (1.0 - decay) / (p.actuator_pole * h)
+        force_per_ampere = self.true_params.force_per_ampere
         self.force_command = force_command
+        rk4_step = self._rk4_step
+        travel = self._travel
+        x, th, v, w = self.state
+        current = self.current
+        t = self.t
+        contact = self.end_stop_contact
         for _ in range(n):
-            i0 = self.current
+            i0 = current
             mean_current = i_target + (i0 - i_target) * mean_factor
-            self._rk4(h, mean_current * p.force_per_ampere)
-            self.current = i_target + (i0 - i_target) * decay
-            self.t += h
-            if not self.end_stop_contact and self.in_end_stop():
-                self.end_stop_contact = True
+            x, th, v, w = rk4_step(x, th, v, w, h, mean_current * force_per_ampere)
+            current = i_target + (i0 - i_target) * decay
+            t += h
+            if not contact and (x < 0.0 or x > travel):  # in_end_stop()
+                contact = True
+        self.state = [x, th, v, w]
+        self.current = current
+        self.t = t
+        self.end_stop_contact = contact
 
     # -- encoders (2.3), (2.4) ----------------------------------------------------------
     def encoder_counts(self) -> tuple[int, int]:
@@ -237,19 +283,17 @@ class Plant:
         if self.scenario.noise:
             x += self._rng.normal(0.0, self.scenario.noise_std_cart)
             theta += self._rng.normal(0.0, self.scenario.noise_std_pendulum)
-        cart = math.floor(x / p.cart_resolution + 0.5)
-        pend = math.floor(theta / p.pendulum_resolution + 0.5)
+        cart = math.floor(x / self._cart_resolution + 0.5)
+        pend = math.floor(theta / self._pendulum_resolution + 0.5)
         return wrap_counter(cart, p.counter_bits), wrap_counter(pend, p.counter_bits)
 
     def measure(self) -> Measurement:
         """Sample the encoders: raw counters and the positions they stand for."""
-        p = self.params
         cart_raw, pend_raw = self.encoder_counts()
         cart = self._unwrap_cart.update(cart_raw)
         pend = self._unwrap_pend.update(pend_raw)
-        return Measurement(t=self.t, cart_ticks=cart_raw, pendulum_ticks=pend_raw,
-                           x=cart * p.cart_resolution,
-                           theta=math.pi + pend * p.pendulum_resolution)
+        return _measurement(self.t, cart_raw, pend_raw, cart * self._cart_resolution,
+                            math.pi + pend * self._pendulum_resolution)
 
     def true_state(self) -> np.ndarray:
         return np.array(self.state)

@@ -28,11 +28,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -44,6 +42,7 @@ from std_srvs.srv import Trigger
 from .model import CartPoleParameters
 from .plant import Scenario
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
+from .node_main import run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
@@ -331,18 +330,7 @@ class SimNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-
+    run_node(SimNode, args, name='sim_node')
 
 if __name__ == '__main__':
     main()
