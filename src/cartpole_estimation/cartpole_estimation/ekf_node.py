@@ -93,6 +93,10 @@ class EkfNode(Node):
         self._force = 0.0
         self._force_received_at: float | None = None
         self._last_sample_t: float | None = None
+        # Commands by the stamp of the state they answer: u_{k-1} is the one
+        # stamped with sample k-1, whatever order DDS delivered them in.
+        self._force_by_stamp: dict[tuple[int, int], float] = {}
+        self._last_sample_stamp: tuple[int, int] | None = None
         self._last_force_used = 0.0
         self.samples = 0
         self.bad_messages = 0
@@ -168,6 +172,11 @@ class EkfNode(Node):
             return
         self._force = force
         self._force_received_at = self._last_sample_t
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        self._force_by_stamp[stamp] = force
+        if len(self._force_by_stamp) > 64:
+            for old in sorted(self._force_by_stamp)[:32]:
+                del self._force_by_stamp[old]
 
     def _prediction_force(self) -> float:
         """The command held over the interval that ends at this sample, as the plant holds it.
@@ -175,8 +184,14 @@ class EkfNode(Node):
         The simulator's watchdog (and the hardware bridge's) zero a command
         whose age at the start of a period exceeds ``command_timeout``; the
         age here is the previous sample's stamp minus the stamp of the
-        sample that was the latest when the command arrived.
+        sample that was the latest when the command arrived. When the command
+        computed from the previous sample has arrived (stamped with it), that
+        one is used: in lockstep it is exactly what the plant applied, even
+        when DDS delivers the next sample before it.
         """
+        matched = self._force_by_stamp.get(self._last_sample_stamp)
+        if matched is not None:
+            return matched
         if self._force_received_at is None or self._last_sample_t is None:
             return 0.0
         if self._last_sample_t - self._force_received_at > self._command_timeout + 1.0e-9:
@@ -199,8 +214,11 @@ class EkfNode(Node):
         t = _stamp_seconds(msg.header.stamp)
         if t == self._last_sample_t:
             # A repeated sample (the simulator re-publishes sample 0 until a
-            # controller answers): already estimated, nothing new.
+            # controller answers): already estimated; publish the same estimate
+            # again so that a controller that missed it can still answer.
             self.duplicate_samples += 1
+            if self._last_estimate is not None:
+                self._state_pub.publish(self._state_msg)
             return
         force = self._prediction_force()
         est = self.filter.update(t, x, theta, force)
@@ -214,6 +232,7 @@ class EkfNode(Node):
         self._state_pub.publish(out)
         # Book-keeping after the publication (off the latency path).
         self._last_sample_t = t
+        self._last_sample_stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
         self._last_force_used = force
         self._last_estimate = est
         self.samples += 1

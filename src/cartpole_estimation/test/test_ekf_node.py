@@ -134,16 +134,20 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
     h.meas_pub.publish(joint_state(1.005, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
     assert h.ekf._last_force_used == 10.0
-    # A repeated sample is ignored (not an error, not a new estimate).
+    # A repeated sample is not an error and not a new estimate: the same estimate is
+    # published again (so a controller that missed it can answer the simulator).
     h.meas_pub.publish(joint_state(1.005, 0.3, math.pi))
     assert spin_until(h.executor, lambda: h.ekf.duplicate_samples == 1, timeout=5.0)
+    assert spin_until(h.executor, lambda: len(h.states) == 3, timeout=5.0)
+    assert h.states[2].position == h.states[1].position
+    assert h.states[2].header.stamp == h.states[1].header.stamp
     # The plant holds the command while its age at the start of a period is
     # <= 50 ms: still applied over (1.005, 1.06], zero over (1.06, 1.065].
     h.meas_pub.publish(joint_state(1.06, 0.3, math.pi))
-    assert spin_until(h.executor, lambda: len(h.states) == 3, timeout=5.0)
+    assert spin_until(h.executor, lambda: len(h.states) == 4, timeout=5.0)
     assert h.ekf._last_force_used == 10.0
     h.meas_pub.publish(joint_state(1.065, 0.3, math.pi))
-    assert spin_until(h.executor, lambda: len(h.states) == 4, timeout=5.0)
+    assert spin_until(h.executor, lambda: len(h.states) == 5, timeout=5.0)
     assert h.ekf._last_force_used == 0.0
     assert h.ekf.bad_messages == 0
 
@@ -237,3 +241,24 @@ def test_installed_executable_answers_and_stops_on_sigint(ros_context, spin_unti
             proc.wait()
         executor.shutdown()
         node.destroy_node()
+
+
+def test_prediction_uses_the_command_stamped_with_the_previous_sample(harness, spin_until):
+    # DDS does not order two topics: the command answering sample k may arrive after a
+    # later one. The prediction over (t_k, t_k+1] uses the command stamped t_k.
+    from sensor_msgs.msg import JointState
+    h = harness([('command_timeout', 0.05)])
+    assert connected(h, spin_until)
+    first = joint_state(2.0, 0.3, math.pi)
+    h.meas_pub.publish(first)
+    assert spin_until(h.executor, lambda: len(h.states) == 1, timeout=5.0)
+    answer = JointState(name=['cart'], effort=[-5.0])
+    answer.header.stamp = first.header.stamp
+    stray = JointState(name=['cart'], effort=[7.0])
+    stray.header.stamp = joint_state(1.5, 0.0, 0.0).header.stamp
+    h.force_pub.publish(answer)
+    h.force_pub.publish(stray)  # arrives last, answers an older sample
+    assert spin_until(h.executor, lambda: h.ekf._force == 7.0, timeout=5.0)
+    h.meas_pub.publish(joint_state(2.005, 0.3, math.pi))
+    assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
+    assert h.ekf._last_force_used == -5.0
