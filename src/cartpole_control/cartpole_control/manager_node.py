@@ -42,7 +42,7 @@ from cartpole_sim.model import CartPoleParameters
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
-from cartpole_sim.node_main import run_node
+from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -142,9 +142,10 @@ class ControllerManagerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self._pub_force = self.create_publisher(JointState, '/cartpole/force_command', 10)
+        self._pub_force = self.create_publisher(JointState, '/cartpole/force_command',
+                                                PUBLISH_DEPTH)
         self._pub_status = self.create_publisher(DiagnosticArray, '/cartpole/controller_status',
-                                                 10)
+                                                 PUBLISH_DEPTH)
         self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
         self._last_state_ns: int | None = None

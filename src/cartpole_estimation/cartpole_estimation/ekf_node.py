@@ -22,7 +22,7 @@ from std_srvs.srv import Trigger
 from cartpole_sim.model import CartPoleParameters
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from cartpole_sim.node_main import run_node
+from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
 
 JOINT_NAMES = ('cart', 'pendulum')
 
@@ -109,7 +109,7 @@ class EkfNode(Node):
 
         self._state_msg = JointState()
         self._state_msg.name = list(JOINT_NAMES)
-        self._state_pub = self.create_publisher(JointState, '/cartpole/state', 10)
+        self._state_pub = self.create_publisher(JointState, '/cartpole/state', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/ekf/health', 10)
         self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)

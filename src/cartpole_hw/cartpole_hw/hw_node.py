@@ -32,7 +32,7 @@ from std_srvs.srv import SetBool, Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
-from cartpole_sim.node_main import run_node
+from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -121,7 +121,7 @@ class HwBridgeNode(Node):
         self._lock = threading.RLock()
         self._syncing = False
 
-        self._joint_pub = self.create_publisher(JointState, '/joint_states', 10)
+        self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)

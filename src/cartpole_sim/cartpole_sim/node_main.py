@@ -61,3 +61,9 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
         rclpy.try_shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+PUBLISH_DEPTH = 100
+"""History depth of the 200 Hz publishers: a slow subscriber (the recorder on a
+loaded machine) gets a burst late instead of losing it. Control-path
+subscriptions keep their own small depth."""

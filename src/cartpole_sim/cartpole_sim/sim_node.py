@@ -42,7 +42,7 @@ from std_srvs.srv import Trigger
 from .model import CartPoleParameters
 from .plant import Scenario
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
-from .node_main import run_node
+from .node_main import PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
@@ -93,8 +93,8 @@ class SimNode(Node):
                                       and self.get_parameter('lockstep_startup_wait').value)
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
 
-        self._pub_joints = self.create_publisher(JointState, 'joint_states', 10)
-        self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', 10)
+        self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
+        self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
         self._pub_clock = None
         self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
