@@ -502,3 +502,36 @@ def test_closed_loop_through_the_ekf_catches_and_switches_without_losing_the_pen
     assert outs[-1].mode == STABILIZING and outs[-1].fall_count == 0
     assert max(angles) < math.radians(3.0)
     assert not plant.end_stop_contact
+
+
+# -- the per-cycle fast paths give the same cycle ------------------------------------------------
+def test_update_values_gives_the_same_cycle_as_update():
+    """The offline loop's entry (the estimate as numbers) and update(ControllerState) agree
+    to the bit, through swing-up, catch and stabilisation."""
+    a, b = ControllerManager(P), ControllerManager(P)
+    plant = Plant(P, Scenario())
+    for _ in range(int(7.0 / TS)):
+        x, theta, x_dot, theta_dot = plant.state
+        out_a = a.update(ControllerState(plant.t, x, theta, x_dot, theta_dot))
+        out_b = b.update_values(plant.t, x, theta, x_dot, theta_dot)
+        assert out_a == out_b
+        plant.step(out_a.force)
+    assert out_a.mode == STABILIZING and out_a.catch_count == 1
+
+
+def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
+    from cartpole_control.manager import _controller_state, _manager_output
+    values = (1.0, 0.3, 3.0, 0.1, -0.2, 0.5, -0.6)
+    s = _controller_state(*values)
+    assert type(s) is ControllerState and s == ControllerState(*values)
+    assert hash(s) == hash(ControllerState(*values)) and s.theta_w == wrap_angle(3.0)
+    names = list(ManagerOutput.__dataclass_fields__)
+    values = (0.1, 2.0, 'stabilizing', 'pendulum_energy', 'lqg', True, 1.5, 0.1, 1.9, 0.1,
+              'catch', 1, 0, 0.1, '')
+    assert len(names) == len(values)
+    out = _manager_output(*values)
+    assert type(out) is ManagerOutput and out == ManagerOutput(*values)
+    assert [getattr(out, n) for n in names] == list(values)
+    for obj in (s, out):
+        with pytest.raises(Exception):
+            obj.t = 5.0  # still frozen

@@ -128,3 +128,33 @@ def test_invalid_settings_are_refused():
         RailGuard(P, max_brake_force=0.0)
     with pytest.raises(ValueError):
         RailGuard(P, rest_speed=0.0)
+
+
+def test_cached_constants_give_the_formulas_bit_for_bit():
+    """stopping_position and the brake use constants computed once; the same numbers as
+    the module docstring's formulas evaluated from the parameters each time."""
+    import random
+    rng = random.Random(3)
+    for kwargs in ({}, {'margin': 0.05, 'max_brake_force': 35.0, 'latency': 0.01}):
+        guard = RailGuard(P, **kwargs)
+        mass = P.m_c + P.m_p
+        t_d = guard.latency + 1.0 / P.actuator_pole
+        for _ in range(500):
+            x, x_dot = rng.uniform(-0.1, 0.9), rng.uniform(-3.0, 3.0)
+            theta_dot, force = rng.uniform(-15.0, 15.0), rng.uniform(-40.0, 40.0)
+            a_d = force / mass
+            v_1 = x_dot + a_d * t_d
+            x_1 = x + x_dot * t_d + 0.5 * a_d * t_d * t_d
+            direction = math.copysign(1.0, v_1)
+            brake = min(guard.max_brake_force, -P.force_min if direction > 0.0 else P.force_max)
+            a_b = max(brake + 0.5 * min(P.c_c_right, P.c_c_left)
+                      - P.m_p * (P.l * theta_dot * theta_dot + P.g), 0.05 * mass) / mass
+            assert guard.deceleration(direction, theta_dot) == a_b
+            assert guard.stopping_position(x, x_dot, theta_dot, force) == \
+                x_1 + direction * v_1 * v_1 / (2.0 * a_b)
+            guard.status = BRAKING
+            magnitude = min(min(guard.max_brake_force, -P.force_min if x_dot > 0 else P.force_max),
+                            mass * abs(x_dot) / P.sample_time)
+            expected = 0.0 if abs(x_dot) <= guard.rest_speed else -math.copysign(magnitude, x_dot)
+            assert guard.check(x, x_dot, theta_dot, force).force == expected
+            guard.reset()

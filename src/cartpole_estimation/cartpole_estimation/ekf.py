@@ -377,23 +377,30 @@ class ExtendedKalmanFilter:
                    h: float) -> tuple[float, ...]:
         """The accelerations and the two non-trivial rows of F_k, (5.19)-(5.21).
 
-        Returns ``(a0, b0, f20, f21, f22, f23, f30, f31, f32, f33)``: the model
+        Returns ``(a0, b0, f21, f22, f23, f31, f32, f33)``: the model
         accelerations (4.18) at the state and rows 3 and 4 of
-        F_k = I + h d(f + g u)/dx by forward differences of step
+        F_k = I + h d(f + g u)/dx, ``[0, f21, f22, f23]`` and
+        ``[0, f31, f32, f33]``, by forward differences of step
         ``config.jacobian_step`` (5.21). Rows 1 and 2 are ``[1, 0, h, 0]`` and
         ``[0, 1, 0, h]`` exactly (x + h x_dot, theta + h theta_dot).
+
+        The accelerations (4.18) do not depend on the cart position x (the
+        model is invariant to where the cart is; the end stops are not part of
+        it), so the forward difference in x is exactly zero: ``acc(x + eps,
+        ...)`` returns ``acc(x, ...)`` bit for bit. That evaluation is skipped
+        and the first column is 0.0, the value it would give (the products with
+        it are left out of :meth:`_predict`). A test checks the invariance.
         """
         acc = self._acc
         eps = self.config.jacobian_step
         a0, b0 = acc(x, th, xd, thd, force)
-        a1, b1 = acc(x + eps, th, xd, thd, force)
         a2, b2 = acc(x, th + eps, xd, thd, force)
         a3, b3 = acc(x, th, xd + eps, thd, force)
         a4, b4 = acc(x, th, xd, thd + eps, force)
         g = h / eps
         return (a0, b0,
-                (a1 - a0) * g, (a2 - a0) * g, 1.0 + (a3 - a0) * g, (a4 - a0) * g,
-                (b1 - b0) * g, (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g)
+                (a2 - a0) * g, 1.0 + (a3 - a0) * g, (a4 - a0) * g,
+                (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g)
 
     def transition(self, state, force: float, h: float) -> tuple[list[float], np.ndarray]:
         """f_k and its Jacobian F_k for a step of length h, (5.8), (5.19)-(5.21).
@@ -415,12 +422,11 @@ class ExtendedKalmanFilter:
             ``config.jacobian_step``.
         """
         x, th, xd, thd = state
-        a0, b0, f20, f21, f22, f23, f30, f31, f32, f33 = self._linearise(x, th, xd, thd,
-                                                                          force, h)
+        a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, th, xd, thd, force, h)
         f_k = np.array([[1.0, 0.0, h, 0.0],
                         [0.0, 1.0, 0.0, h],
-                        [f20, f21, f22, f23],
-                        [f30, f31, f32, f33]])
+                        [0.0, f21, f22, f23],
+                        [0.0, f31, f32, f33]])
         return [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0], f_k
 
     def _predict(self, h: float, force: float) -> None:
@@ -428,31 +434,29 @@ class ExtendedKalmanFilter:
 
         x_k|k-1 = f_k(x_k-1|k-1, u) (5.15) and P_k|k-1 = F_k P F_k^T + Q (5.16),
         the latter in closed form on the 10 entries of the symmetric P, with
-        F_k's rows 1 and 2 being ``[1, 0, h, 0]`` and ``[0, 1, 0, h]``
+        F_k = [[1, 0, h, 0], [0, 1, 0, h], [0, f21, f22, f23], [0, f31, f32, f33]]
         (:meth:`_linearise`). Q is added as ``Q h / Ts`` (module docstring).
         """
         x, th, xd, thd = self._s
-        a0, b0, f20, f21, f22, f23, f30, f31, f32, f33 = self._linearise(x, th, xd, thd,
-                                                                          force, h)
+        a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, th, xd, thd, force, h)
         self._s = [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0]
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._pc
-        # B = F_k P, row by row.
+        # B = F_k P, row by row. F_k's first column is e_1, so B's first column
+        # enters only P_i0 of the product, of which the upper triangle keeps
+        # P_00: B_10, B_20, B_30 are not needed.
         b00 = p00 + h * p02
         b01 = p01 + h * p12
         b02 = p02 + h * p22
         b03 = p03 + h * p23
-        b10 = p01 + h * p03
         b11 = p11 + h * p13
         b12 = p12 + h * p23
         b13 = p13 + h * p33
-        b20 = f20 * p00 + f21 * p01 + f22 * p02 + f23 * p03
-        b21 = f20 * p01 + f21 * p11 + f22 * p12 + f23 * p13
-        b22 = f20 * p02 + f21 * p12 + f22 * p22 + f23 * p23
-        b23 = f20 * p03 + f21 * p13 + f22 * p23 + f23 * p33
-        b30 = f30 * p00 + f31 * p01 + f32 * p02 + f33 * p03
-        b31 = f30 * p01 + f31 * p11 + f32 * p12 + f33 * p13
-        b32 = f30 * p02 + f31 * p12 + f32 * p22 + f33 * p23
-        b33 = f30 * p03 + f31 * p13 + f32 * p23 + f33 * p33
+        b21 = f21 * p11 + f22 * p12 + f23 * p13
+        b22 = f21 * p12 + f22 * p22 + f23 * p23
+        b23 = f21 * p13 + f22 * p23 + f23 * p33
+        b31 = f31 * p11 + f32 * p12 + f33 * p13
+        b32 = f31 * p12 + f32 * p22 + f33 * p23
+        b33 = f31 * p13 + f32 * p23 + f33 * p33
         # P_k|k-1 = B F_k^T + Q, upper triangle.
         q0, q1, q2, q3 = self._q
         if h != self.sample_time:
@@ -460,14 +464,14 @@ class ExtendedKalmanFilter:
             q0, q1, q2, q3 = q0 * ratio, q1 * ratio, q2 * ratio, q3 * ratio
         self._pc = (b00 + h * b02 + q0,
                     b01 + h * b03,
-                    f20 * b00 + f21 * b01 + f22 * b02 + f23 * b03,
-                    f30 * b00 + f31 * b01 + f32 * b02 + f33 * b03,
+                    f21 * b01 + f22 * b02 + f23 * b03,
+                    f31 * b01 + f32 * b02 + f33 * b03,
                     b11 + h * b13 + q1,
-                    f20 * b10 + f21 * b11 + f22 * b12 + f23 * b13,
-                    f30 * b10 + f31 * b11 + f32 * b12 + f33 * b13,
-                    f20 * b20 + f21 * b21 + f22 * b22 + f23 * b23 + q2,
-                    f30 * b20 + f31 * b21 + f32 * b22 + f33 * b23,
-                    f30 * b30 + f31 * b31 + f32 * b32 + f33 * b33 + q3)
+                    f21 * b11 + f22 * b12 + f23 * b13,
+                    f31 * b11 + f32 * b12 + f33 * b13,
+                    f21 * b21 + f22 * b22 + f23 * b23 + q2,
+                    f31 * b21 + f32 * b22 + f33 * b23,
+                    f31 * b31 + f32 * b32 + f33 * b33 + q3)
 
     def _correct(self, y_x: float, y_theta: float) -> tuple[float, float, float, float]:
         """Measurement update (5.10)-(5.14) with H = [I 0] (5.18).

@@ -241,3 +241,42 @@ def test_unrolled_rk4_matches_the_reference_stages_bit_for_bit():
     expected = [s[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(4)]
     plant._rk4(h, force)
     assert plant.state == expected
+
+
+def test_step_equals_the_rk4_substeps_on_the_plant_bit_for_bit():
+    """step() runs its substeps on local variables; the same numbers as the substep loop on
+    the plant's attributes (current loop (4.4), RK4, clock, end-stop flag), in and out of
+    an end stop, with the default and an explicit hold."""
+    scenario = Scenario(x0=0.004, x_dot0=-0.3, theta0=2.0, theta_dot0=4.0)
+    a, b = Plant(NOMINAL, scenario), Plant(NOMINAL, scenario)
+    p = b.true_params
+    for k, command in enumerate([30.0, -45.0, 5.0, 0.0, 12.0, -3.0] * 5):
+        duration = None if k % 2 else 0.0035
+        a.step(command, duration)
+        hold = NOMINAL.sample_time if duration is None else duration
+        n = max(1, int(round(hold / b.integration_step)))
+        h = hold / n
+        i_ss = p.actuator_gain / p.actuator_pole * (command / p.force_per_ampere)
+        i_target = min(max(i_ss, p.current_min), p.current_max)
+        decay = math.exp(-p.actuator_pole * h)
+        mean_factor = (1.0 - decay) / (p.actuator_pole * h)
+        for _ in range(n):
+            i0 = b.current
+            b._rk4(h, (i_target + (i0 - i_target) * mean_factor) * p.force_per_ampere)
+            b.current = i_target + (i0 - i_target) * decay
+            b.t += h
+            if not b.end_stop_contact and b.in_end_stop():
+                b.end_stop_contact = True
+        assert (a.state, a.current, a.t, a.end_stop_contact) == \
+            (b.state, b.current, b.t, b.end_stop_contact)
+        assert a.measure() == b.measure()
+    assert a.end_stop_contact
+
+
+def test_measurement_built_directly_equals_the_dataclass_constructor():
+    from cartpole_sim.plant import Measurement, _measurement
+    m = _measurement(0.005, 12, -7, 0.001, 3.1)
+    assert type(m) is Measurement and m == Measurement(0.005, 12, -7, 0.001, 3.1)
+    assert hash(m) == hash(Measurement(0.005, 12, -7, 0.001, 3.1))
+    with pytest.raises(Exception):
+        m.x = 1.0

@@ -68,6 +68,7 @@ class LqgStabilizer(Controller):
         super().__init__()
         self.gain = np.zeros(4)
         """K of (8.17), recomputed on every configure."""
+        self._minus_gain = -self.gain
 
     def on_configure(self) -> None:
         """Solve (8.18) for the current Q, R and plant model; refuse an unstabilising choice."""
@@ -75,8 +76,10 @@ class LqgStabilizer(Controller):
         q = np.diag(np.asarray(self.gains['q'], dtype=float))
         r = np.array([[float(self.gains['r'])]])
         self.gain = lqr_gain(a, b, q, r)[0]
+        self._minus_gain = -self.gain  # -K of (8.16), negated once instead of every cycle
 
     def update(self, state: ControllerState) -> float:
+        """u = -K (x - x*) (8.16), with the wrapped angle."""
         error = np.array([state.x - self.context.x_ref, state.theta_w, state.x_dot,
                           state.theta_dot])
-        return float(-self.gain @ error)
+        return float(self._minus_gain @ error)
