@@ -76,7 +76,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             raise ValueError(result.reason)
     x_ref = float(manager.get_parameters()['x_ref'])
     steps = int(round(duration / nominal.sample_time)) + 1
-    rows: list[tuple[float, ...]] = []
+    samples: list[tuple[float, ...]] = []  # one row of the result per sample
     modes: list[str] = []
     events: list[tuple[float, str]] = []
     force = 0.0
@@ -84,55 +84,46 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     # Bound once: this loop runs 200 times a simulated second.
     measure, step, ekf_update = plant.measure, plant.step, ekf.update
     control = manager.update_values  # manager.update(ControllerState(...)) without the object
-    add_row, add_mode = rows.append, modes.append
-    if profile is None:
-        for k in range(steps):
-            meas = measure()
-            t = meas.t
-            est = ekf_update(t, meas.x, meas.theta, force)
-            x, theta, x_dot, theta_dot = est.x, est.theta, est.x_dot, est.theta_dot
-            out = control(est.t, x, theta, x_dot, theta_dot)
-            force = out.force
-            s = plant.state
-            add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
-            add_mode(out.mode)
-            if out.event:
-                events.append((t, out.event))
-            if k + 1 < steps:
-                step(force)
-    else:
-        # The same loop with the wall time of each stage added up.
-        clock = time.perf_counter
-        t_plant = t_ekf = t_ctrl = 0.0
-        for k in range(steps):
+    add_row, add_mode = samples.append, modes.append
+    clock = time.perf_counter if profile is not None else None
+    t_plant = t_ekf = t_ctrl = 0.0
+    for k in range(steps):
+        if clock:
             t0 = clock()
-            meas = measure()
+        meas = measure()
+        if clock:
             t1 = clock()
-            t = meas.t
-            est = ekf_update(t, meas.x, meas.theta, force)
+        t = meas.t
+        est = ekf_update(t, meas.x, meas.theta, force)
+        if clock:
             t2 = clock()
-            x, theta, x_dot, theta_dot = est.x, est.theta, est.x_dot, est.theta_dot
-            out = control(est.t, x, theta, x_dot, theta_dot)
+        x, theta, x_dot, theta_dot = est.x, est.theta, est.x_dot, est.theta_dot
+        out = control(est.t, x, theta, x_dot, theta_dot)
+        if clock:
             t3 = clock()
             t_plant += t1 - t0
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
-            force = out.force
-            s = plant.state
-            add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
-            add_mode(out.mode)
-            if out.event:
-                events.append((t, out.event))
-            if k + 1 < steps:
+        force = out.force
+        s = plant.state
+        add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
+        add_mode(out.mode)
+        if out.event:
+            events.append((t, out.event))
+        if k + 1 < steps:
+            if clock:
                 t0 = clock()
                 step(force)
                 t_plant += clock() - t0
+            else:
+                step(force)
+    if profile is not None:
         for key, value in (('plant', t_plant), ('ekf', t_ekf), ('controller', t_ctrl)):
             profile[key] = profile.get(key, 0.0) + value
         profile['steps'] = profile.get('steps', 0) + steps
-    rows = np.array(rows, dtype=float).reshape(steps, 10)
+    rows = np.array(samples, dtype=float).reshape(steps, 10)
     energy = np.array([pendulum_energy(th, thd, true_params) for th, thd in zip(rows[:, 2], rows[:, 4])])
-    catch_time = next((t for t, e in events if e == 'catch'), None)
+    catch_time = next((t for t, e in events if 'catch' in e.split(';')), None)
     run = RunResult(t=rows[:, 0], x=rows[:, 1], theta=rows[:, 2], x_dot=rows[:, 3],
                     theta_dot=rows[:, 4], x_est=rows[:, 5], theta_est=rows[:, 6],
                     x_dot_est=rows[:, 7], theta_dot_est=rows[:, 8], force=rows[:, 9],

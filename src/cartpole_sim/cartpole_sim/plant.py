@@ -209,36 +209,55 @@ class Plant:
         return x_dot, theta_dot, x_ddot, theta_ddot
 
     def _rk4(self, h: float, force: float) -> None:
-        """One RK4 step of (4.18) with end stops on :attr:`state` (see :meth:`_rk4_step`)."""
-        self.state = list(self._rk4_step(*self.state, h, force))
+        """One RK4 step of (4.18) with end stops on :attr:`state` (see :meth:`_rk4_steps`)."""
+        x, th, v, w, _ = self._rk4_steps(*self.state, h, (force,))
+        self.state = [x, th, v, w]
 
-    def _rk4_step(self, x: float, th: float, v: float, w: float, h: float,
-                  force: float) -> tuple[float, float, float, float]:
-        """One RK4 step of (4.18) with end stops from (x, th, v, w); the new state.
+    def _rk4_steps(self, x: float, th: float, v: float, w: float, h: float,
+                   forces) -> tuple[float, float, float, float, bool]:
+        """RK4 steps of length h of (4.18) with end stops, one per force in ``forces``.
 
-        The same sums as :meth:`_derivative`, unrolled: this is the inner loop
-        of every offline run, so the four stages are written out with local
-        names instead of calling helpers (about 3x faster in CPython);
-        :meth:`_derivative` is the readable reference and a test checks the two
-        agree to the last bit.
+        Returns the final state and whether it was outside the travel after
+        any of the steps (:meth:`in_end_stop`). The same sums as
+        :meth:`_derivative`, unrolled: this is the inner loop of every offline
+        run, so the four stages are written out with local names instead of
+        calling helpers (about 3x faster in CPython); :meth:`_derivative` is
+        the readable reference and a test checks the two agree to the last bit.
         """
         acc = self._acc
         travel = self._travel
         stop = self._end_stop_force
-        # The end-stop force is zero inside the travel; skip the call there.
-        a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
         hh = 0.5 * h
-        x2, th2, v2, w2 = x + hh * v, th + hh * w, v + hh * a1, w + hh * b1
-        a2, b2 = acc(x2, th2, v2, w2, force if 0.0 <= x2 <= travel else force + stop(x2, v2))
-        x3, th3, v3, w3 = x + hh * v2, th + hh * w2, v + hh * a2, w + hh * b2
-        a3, b3 = acc(x3, th3, v3, w3, force if 0.0 <= x3 <= travel else force + stop(x3, v3))
-        x4, th4, v4, w4 = x + h * v3, th + h * w3, v + h * a3, w + h * b3
-        a4, b4 = acc(x4, th4, v4, w4, force if 0.0 <= x4 <= travel else force + stop(x4, v4))
         h6 = h / 6.0
-        return (x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
-                th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
-                v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
-                w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4))
+        outside = False
+        for force in forces:
+            # The end-stop force is zero inside the travel; skip the call there.
+            a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
+            x2 = x + hh * v
+            th2 = th + hh * w
+            v2 = v + hh * a1
+            w2 = w + hh * b1
+            a2, b2 = acc(x2, th2, v2, w2,
+                         force if 0.0 <= x2 <= travel else force + stop(x2, v2))
+            x3 = x + hh * v2
+            th3 = th + hh * w2
+            v3 = v + hh * a2
+            w3 = w + hh * b2
+            a3, b3 = acc(x3, th3, v3, w3,
+                         force if 0.0 <= x3 <= travel else force + stop(x3, v3))
+            x4 = x + h * v3
+            th4 = th + h * w3
+            v4 = v + h * a3
+            w4 = w + h * b3
+            a4, b4 = acc(x4, th4, v4, w4,
+                         force if 0.0 <= x4 <= travel else force + stop(x4, v4))
+            x, th, v, w = (x + h6 * (v + 2.0 * v2 + 2.0 * v3 + v4),
+                           th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
+                           v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+                           w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4))
+            if x < 0.0 or x > travel:
+                outside = True
+        return x, th, v, w, outside
 
     def step(self, force_command: float, duration: float | None = None) -> None:
         """Advance by ``duration`` (one sample period by default) holding ``force_command``.
@@ -255,24 +274,21 @@ class Plant:
         i_target = self._current_target(force_command)
         force_per_ampere = self.true_params.force_per_ampere
         self.force_command = force_command
-        rk4_step = self._rk4_step
-        travel = self._travel
-        x, th, v, w = self.state
+        # The current loop over the n steps first (it does not depend on the
+        # mechanics): the force of each step, the mean current times k_t / r.
+        forces = []
         current = self.current
-        t = self.t
-        contact = self.end_stop_contact
         for _ in range(n):
-            i0 = current
-            mean_current = i_target + (i0 - i_target) * mean_factor
-            x, th, v, w = rk4_step(x, th, v, w, h, mean_current * force_per_ampere)
-            current = i_target + (i0 - i_target) * decay
-            t += h
-            if not contact and (x < 0.0 or x > travel):  # in_end_stop()
-                contact = True
+            forces.append((i_target + (current - i_target) * mean_factor) * force_per_ampere)
+            current = i_target + (current - i_target) * decay
+        x, th, v, w, outside = self._rk4_steps(*self.state, h, forces)
         self.state = [x, th, v, w]
         self.current = current
-        self.t = t
-        self.end_stop_contact = contact
+        # Time in whole nanoseconds, like a ROS stamp: no drift from adding
+        # h = 0.001 thousands of times (5.55 s stays 5.55, not 5.550000000000188).
+        self.t = round((self.t + n * h) * 1e9) / 1e9
+        if outside:
+            self.end_stop_contact = True
 
     # -- encoders (2.3), (2.4) ----------------------------------------------------------
     def encoder_counts(self) -> tuple[int, int]:

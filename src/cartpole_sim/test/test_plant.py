@@ -264,9 +264,9 @@ def test_step_equals_the_rk4_substeps_on_the_plant_bit_for_bit():
             i0 = b.current
             b._rk4(h, (i_target + (i0 - i_target) * mean_factor) * p.force_per_ampere)
             b.current = i_target + (i0 - i_target) * decay
-            b.t += h
             if not b.end_stop_contact and b.in_end_stop():
                 b.end_stop_contact = True
+        b.t = round((b.t + n * h) * 1e9) / 1e9  # whole nanoseconds
         assert (a.state, a.current, a.t, a.end_stop_contact) == \
             (b.state, b.current, b.t, b.end_stop_contact)
         assert a.measure() == b.measure()
@@ -280,3 +280,11 @@ def test_measurement_built_directly_equals_the_dataclass_constructor():
     assert hash(m) == hash(Measurement(0.005, 12, -7, 0.001, 3.1))
     with pytest.raises(Exception):
         m.x = 1.0
+
+
+def test_sample_times_are_whole_nanoseconds_without_drift():
+    plant = Plant(NOMINAL, Scenario())
+    for k in range(1, 2001):
+        plant.step(0.0)
+        assert plant.t == round(k * 5_000_000) / 1e9
+    assert plant.measure().t == 10.0
