@@ -1,0 +1,71 @@
+"""The benchmarks run end to end at a tiny size and write their reports (no timing asserted),
+and the controller sweep gives the same numbers serially, on a process pool and on Dask."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from cartpole_bringup import bench_control as bc
+
+
+def cartpole(*argv, timeout=600):
+    out = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', *argv],
+                         capture_output=True, text=True, timeout=timeout)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out
+
+
+@pytest.mark.slow
+def test_sweep_is_identical_serially_on_a_pool_and_on_dask():
+    from distributed import Client, LocalCluster
+
+    cases = bc.make_cases(['sign_based'], ['smc'], ['nominal', 'mass-10%'], seeds=2, duration=6.0)
+    serial = bc.run_sweep(cases, workers=1)
+    pool = bc.run_sweep(cases, workers=2)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        dask = bc.run_sweep(cases, dask_address=cluster.scheduler_address)
+    assert serial == pool == dask
+    # Different seeds really are different runs (noise is on), so equality means something.
+    assert serial[0]['mse_x'] != serial[1]['mse_x']
+    assert [r['scenario'] for r in serial] == [c.scenario for c in cases]
+
+
+def test_unknown_scenario_is_refused_with_the_list():
+    with pytest.raises(ValueError, match='nominal'):
+        bc.make_cases(['sign_based'], ['smc'], ['mass-50%'], seeds=1)
+
+
+@pytest.mark.slow
+def test_bench_control_writes_table_json_and_figures(tmp_path):
+    out = cartpole('bench', 'control', '--seeds', '1', '--duration', '12', '--swingups', 'sign_based',
+                   '--stabilizers', 'smc', 'pid', '--scenarios', 'nominal', 'friction x1.2',
+                   '--workers', '2', '--no-bound', '--out', str(tmp_path))
+    report = (tmp_path / 'control.md').read_text()
+    assert '| swing-up | stabiliser | runs | success |' in report
+    assert 'sign_based | smc | friction x1.2 | 1 |' in report
+    results = json.loads((tmp_path / 'control.json').read_text())
+    assert len(results) == 4 and {r['stabilizer'] for r in results} == {'smc', 'pid'}
+    for png in ('success_heatmap.png', 'catch_times.png'):
+        assert (tmp_path / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert 'control.md' in out.stdout or 'written to' in out.stdout
+
+
+def test_bench_offline_reports_speed_and_stage_costs(tmp_path):
+    cartpole('bench', 'offline', '--duration', '3', '--repeat', '1', '--out', str(tmp_path))
+    report = (tmp_path / 'offline.md').read_text()
+    assert 'simulated seconds per wall second' in report
+    result = json.loads((tmp_path / 'offline.json').read_text())
+    assert result['speed_x_real_time'] > 0
+    assert set(result['per_step_us']) == {'plant', 'ekf', 'controller'}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_bench_loop_measures_graph_and_floor(tmp_path):
+    cartpole('bench', 'loop', '--duration', '3', '--modes', 'single', '--out', str(tmp_path))
+    report = (tmp_path / 'loop.md').read_text()
+    assert 'our graph' in report and 'bare rclpy floor' in report and 'p99 ratio' in report
+    result = json.loads((tmp_path / 'loop.json').read_text())
+    assert result['single']['graph']['commands'] > 0 and result['single']['bare']['commands'] > 0
