@@ -36,7 +36,7 @@ from .catch import CatchTrigger
 from .controller import KINDS, STABILIZER, SWINGUP, ControlContext, Controller, ControllerState, \
     ParameterSpec
 from .feedforward import FrictionFeedforward
-from .rail_guard import BRAKING, RailGuard
+from .rail_guard import BRAKING, STOPPED, RailGuard
 from .registry import load_controllers
 
 logger = logging.getLogger(__name__)
@@ -507,7 +507,9 @@ class ControllerManager:
                     feedforward = self._feedforward(x_dot, raw)
                     force = min(max(raw + feedforward, self._force_min), self._force_max)
         guard = self._guard
-        if self.mode in _KIND_OF_MODE or guard.status == BRAKING:
+        # After a trip the guard keeps hold: a cart it has stopped is braked again
+        # if anything (a falling pendulum) drags it, so it never drifts into a stop.
+        if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
             force, tripped = guard.command(x, x_dot, theta_dot, force)
             if tripped:
                 self._fault('rail guard', events)
