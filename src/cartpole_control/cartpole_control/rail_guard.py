@@ -45,6 +45,8 @@ ARMED = 'armed'
 LIMITED = 'limited'
 BRAKING = 'braking'
 STOPPED = 'stopped'
+HOLD_SPEED = 0.002
+"""[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
 
 
 @dataclass(frozen=True)
@@ -159,7 +161,9 @@ class RailGuard:
         The manager's per-cycle call (no GuardAction to build).
         """
         status = self.status
-        if status == BRAKING or status == STOPPED:
+        if status == STOPPED:
+            return self._hold(x, x_dot), False
+        if status == BRAKING:
             return self._brake(x_dot), False
         stop = self.stopping_position(x, x_dot, theta_dot, force)
         towards_right = stop > self._high and stop > x
@@ -173,6 +177,23 @@ class RailGuard:
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
         return self._brake(x_dot), True
+
+    def _hold(self, x: float, x_dot: float) -> float:
+        """After a trip, at rest: zero force, unless the cart creeps towards the nearer stop.
+
+        A pendulum falling or swinging after the trip can drag the stopped cart
+        slowly (below ``rest_speed``) for seconds; any motion towards the nearer
+        stop faster than :data:`HOLD_SPEED` is braked with the force that stops
+        it within one sample (at most the full brake).
+        """
+        towards_stop = x_dot < -HOLD_SPEED if x < 0.5 * self.params.travel else x_dot > HOLD_SPEED
+        if not towards_stop:
+            return 0.0
+        if abs(x_dot) > self.rest_speed:
+            return self._brake(x_dot)
+        direction = math.copysign(1.0, x_dot)
+        brake = self._brake_pos if direction > 0.0 else self._brake_neg
+        return -direction * min(brake, self._mass * abs(x_dot) / self.params.sample_time)
 
     def _brake(self, x_dot: float) -> float:
         if abs(x_dot) <= self.rest_speed:

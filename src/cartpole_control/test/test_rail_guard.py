@@ -158,3 +158,21 @@ def test_cached_constants_give_the_formulas_bit_for_bit():
             expected = 0.0 if abs(x_dot) <= guard.rest_speed else -math.copysign(magnitude, x_dot)
             assert guard.check(x, x_dot, theta_dot, force).force == expected
             guard.reset()
+
+
+def test_after_a_trip_the_guard_holds_a_creeping_cart_off_the_nearer_stop():
+    # After tripping and stopping, the guard commands zero force, but a falling pendulum
+    # can drag the cart below rest_speed for seconds: creeping towards the nearer stop
+    # is braked, creeping away (or standing) is left alone.
+    from cartpole_control.rail_guard import STOPPED, RailGuard
+    from cartpole_sim.model import CartPoleParameters
+    p = CartPoleParameters()
+    guard = RailGuard(p)
+    guard.status = STOPPED
+    near_left, near_right = 0.01, p.travel - 0.01
+    assert guard.command(near_left, -0.01, 0.0, 0.0)[0] > 0.0
+    assert guard.command(near_right, 0.01, 0.0, 0.0)[0] < 0.0
+    assert guard.command(near_left, 0.01, 0.0, 0.0)[0] == 0.0
+    assert guard.command(near_right, -0.01, 0.0, 0.0)[0] == 0.0
+    assert guard.command(near_left, 0.0, 0.0, 5.0)[0] == 0.0  # a controller's push is not passed
+    assert guard.status == STOPPED
