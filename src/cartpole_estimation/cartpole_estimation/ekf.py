@@ -31,7 +31,7 @@ factor 1 - 0.72 = 0.28 at rest, still stable for sub-steps up to 2.8 Ts and
 cart slide under forces below the stiction level (a 2 N push gives a
 0.03 m/s velocity bias at k = 20); 200 gave the smallest velocity errors on
 the free-swing, forced-cart and stuck-cart tests (see
-``docs/readme/estimation.md``).
+the README, "State estimation").
 
 No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline
 closed loop both use this module. Deterministic: the same inputs give the

@@ -255,7 +255,7 @@ class EkfNode(Node):
 
     # -- health ---------------------------------------------------------------------------
     def health_status(self) -> DiagnosticStatus:
-        """The DiagnosticStatus ``ekf`` (see docs/readme/estimation.md for the keys)."""
+        """The DiagnosticStatus ``ekf`` (see the README, "State estimation", for the keys)."""
         est = self._last_estimate
         f = self.filter
         status = DiagnosticStatus(name='ekf', hardware_id='cartpole')

@@ -1,6 +1,6 @@
 """``cartpole run --sim | --hw --port DEV``: the node graph, optionally recorded, then its summary.
 
-See docs/readme/run.md. The graph itself is :mod:`cartpole_bringup.graph`.
+See the README, "Running the graph, recording, analysing". The graph itself is :mod:`cartpole_bringup.graph`.
 """
 from __future__ import annotations
 

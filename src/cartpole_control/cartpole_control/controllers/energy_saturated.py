@@ -56,7 +56,7 @@ DEFAULT_GAINS: dict[str, float] = {
     'brake_acceleration': 5.0,
     'dead_time': 0.01,
 }
-"""Tuned defaults (see docs/readme/fast_swingup.md for the tuning runs)."""
+"""Tuned defaults (see the README, "Fast swing-up near the physical limit", for the tuning runs)."""
 
 
 def exact_force_for_acceleration(a: float, theta: float, theta_dot: float,
