@@ -18,7 +18,7 @@ def cartpole(*argv, timeout=600):
 
 @pytest.mark.slow
 def test_sweep_is_identical_serially_on_a_pool_and_on_dask():
-    from distributed import Client, LocalCluster
+    from distributed import LocalCluster
 
     cases = bc.make_cases(['sign_based'], ['smc'], ['nominal', 'mass-10%'], seeds=2, duration=6.0)
     serial = bc.run_sweep(cases, workers=1)

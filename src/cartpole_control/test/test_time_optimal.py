@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from cartpole_control.controller import ControlContext, ControllerState
-from cartpole_control.controllers.time_optimal import (FALLBACK, PLAN, TimeOptimalSwingUp,
-                                                       plan_problem)
+from cartpole_control.controllers.time_optimal import FALLBACK, PLAN, TimeOptimalSwingUp
 from cartpole_control.registry import load_controllers
 from cartpole_sim.model import CartPoleParameters
 
@@ -121,7 +120,6 @@ def test_fall_back_engages_for_a_start_far_from_the_plan_and_still_catches(cache
 @pytest.mark.parametrize('name', ['time_optimal', 'energy_saturated'])
 def test_switching_by_parameter_set_like_any_swingup(ros_context, spin_until, tmp_path, name):
     """What `ros2 param set /controller_manager swingup <name>` sends: the SetParameters service."""
-    rclpy = pytest.importorskip('rclpy')
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.msg import ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
