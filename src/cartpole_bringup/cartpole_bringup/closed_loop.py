@@ -123,7 +123,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         profile['steps'] = profile.get('steps', 0) + steps
     rows = np.array(samples, dtype=float).reshape(steps, 10)
     energy = np.array([pendulum_energy(th, thd, true_params) for th, thd in zip(rows[:, 2], rows[:, 4])])
-    catch_time = next((t for t, e in events if 'catch' in e.split(';')), None)
+    catch_time = manager.catch_time  # the manager keeps the time of its first catch
     run = RunResult(t=rows[:, 0], x=rows[:, 1], theta=rows[:, 2], x_dot=rows[:, 3],
                     theta_dot=rows[:, 4], x_est=rows[:, 5], theta_est=rows[:, 6],
                     x_dot_est=rows[:, 7], theta_dot_est=rows[:, 8], force=rows[:, 9],
