@@ -20,6 +20,8 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 from cartpole_sim.model import CartPoleParameters, wrap_angle
 
+from .feedforward import FrictionFeedforward
+
 API_VERSION = 1
 """Version of this contract. Bump on any incompatible change."""
 
@@ -118,6 +120,9 @@ class ControlContext:
     """Cart reference x* [m]."""
     sample_time: float
     """Control period Ts [s]."""
+    feedforward: FrictionFeedforward = FrictionFeedforward()
+    """The cart friction feedforward (6.12) the manager adds to every raw
+    output; a law whose plan already pays for friction subtracts it."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting

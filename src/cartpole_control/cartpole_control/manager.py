@@ -54,6 +54,17 @@ _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 
 MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
+CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness')
+"""Manager parameters that the plugins see through their ControlContext."""
+
+
+def _friction_feedforward(values: Mapping[str, Any]) -> FrictionFeedforward:
+    return FrictionFeedforward(values['feedforward.right'], values['feedforward.left'],
+                               values['feedforward.steepness'])
+
+
+def _changes_context(changes: Mapping[str, Any], current: Mapping[str, Any]) -> bool:
+    return any(key in CONTEXT_KEYS and changes[key] != current[key] for key in changes)
 """Parameter groups of the manager itself; a plugin cannot take these names."""
 
 
@@ -246,7 +257,8 @@ class ControllerManager:
 
     def _make_context(self, values: Mapping[str, Any]) -> ControlContext:
         return ControlContext(plant=self.plant, x_ref=float(values['x_ref']),
-                              sample_time=self.sample_time)
+                              sample_time=self.sample_time,
+                              feedforward=_friction_feedforward(values))
 
     def _gains(self, name: str, values: Mapping[str, Any]) -> dict[str, Any]:
         prefix = name + '.'
@@ -263,8 +275,7 @@ class ControllerManager:
         trigger = CatchTrigger(energy_tolerance=v['catch.energy_tolerance'],
                                angle=math.radians(v['catch.angle_deg']),
                                fall_angle=math.radians(v['fall.angle_deg']))
-        feedforward = FrictionFeedforward(v['feedforward.right'], v['feedforward.left'],
-                                          v['feedforward.steepness'])
+        feedforward = _friction_feedforward(v)
         guard = RailGuard(self.plant, margin=v['rail.margin'],
                           max_brake_force=v['rail.max_brake_force'],
                           latency=v['rail.latency'], rest_speed=v['rail.rest_speed'])
@@ -299,7 +310,7 @@ class ControllerManager:
         candidate.update(out)
         self._build_blocks(candidate)  # cross-checks, e.g. the fall angle above the catch angle
         context = dataclasses.replace(self._make_context(candidate), validation_only=True)
-        context_changed = candidate['x_ref'] != self._values['x_ref']
+        context_changed = _changes_context(out, self._values)
         for kind in KINDS:
             for name in self._registry[kind]:
                 prefix = name + '.'
@@ -411,7 +422,7 @@ class ControllerManager:
             guard_status = self._guard.status
             self._trigger, self._feedforward, self._guard = self._build_blocks(values)
             self._guard.status = guard_status
-            context_changed = 'x_ref' in pending
+            context_changed = any(key in CONTEXT_KEYS for key in pending)
             if context_changed:
                 self._context = self._make_context(values)
             for kind in KINDS:

@@ -185,3 +185,18 @@ def test_validating_a_change_starts_no_background_solve(tmp_path, monkeypatch):
     assert started == []
     TimeOptimalSwingUp().configure({}, context)
     assert len(started) == 1
+
+
+def test_plan_force_is_net_of_the_managers_own_feedforward_settings():
+    # The plan pays for friction; the plugin removes exactly the feedforward the manager
+    # will add, as the manager is configured (ControlContext.feedforward), not a copy.
+    from cartpole_control.feedforward import FrictionFeedforward
+    from cartpole_control.manager import ControllerManager
+    from cartpole_sim.model import CartPoleParameters
+    p = CartPoleParameters()
+    m = ControllerManager(p, sample_time=p.sample_time)
+    assert m.set_parameters({'swingup': 'time_optimal', 'feedforward.right': 4.0,
+                             'feedforward.steepness': 50.0}).successful
+    m.update_values(0.0, 0.0, math.pi, 0.0, 0.0)  # applies the queued change
+    plugin = m._plugins['swingup']
+    assert plugin.context.feedforward == FrictionFeedforward(4.0, 2.8, 50.0)

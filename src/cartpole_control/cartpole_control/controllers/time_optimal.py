@@ -19,9 +19,8 @@ diag(q) and r), the desired actuator force is
 
 The plan's model contains the cart friction, so Fbar already pays for it;
 the manager adds the feedforward (6.12) c_c(x_dot) tanh(k u) on top of the
-raw output. The plugin subtracts that (with its own copy of the manager's
-levels ``feedforward_right``/``feedforward_left``/``feedforward_steepness``,
-the manager's defaults), so the actuator gets F_k.
+raw output. The plugin subtracts that (the manager's own feedforward, handed
+over in :attr:`ControlContext.feedforward`), so the actuator gets F_k.
 
 Fall-back to :class:`~.energy_saturated.EnergySaturatedSwingUp` (its default
 gains) when
@@ -143,13 +142,6 @@ class TimeOptimalSwingUp(Controller):
                       low=0.0, high=0.769),
         ParameterSpec('cache_dir', '', 'directory of the plan cache; empty: '
                       '$CARTPOLE_CACHE_DIR or ~/.cache/cartpole/trajectories'),
-        ParameterSpec('feedforward_right', 3.3, "the manager's (6.12) c_c,R, subtracted from "
-                      'the planned force (the plan already pays for friction) [N]',
-                      low=0.0, high=20.0),
-        ParameterSpec('feedforward_left', 2.8, "the manager's (6.12) c_c,L [N]", low=0.0,
-                      high=20.0),
-        ParameterSpec('feedforward_steepness', 20.0, "the manager's (6.12) k [1/N]",
-                      low=0.0, high=1000.0),
     )
 
     def __init__(self) -> None:
@@ -278,11 +270,6 @@ class TimeOptimalSwingUp(Controller):
             self.fallback.deactivate()
 
     # -- the law -----------------------------------------------------------------------------------
-    def _feedforward(self, x_dot: float, u: float) -> float:
-        g = self.gains
-        c_c = g['feedforward_right'] if x_dot >= 0.0 else g['feedforward_left']
-        return c_c * math.tanh(g['feedforward_steepness'] * u)
-
     def planned_force(self, state: ControllerState) -> float | None:
         """F_k = Fbar_k - K_k (x_k - xbar_k), or None when the plan is invalid or over."""
         plan, gains_k = self._plan, self._gains_k
@@ -305,6 +292,6 @@ class TimeOptimalSwingUp(Controller):
         if self.mode == PLAN:
             force = self.planned_force(state)
             if force is not None:
-                return force - self._feedforward(state.x_dot, force)
+                return force - self.context.feedforward(state.x_dot, force)
             self._fall_back(state, self.fallback_reason)
         return self.fallback.update(state)
