@@ -16,7 +16,10 @@ What is taken from where:
 - catch time: the first ``/cartpole/controller_status`` whose ``event`` has
   ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
-- end-stop contact: the true cart position outside [0, travel] (simulator);
+- end-stop contact: the plant's own contact state (simulator): a non-zero
+  end-stop force in ``effort[1]`` of ``/cartpole/true_state``, or (bags
+  written before it was published) the true position past a stop by more
+  than the plant's tolerance;
   on hardware, a limit flag ``limit_left`` / ``limit_right`` of
   ``/cartpole/hw/health`` closing after it was seen open (the cart starts on
   the left switch); with neither, the estimate outside [0, travel];
@@ -81,6 +84,8 @@ class SeriesBuilder:
     controllers: dict[str, str] = field(default_factory=dict)
     """swingup / stabilizer names from the last status."""
     limit_flag: bool = False
+    truth_contact: bool = False
+    """A ``/cartpole/true_state`` sample carried a non-zero end-stop force."""
     hw_health_seen: bool = False
     status_count: int = 0
     _limit_open: dict[str, bool] = field(default_factory=dict)
@@ -90,6 +95,8 @@ class SeriesBuilder:
         if topic in self.states and len(position) >= 2 and len(velocity) >= 2:
             self.states[topic].append((stamp_ns, float(position[0]), float(position[1]),
                                        float(velocity[0]), float(velocity[1])))
+            if topic == TRUE_STATE and len(effort) >= 2 and effort[1] != 0.0:
+                self.truth_contact = True
         elif topic == FORCE and len(effort) >= 1:
             self.forces.append((stamp_ns, float(effort[0])))
 
@@ -148,7 +155,7 @@ class SeriesBuilder:
                                        catch_time=catch, t_force=(forces[:, 0] - t0) * 1e-9,
                                        label=label)
         if source == TRUE_STATE:
-            contact = metrics.end_stop_touched(series.x, params.travel)
+            contact = self.truth_contact or metrics.end_stop_touched(series.x, params.travel)
         elif self.hw_health_seen:
             contact = self.limit_flag
         else:

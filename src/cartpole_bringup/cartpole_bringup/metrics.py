@@ -11,6 +11,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cartpole_sim.plant import END_STOP_TOLERANCE
+
 UPRIGHT_DEG = 10.0
 """Requirement 3.1.2-1: within +/-10 deg of upright."""
 THETA_AMP_LIMIT_DEG = 2.0
@@ -75,7 +77,12 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     }
 
 
-def end_stop_touched(x: Sequence[float], travel: float) -> bool:
-    """Ground truth contact: the cart left [0, travel] at any sample."""
+def end_stop_touched(x: Sequence[float], travel: float,
+                     tolerance: float = END_STOP_TOLERANCE) -> bool:
+    """Contact from positions: the cart went past [0, travel] by more than ``tolerance`` [m].
+
+    The plant's own criterion (:data:`cartpole_sim.plant.END_STOP_TOLERANCE`),
+    for series that do not carry the plant's contact state.
+    """
     x = np.asarray(x, dtype=float)
-    return bool(np.any(x < 0.0) or np.any(x > travel))
+    return bool(np.any(x < -tolerance) or np.any(x > travel + tolerance))

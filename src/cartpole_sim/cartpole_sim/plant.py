@@ -25,6 +25,12 @@ import numpy as np
 
 from .model import CartPoleParameters, acceleration_function, accelerations
 
+END_STOP_TOLERANCE = 1.0e-6
+"""[m] Penetration past an end stop that counts as contact: 1 um, 1 N of stop
+force at the stiffness 1e6 N/m, far below one cart encoder tick (88 um). A
+cart resting at the left stop after reset sits at x = 0 up to round-off
+(e.g. -1.7e-22 m); a sign test on that float is not a contact."""
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -160,6 +166,10 @@ class Plant:
         self.current = 0.0
         self.force_command = 0.0
         self.end_stop_contact = False
+        """Latched: the cart was pressed into a stop by more than END_STOP_TOLERANCE."""
+        self.contact_penetration = 0.0
+        """Deepest penetration past a stop during the last step [m]: positive at
+        the left stop, negative at the right one, 0.0 within the tolerance."""
         self._rng = np.random.default_rng(self.scenario.seed)
         self._unwrap_cart = CounterUnwrapper(self.params.counter_bits)
         self._unwrap_pend = CounterUnwrapper(self.params.counter_bits)
@@ -173,7 +183,18 @@ class Plant:
         return self.current * self.true_params.force_per_ampere
 
     def in_end_stop(self) -> bool:
-        return self.state[0] < 0.0 or self.state[0] > self.true_params.travel
+        """The cart is pressed into a stop by more than :data:`END_STOP_TOLERANCE`."""
+        x = self.state[0]
+        return x < -END_STOP_TOLERANCE or x > self.true_params.travel + END_STOP_TOLERANCE
+
+    @property
+    def end_stop_force(self) -> float:
+        """The stops' spring force on the cart at the deepest point of the last step [N].
+
+        Positive from the left stop (pushing right), negative from the right
+        one; exactly 0.0 unless the penetration exceeded :data:`END_STOP_TOLERANCE`.
+        """
+        return self.true_params.end_stop_stiffness * self.contact_penetration
 
     # -- actuator (4.4) and saturation (Appendix C) -------------------------------
     def _current_target(self, force_command: float) -> float:
@@ -217,8 +238,9 @@ class Plant:
                    forces) -> tuple[float, float, float, float, bool]:
         """RK4 steps of length h of (4.18) with end stops, one per force in ``forces``.
 
-        Returns the final state and whether it was outside the travel after
-        any of the steps (:meth:`in_end_stop`). The same sums as
+        Returns the final state and the deepest penetration past a stop after
+        any of the steps (positive at the left stop, negative at the right one,
+        0.0 if none went past :data:`END_STOP_TOLERANCE`; see :meth:`in_end_stop`). The same sums as
         :meth:`_derivative`, unrolled: this is the inner loop of every offline
         run, so the four stages are written out with local names instead of
         calling helpers (about 3x faster in CPython); :meth:`_derivative` is
@@ -229,7 +251,7 @@ class Plant:
         stop = self._end_stop_force
         hh = 0.5 * h
         h6 = h / 6.0
-        outside = False
+        deepest = 0.0
         for force in forces:
             # The end-stop force is zero inside the travel; skip the call there.
             a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
@@ -255,9 +277,13 @@ class Plant:
                            th + h6 * (w + 2.0 * w2 + 2.0 * w3 + w4),
                            v + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
                            w + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4))
-            if x < 0.0 or x > travel:
-                outside = True
-        return x, th, v, w, outside
+            if x < -END_STOP_TOLERANCE:
+                if -x > abs(deepest):
+                    deepest = -x
+            elif x > travel + END_STOP_TOLERANCE:
+                if x - travel > abs(deepest):
+                    deepest = travel - x
+        return x, th, v, w, deepest
 
     def step(self, force_command: float, duration: float | None = None) -> None:
         """Advance by ``duration`` (one sample period by default) holding ``force_command``.
@@ -281,13 +307,14 @@ class Plant:
         for _ in range(n):
             forces.append((i_target + (current - i_target) * mean_factor) * force_per_ampere)
             current = i_target + (current - i_target) * decay
-        x, th, v, w, outside = self._rk4_steps(*self.state, h, forces)
+        x, th, v, w, deepest = self._rk4_steps(*self.state, h, forces)
         self.state = [x, th, v, w]
         self.current = current
         # Time in whole nanoseconds, like a ROS stamp: no drift from adding
         # h = 0.001 thousands of times (5.55 s stays 5.55, not 5.550000000000188).
         self.t = round((self.t + n * h) * 1e9) / 1e9
-        if outside:
+        self.contact_penetration = deepest
+        if deepest:
             self.end_stop_contact = True
 
     # -- encoders (2.3), (2.4) ----------------------------------------------------------

@@ -244,7 +244,7 @@ class SimNode(Node):
         truth.name = [CART_JOINT, PENDULUM_JOINT]
         truth.position = [x, theta]
         truth.velocity = [x_dot, theta_dot]
-        truth.effort = [sample.actuator_force, 0.0]
+        truth.effort = [sample.actuator_force, sample.end_stop_force]
         self._pub_truth.publish(truth)
 
     # -- stepping ---------------------------------------------------------------------------

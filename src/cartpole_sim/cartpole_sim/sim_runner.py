@@ -49,6 +49,9 @@ class Sample:
     measurement: Measurement
     true_state: tuple[float, float, float, float]
     actuator_force: float
+    end_stop_force: float = 0.0
+    """The stops' peak spring force on the cart over the period that ended here
+    [N]; 0.0 unless the cart was pressed into a stop (:attr:`Plant.end_stop_force`)."""
 
 
 class SimRunner:
@@ -157,4 +160,5 @@ class SimRunner:
         return Sample(index=self.index, stamp_ns=self.stamp_ns,
                       measurement=self.plant.measure(),
                       true_state=tuple(float(v) for v in self.plant.state),
-                      actuator_force=self.plant.force)
+                      actuator_force=self.plant.force,
+                      end_stop_force=self.plant.end_stop_force)

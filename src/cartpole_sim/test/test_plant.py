@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import CounterUnwrapper, Plant, Scenario, wrap_counter
+from cartpole_sim.plant import END_STOP_TOLERANCE, CounterUnwrapper, Plant, Scenario, \
+    wrap_counter
 
 NOMINAL = CartPoleParameters()
 FRICTIONLESS = NOMINAL.replace(c_c_right=0.0, c_c_left=0.0, v_c=0.0, c_p=0.0, v_p=0.0)
@@ -288,3 +289,29 @@ def test_sample_times_are_whole_nanoseconds_without_drift():
         plant.step(0.0)
         assert plant.t == round(k * 5_000_000) / 1e9
     assert plant.measure().t == 10.0
+
+
+def test_resting_at_the_left_stop_is_not_a_contact():
+    # The default start: cart against the left stop, no force. Round-off may leave x a
+    # hair below 0 (-1.7e-22 m was seen); contact means the stop was pressed in (> 1 um).
+    plant = Plant(NOMINAL, Scenario())
+    for _ in range(400):
+        plant.step(0.0)
+        assert plant.end_stop_force == 0.0
+    assert not plant.end_stop_contact and not plant.in_end_stop()
+    plant.state[0] = -0.5 * END_STOP_TOLERANCE
+    assert not plant.in_end_stop()
+
+
+@pytest.mark.parametrize('command,x0,sign', [(1000.0, 0.0, -1.0), (-1000.0, 0.769, 1.0)])
+def test_end_stop_force_pushes_the_cart_back(command, x0, sign):
+    # Driven into the right stop the stop pushes left (negative), into the left one right.
+    plant = Plant(NOMINAL, Scenario(x0=x0))
+    peak = 0.0
+    for _ in range(200):
+        plant.step(command)
+        if abs(plant.end_stop_force) > abs(peak):
+            peak = plant.end_stop_force
+    assert plant.end_stop_contact
+    # The 2 m/s impact presses the stop in by ~4.5 mm: ~4.5 kN of spring force.
+    assert sign * peak > 1000.0
