@@ -47,6 +47,12 @@ class RunResult:
     x_ref: float
     upright_energy: float
     summary: dict[str, Any] = field(default_factory=dict)
+    lost_samples: int = 0
+    """Samples the plant lost on the way to the host (scenario ``drop``)."""
+    lost_at: tuple[float, ...] = ()
+    """Their sample times [s]."""
+    ekf_missed_samples: int = 0
+    """Missed samples the EKF bridged by prediction (it saw the gaps)."""
 
 
 def run_closed_loop(nominal: CartPoleParameters | None = None,
@@ -64,6 +70,13 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     ``{'swingup': 'full_energy', 'lqg.q': [...]}``); a refused one raises
     ValueError with the manager's reason. With ``profile`` (a dict) the wall
     time spent in each stage (``plant``, ``ekf``, ``controller``) is added to it.
+
+    A sample the scenario loses (``drop``) never reaches the EKF and the
+    controller manager, as on the graph: no estimate, no new command, the
+    plant holds the last one; the EKF predicts across the gap at the next
+    sample and reports it (``StateEstimate.missed_samples``). Its row repeats
+    the last estimate (NaN before the first). With ``drop`` the summary gets
+    ``lost_samples`` and ``ekf_missed_samples``.
     """
     nominal = nominal or CartPoleParameters()
     scenario = scenario or Scenario()
@@ -87,6 +100,11 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     add_row, add_mode = samples.append, modes.append
     clock = time.perf_counter if profile is not None else None
     t_plant = t_ekf = t_ctrl = 0.0
+    sample_lost = plant.sample_lost if scenario.drop else None
+    nan = float('nan')
+    x = theta = x_dot = theta_dot = nan  # no estimate before the first sample arrives
+    mode = manager.mode
+    lost_at: list[float] = []
     for k in range(steps):
         if clock:
             t0 = clock()
@@ -94,6 +112,14 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         if clock:
             t1 = clock()
         t = meas.t
+        if sample_lost and sample_lost():
+            lost_at.append(t)
+            s = plant.state
+            add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
+            add_mode(mode)
+            if k + 1 < steps:
+                step(force)  # the held command
+            continue
         est = ekf_update(t, meas.x, meas.theta, force)
         if clock:
             t2 = clock()
@@ -105,9 +131,10 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
         force = out.force
+        mode = out.mode
         s = plant.state
         add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
-        add_mode(out.mode)
+        add_mode(mode)
         if out.event:
             events.append((t, out.event))
         if k + 1 < steps:
@@ -129,7 +156,12 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     x_dot_est=rows[:, 7], theta_dot_est=rows[:, 8], force=rows[:, 9],
                     energy=energy, mode=modes, events=events, catch_time=catch_time,
                     end_stop_contact=plant.end_stop_contact, x_ref=x_ref,
-                    upright_energy=true_params.upright_energy)
+                    upright_energy=true_params.upright_energy,
+                    lost_samples=plant.lost_samples, lost_at=tuple(lost_at),
+                    ekf_missed_samples=ekf.missed_samples_total)
     run.summary = metrics.summarize(run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
                                     end_stop_contact=plant.end_stop_contact)
+    if scenario.drop:
+        run.summary.update(lost_samples=run.lost_samples,
+                           ekf_missed_samples=run.ekf_missed_samples)
     return run

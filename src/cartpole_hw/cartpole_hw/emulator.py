@@ -13,9 +13,14 @@ Per sample period: read the limit switches (cart within ``limit_margin`` of a
 stop or in it), run the watchdog, send ``S`` if streaming, then hold the DAC
 output over the next 5 ms of the plant (zero-order hold).
 
-Faults (for testing the bridge):
+The plant runs the scenario's disturbances (:mod:`cartpole_sim.scenario`:
+delay, jitter, actuator gain and lag, force noise, pushes, model errors);
+a sample the scenario loses (``drop``) is not sent (its ``seq`` is skipped,
+so the host sees the gap).
 
-- ``drop``: each outgoing line is lost with this probability;
+Faults of the link (for testing the bridge):
+
+- ``drop`` (``--drop-lines``): each outgoing line is lost with this probability;
 - ``corrupt``: each outgoing line gets one random byte replaced (never by ``\\n``);
 - stall: the USB link freezes for N ms: nothing is read (host bytes wait in
   the pty and arrive late) and the lines produced meanwhile are lost; the
@@ -42,6 +47,7 @@ from dataclasses import dataclass, field
 
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario, wrap_counter
+from cartpole_sim.scenario_options import add_scenario_arguments, scenario_from_args
 
 from . import protocol as jp
 from .device import DeviceLogic
@@ -222,8 +228,9 @@ class Emulator:
         for line in self.device.tick(self.t_us, left, right):
             self._send(line)
         cart, pend = self.counters()
+        lost = self.plant.sample_lost()  # scenario drop: this sample never reaches the host
         line = self.device.sample_line(self.t_us, cart, pend)
-        if line is not None:
+        if line is not None and not lost:
             self._send(line)
         force = self.calibration.setpoint_to_force(self.device.output_setpoint())
         self.plant.step(force)
@@ -337,24 +344,18 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
                         'e.g. /tmp/cartpole-emu; give this path to the bridge')
     p.add_argument('--name', default='cartpole_emulator', help='firmware name in the V answer')
     p.add_argument('--duration', type=float, default=None, metavar='S', help='exit after S seconds')
-    p.add_argument('--tip-mass', type=float, default=None, metavar='KG')
-    p.add_argument('--friction-scale', type=float, default=1.0, metavar='F')
-    p.add_argument('--theta0', type=float, default=math.pi, metavar='RAD',
-                   help='initial pendulum angle (default pi, hanging)')
-    p.add_argument('--x0', type=float, default=0.0, metavar='M',
-                   help='initial cart position from the left stop (default 0)')
-    p.add_argument('--noise', action='store_true', help='encoder noise before quantisation')
-    p.add_argument('--seed', type=int, default=0)
     p.add_argument('--params', metavar='FILE.yaml', help='plant parameters (CartPoleParameters YAML)')
     p.add_argument('--limit-margin', type=float, default=0.003, metavar='M',
                    help='limit switches close this close to a stop (default 3 mm)')
-    p.add_argument('--drop', type=_probability, default=0.0, help='probability of losing a line')
+    p.add_argument('--drop-lines', type=_probability, default=0.0, metavar='P',
+                   help='probability of losing any line sent (a link fault; --drop loses samples)')
     p.add_argument('--corrupt', type=_probability, default=0.0,
                    help='probability of corrupting one byte of a line')
     p.add_argument('--stall', type=_pair, action='append', default=[], metavar='AT:MS',
                    help='freeze the link for MS milliseconds at device time AT seconds (repeatable)')
     p.add_argument('--disconnect', type=_pair, action='append', default=[], metavar='AT:S',
                    help='pull the cable at AT seconds for S seconds (repeatable)')
+    add_scenario_arguments(p, title='emulated plant scenario')
     return p
 
 
@@ -363,9 +364,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         params = CartPoleParameters.from_yaml(args.params) if args.params else CartPoleParameters()
-        scenario = Scenario(x0=args.x0, theta0=args.theta0, tip_mass=args.tip_mass,
-                            friction_scale=args.friction_scale, noise=args.noise, seed=args.seed)
-        faults = FaultConfig(drop=args.drop, corrupt=args.corrupt, stalls=list(args.stall),
+        scenario = scenario_from_args(args)
+        faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt, stalls=list(args.stall),
                              disconnects=list(args.disconnect))
         emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
                             limit_margin=args.limit_margin, seed=args.seed)

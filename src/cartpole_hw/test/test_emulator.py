@@ -161,3 +161,45 @@ def test_command_line_refuses_bad_options(capsys):
     assert 'probability' in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(['--stall', 'x'])
+
+
+def test_scenario_drop_loses_exactly_the_seeded_samples(tmp_path):
+    # The scenario's drop loses samples on the link: their seq is skipped, so the host sees
+    # the gap; which ones is fixed by the seed (one draw per 5 ms period of the device).
+    from cartpole_sim.plant import Plant, Scenario
+
+    scenario = Scenario(drop=0.25, seed=6)
+    with Emulator(scenario, link=str(tmp_path / 'emu')) as em:
+        c = Client(em.link)
+        c.send(jp.Stream(True))
+        assert c.pump(lambda c: len(c.samples) >= 150)
+    seqs = [s.seq for s in c.samples]
+    reference = Plant(em.params, scenario)
+    lost = [reference.sample_lost() for _ in range(seqs[-1] + 1)]
+    expected = [k for k in range(seqs[0], seqs[-1] + 1) if not lost[k]]
+    assert seqs == expected
+    assert len(expected) < seqs[-1] - seqs[0] + 1  # some were lost
+
+
+def test_command_line_takes_the_scenario_options():
+    from cartpole_hw.emulator import build_parser
+    from cartpole_sim.plant import Push
+    from cartpole_sim.scenario_options import scenario_from_args
+
+    args = build_parser().parse_args([
+        '--delay', '0.01', '--jitter', '0.002', '--drop', '0.1', '--force-noise', '0.5',
+        '--actuator-gain', '0.7', '--actuator-tau', '0.004', '--cart-mass', '5.5',
+        '--tip-mass', '0.2', '--encoder-offset', '0.05', '--push', '12:cart:10:0.1',
+        '--noise', '--seed', '3', '--drop-lines', '0.2'])
+    scenario = scenario_from_args(args)
+    assert (scenario.delay, scenario.jitter, scenario.drop, scenario.force_noise,
+            scenario.actuator_gain, scenario.actuator_tau, scenario.cart_mass,
+            scenario.tip_mass, scenario.encoder_offset, scenario.noise, scenario.seed) == \
+        (0.01, 0.002, 0.1, 0.5, 0.7, 0.004, 5.5, 0.2, 0.05, True, 3)
+    assert scenario.pushes == (Push(12.0, 'cart', 10.0, 0.1),)
+    assert args.drop_lines == 0.2
+
+
+def test_command_line_refuses_a_bad_scenario(capsys):
+    assert main(['--delay', '0.5']) == 2
+    assert '--delay must be <= 0.04' in capsys.readouterr().err

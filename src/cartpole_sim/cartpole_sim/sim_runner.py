@@ -52,6 +52,9 @@ class Sample:
     end_stop_force: float = 0.0
     """The stops' peak spring force on the cart over the period that ended here
     [N]; 0.0 unless the cart was pressed into a stop (:attr:`Plant.end_stop_force`)."""
+    lost: bool = False
+    """The sample is lost on its way to the host (scenario ``drop``,
+    :meth:`Plant.sample_lost`): not published, and no command is awaited for it."""
 
 
 class SimRunner:
@@ -161,4 +164,5 @@ class SimRunner:
                       measurement=self.plant.measure(),
                       true_state=tuple(float(v) for v in self.plant.state),
                       actuator_force=self.plant.force,
-                      end_stop_force=self.plant.end_stop_force)
+                      end_stop_force=self.plant.end_stop_force,
+                      lost=self.plant.sample_lost())

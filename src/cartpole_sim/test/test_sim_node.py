@@ -333,3 +333,56 @@ def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
     after = [m for m in probe.truth if stamp_ns(m.header.stamp) == 31 * TS_NS][0]
     assert list(after.position) == [0.35, 3.0]
     assert list(after.velocity) == [0.0, 0.0]
+
+
+# -- scenario disturbances (cartpole_sim.scenario) ------------------------------------------------
+def test_disturbance_parameters_make_the_scenario_and_bad_ones_are_refused(graph):
+    from rclpy.parameter import Parameter
+
+    from cartpole_sim.plant import Push
+
+    sim, _, _ = graph(lockstep=True, lockstep_timeout=30.0, delay=0.0075, jitter=0.002,
+                      drop=0.1, force_noise=0.5, actuator_gain=0.8, actuator_tau=0.003,
+                      cart_mass=5.2, pushes='12:cart:10:0.1, 15:pendulum:-0.3:0.02')
+    scenario = sim.runner.plant.scenario
+    assert (scenario.delay, scenario.jitter, scenario.drop, scenario.force_noise,
+            scenario.actuator_gain, scenario.actuator_tau, scenario.cart_mass) == \
+        (0.0075, 0.002, 0.1, 0.5, 0.8, 0.003, 5.2)
+    assert scenario.pushes == (Push(12.0, 'cart', 10.0, 0.1), Push(15.0, 'pendulum', -0.3, 0.02))
+    assert sim.runner.plant.true_params.m_c == 5.2
+    for parameter, word in [(Parameter('drop', value=1.0), 'drop'),
+                            (Parameter('pushes', value='12:hand:1:1'), 'target'),
+                            (Parameter('pushes', value='12:cart:1'), 'T:TARGET'),
+                            (Parameter('actuator_gain', value=0.0), 'actuator_gain')]:
+        before = sim.get_parameter(parameter.name).value
+        result = sim.set_parameters([parameter])[0]
+        assert not result.successful and word in result.reason, result.reason
+        assert sim.get_parameter(parameter.name).value == before
+
+
+def test_lockstep_skips_lost_samples_without_waiting_for_their_command(graph, spin_until):
+    # drop: a lost sample is not published and lockstep does not wait for a command that
+    # cannot come; the published ones are exactly the SimRunner's samples that are not lost.
+    from cartpole_sim.model import CartPoleParameters
+    from cartpole_sim.plant import Scenario
+    from cartpole_sim.sim_runner import SimRunner
+
+    n = 40
+    sim, probe, executor = graph(echo_force=5.0, lockstep=True, lockstep_timeout=30.0, x0=0.3,
+                                 drop=0.3, seed=4)
+    probe.max_commands = n
+    assert spin_until(executor, lambda: len(probe.stamps()) >= n + 1, timeout=30.0)
+    assert not spin_until(executor, lambda: len(probe.stamps()) > n + 1, timeout=0.3)
+    runner = SimRunner(CartPoleParameters(), Scenario(x0=0.3, drop=0.3, seed=4))
+    delivered = [] if runner.sample.lost else [runner.stamp_ns]
+    while len(delivered) < n + 1:
+        sample = runner.advance()
+        if not sample.lost:
+            delivered.append(sample.stamp_ns)
+    assert probe.stamps() == delivered
+    assert len(delivered) < delivered[-1] // TS_NS  # some were lost
+    assert sim.runner.plant.lost_samples == runner.plant.lost_samples > 0
+    assert sim.lockstep_timeouts == 0
+    # /clock and the ground truth still carry every sample.
+    assert {stamp_ns(m.header.stamp) for m in probe.truth} >= set(range(0, delivered[-1] + 1,
+                                                                        TS_NS))

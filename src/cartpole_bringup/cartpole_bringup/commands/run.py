@@ -90,6 +90,15 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         }
         if args.tip_mass is not None:
             sim['tip_mass'] = float(args.tip_mass)
+        if args.cart_mass is not None:
+            sim['cart_mass'] = float(args.cart_mass)
+        for name, default in (('delay', 0.0), ('jitter', 0.0), ('drop', 0.0),
+                              ('force_noise', 0.0), ('actuator_gain', 1.0),
+                              ('actuator_tau', 0.0)):
+            if getattr(args, name) != default:  # the disturbances that are on
+                sim[name] = float(getattr(args, name))
+        if args.push:
+            sim['pushes'] = ' '.join(str(push) for push in args.push)
         out['sim'] = sim
     else:
         out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
