@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 
 from .model import CartPoleParameters
@@ -170,8 +171,10 @@ class Scenario:
         _finite('force_noise', self.force_noise, 0.0)
         _finite('actuator_gain', self.actuator_gain, 0.0, low_open=True)
         _finite('actuator_tau', self.actuator_tau, 0.0, ACTUATOR_TAU_MAX)
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) \
+                or self.seed < 0:
             raise ValueError(f'seed must be an integer >= 0, got {self.seed!r}')
+        object.__setattr__(self, 'seed', int(self.seed))
         scales = tuple((str(n), float(f)) for n, f in self.parameter_scales)
         for name, factor in scales:
             if name not in _FLOAT_PARAMETERS:
