@@ -54,3 +54,17 @@ def test_cartpole_offline_takes_the_disturbance_options():
                           '--actuator-tau', '-1'], capture_output=True, text=True, timeout=300)
     assert bad.returncode != 0 and '--actuator-tau must be >= 0' in bad.stderr
     assert 'Traceback' not in bad.stderr
+
+
+def test_stop_on_failure_ends_a_failed_run_early_with_the_same_trajectory():
+    # A cart half as heavy as the model: the swing-up drives it into the rail guard's fault.
+    scenario = Scenario(noise=True, cart_mass=2.0)
+    full = run_closed_loop(scenario=scenario, duration=20.0)
+    short = run_closed_loop(scenario=scenario, duration=20.0, stop_on_failure=True)
+    assert not full.summary['success']
+    assert any(e.startswith('fault:') for _, e in full.events)
+    stop = short.summary['stopped_at_s']
+    assert short.summary['success'] is False and stop < 15.0 and short.t[-1] == stop
+    n = len(short.t)
+    assert (short.x == full.x[:n]).all() and (short.force == full.force[:n]).all()
+    assert 'stopped_at_s' not in run_closed_loop(duration=8.0, stop_on_failure=True).summary

@@ -13,7 +13,6 @@ local process pool, or on a Dask cluster.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterable, Sequence
 
@@ -21,6 +20,8 @@ import numpy as np
 
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
+
+from .sweep import run_parallel
 
 NOMINAL_TIP_MASS = CartPoleParameters().m_p
 
@@ -84,34 +85,10 @@ def run_sweep(cases: Sequence[BenchCase], *, workers: int = 1, dask_address: str
 
     ``workers`` > 1 uses a local process pool; ``dask_address`` a Dask
     distributed scheduler (``tcp://host:8786``, or an existing
-    ``distributed.Client`` object's address).
+    ``distributed.Client`` object's address). See :func:`.sweep.run_parallel`.
     """
-    results: list[dict[str, Any] | None] = [None] * len(cases)
-    done = 0
-
-    def _finish(i: int, value: dict[str, Any]) -> None:
-        nonlocal done
-        results[i] = value
-        done += 1
-        if progress:
-            progress(done, len(cases))
-
-    if dask_address:
-        from distributed import Client, as_completed
-        with Client(dask_address) as client:
-            futures = {client.submit(run_case, c, pure=False): i for i, c in enumerate(cases)}
-            for fut in as_completed(futures):
-                _finish(futures[fut], fut.result())
-    elif workers > 1:
-        from concurrent.futures import as_completed as cf_completed
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(run_case, c): i for i, c in enumerate(cases)}
-            for fut in cf_completed(futures):
-                _finish(futures[fut], fut.result())
-    else:
-        for i, c in enumerate(cases):
-            _finish(i, run_case(c))
-    return results  # type: ignore[return-value]
+    return run_parallel(run_case, cases, workers=workers, dask_address=dask_address,
+                        progress=progress)
 
 
 def prepare(swingups: Sequence[str]) -> None:

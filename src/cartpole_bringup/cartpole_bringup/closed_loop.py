@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from cartpole_control.manager import ControllerManager
+from cartpole_control.manager import FAULT, ControllerManager
 from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
 from cartpole_sim.model import CartPoleParameters, pendulum_energy
 from cartpole_sim.plant import Plant, Scenario
@@ -61,7 +61,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     manager_parameters: Mapping[str, Any] | None = None,
                     ekf_config: EkfConfig | None = None,
                     integration_step: float = 0.001,
-                    profile: dict[str, float] | None = None) -> RunResult:
+                    profile: dict[str, float] | None = None,
+                    stop_on_failure: bool = False) -> RunResult:
     """Run the closed loop for ``duration`` simulated seconds and summarise it (SPEC 5).
 
     ``nominal`` are the parameters the EKF and the controllers use; the plant
@@ -77,6 +78,12 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     sample and reports it (``StateEstimate.missed_samples``). Its row repeats
     the last estimate (NaN before the first). With ``drop`` the summary gets
     ``lost_samples`` and ``ekf_missed_samples``.
+
+    With ``stop_on_failure`` the run ends at the first sample after which it
+    cannot succeed: the cart touched an end stop, or the manager is in fault
+    mode (offline nothing restarts it: no swing-up, no stabiliser any more).
+    The summary is then of the shorter run, with ``success`` False and
+    ``stopped_at_s`` (the benchmarks use it to save time on failed runs).
     """
     nominal = nominal or CartPoleParameters()
     scenario = scenario or Scenario()
@@ -105,6 +112,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     x = theta = x_dot = theta_dot = nan  # no estimate before the first sample arrives
     mode = manager.mode
     lost_at: list[float] = []
+    stopped_at = None
     for k in range(steps):
         if clock:
             t0 = clock()
@@ -137,6 +145,9 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         add_mode(mode)
         if out.event:
             events.append((t, out.event))
+        if stop_on_failure and (mode == FAULT or plant.end_stop_contact):
+            stopped_at = t
+            break
         if k + 1 < steps:
             if clock:
                 t0 = clock()
@@ -148,7 +159,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         for key, value in (('plant', t_plant), ('ekf', t_ekf), ('controller', t_ctrl)):
             profile[key] = profile.get(key, 0.0) + value
         profile['steps'] = profile.get('steps', 0) + steps
-    rows = np.array(samples, dtype=float).reshape(steps, 10)
+    rows = np.array(samples, dtype=float).reshape(len(samples), 10)
     energy = np.array([pendulum_energy(th, thd, true_params) for th, thd in zip(rows[:, 2], rows[:, 4])])
     catch_time = manager.catch_time  # the manager keeps the time of its first catch
     run = RunResult(t=rows[:, 0], x=rows[:, 1], theta=rows[:, 2], x_dot=rows[:, 3],
@@ -164,4 +175,6 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)
+    if stopped_at is not None:
+        run.summary.update(success=False, stopped_at_s=stopped_at)
     return run
