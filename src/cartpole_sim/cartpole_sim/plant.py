@@ -30,10 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .disturbance import STREAM_DROP, STREAM_FORCE_NOISE, CommandDelayLine, RandomStream, \
-    lag_factors
-from .model import CartPoleParameters, acceleration_function, accelerations, \
-    torque_accelerations
+from .disturbance import STREAM_DROP, STREAM_FORCE_NOISE, CommandDelayLine, DisturbedHold, \
+    RandomStream
+from .model import CartPoleParameters, acceleration_function, accelerations
 from .scenario import Push, Scenario, parse_push  # noqa: F401 (re-exported: the plant's scenario)
 
 END_STOP_TOLERANCE = 1.0e-6
@@ -106,7 +105,7 @@ class CounterUnwrapper:
 
 
 @dataclass
-class Plant:
+class Plant(DisturbedHold):
     """The simulated rig: call :meth:`step` with a force command, read :meth:`measure`.
 
     ``params`` are the nominal parameters; the scenario's tip mass and
@@ -317,102 +316,6 @@ class Plant:
         self.contact_penetration = deepest
         if deepest:
             self.end_stop_contact = True
-
-    # -- disturbances inside the sample-and-hold (cartpole_sim.scenario) ---------------
-    def _step_disturbed(self, force_command: float, duration: float | None) -> None:
-        """:meth:`step` with delay, jitter, force noise, extra lag or pushes.
-
-        The command enters the delay line at the start of the hold; the hold
-        is split where a queued command arrives or a push starts or ends, and
-        each piece is integrated like a hold of its own length (the
-        unsplit hold exactly like the fast path, to the bit).
-        """
-        t0 = int(round(self.t * 1e9))
-        t1 = t0 + (self._period_ns if duration is None else max(1, int(round(duration * 1e9))))
-        self.force_command = force_command
-        line = self._delay_line
-        line.send(t0, force_command)
-        noise = (self._force_noise_draws.next() * self.scenario.force_noise
-                 if self._force_noise_draws is not None else 0.0)
-        cuts = line.arrivals_between(t0, t1)
-        for start, end, _, _ in self._pushes:
-            if t0 < start < t1:
-                cuts.append(start)
-            if t0 < end < t1:
-                cuts.append(end)
-        bounds = [t0, *sorted(set(cuts)), t1] if cuts else [t0, t1]
-        x, th, v, w = self.state
-        deepest = 0.0
-        for a, b in zip(bounds, bounds[1:]):
-            cart, torque = noise, 0.0
-            for start, end, target, amplitude in self._pushes:
-                if start <= a < end:
-                    if target == 'cart':
-                        cart += amplitude
-                    else:
-                        torque += amplitude
-            h, forces = self._hold(line.command_at(a), b - a, cart)
-            x, th, v, w, d = self._rk4_steps(x, th, v, w, h, forces,
-                                             self._acc_with_torque(torque) if torque else None)
-            if d and abs(d) > abs(deepest):
-                deepest = d
-        self.state = [x, th, v, w]
-        self.t = t1 / 1e9
-        self.contact_penetration = deepest
-        if deepest:
-            self.end_stop_contact = True
-
-    def _hold(self, command: float, duration_ns: int, extra: float) -> tuple[float, list[float]]:
-        """The RK4 step length and the force of each step of a hold of ``command``.
-
-        The current loop (4.4), after the extra lag if ``actuator_tau`` > 0
-        (:func:`~cartpole_sim.disturbance.lag_factors`), integrated exactly
-        over each step; ``extra`` [N] (force noise, a push) is added to the
-        actuator's force. Advances :attr:`current` and :attr:`lag_current`.
-        """
-        factors = self._hold_factors.get(duration_ns)
-        if factors is None:
-            duration = duration_ns / 1e9
-            n, h, decay, mean_factor = (self._default_substeps if duration_ns == self._period_ns
-                                        else self._substeps(duration))
-            tau = self.scenario.actuator_tau
-            lag = lag_factors(self.true_params.actuator_pole, tau, h) if tau else None
-            factors = self._hold_factors[duration_ns] = (n, h, decay, mean_factor, lag)
-        n, h, decay, mean_factor, lag = factors
-        i_target = self._current_target(command)
-        fpa = self.true_params.force_per_ampere
-        current = self.current
-        forces = []
-        if lag is None:
-            for _ in range(n):
-                forces.append((i_target + (current - i_target) * mean_factor) * fpa)
-                current = i_target + (current - i_target) * decay
-        else:
-            dz, di, cz, mi, mc = lag
-            z = self.lag_current
-            for _ in range(n):
-                e_z, e_i = z - i_target, current - i_target
-                forces.append((i_target + e_i * mi + e_z * mc) * fpa)
-                current = i_target + e_i * di + e_z * cz
-                z = i_target + e_z * dz
-            self.lag_current = z
-        self.current = current
-        if extra:
-            forces = [f + extra for f in forces]
-        return h, forces
-
-    def _acc_with_torque(self, torque: float):
-        """The acceleration function with a torque on the pendulum (:func:`torque_accelerations`)."""
-        fn = self._torque_acc.get(torque)
-        if fn is None:
-            acc, p = self._acc, self.true_params
-
-            def fn(x, th, v, w, force):
-                a, b = acc(x, th, v, w, force)
-                da, db = torque_accelerations(th, torque, p)
-                return a + da, b + db
-            self._torque_acc[torque] = fn
-        return fn
 
     def sample_lost(self) -> bool:
         """Whether the sample taken now is lost on its way to the host (scenario ``drop``).
