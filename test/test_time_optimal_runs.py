@@ -47,10 +47,10 @@ def test_lockstep_processes_run_solves_the_missing_plan_before_it_starts(tmp_pat
 
 
 def test_real_time_run_without_a_plan_falls_back_announced_then_the_next_one_tracks_it(tmp_path):
-    summary, err = cartpole_run(tmp_path, '--duration', '12')
+    summary, err = cartpole_run(tmp_path, '--duration', '16')
     # The loop did not wait: energy_saturated swung up, said so, and the run succeeded.
     assert summary['swingup_law'] == 'time_optimal:fallback(no plan)', summary
-    assert summary['success'] is True, summary
+    assert summary['success'] is True, (summary, err[-3000:])
     assert 'solving it in background process' in err and 'falls back to energy_saturated' in err
     # The background solve finishes on its own (the run's processes are gone) ...
     cache, key = TrajectoryCache(tmp_path), default_plan_key()

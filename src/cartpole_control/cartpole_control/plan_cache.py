@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import fcntl
+import hashlib
 import json
 import logging
 import os
@@ -45,9 +46,12 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
-from .trajectory_optimization import MinimumTimeProblem, Trajectory, solve_minimum_time
+import numpy as np
+
+from .trajectory_optimization import (MinimumTimeProblem, Trajectory, solve_minimum_time,
+                                      tracking_gains)
 
 logger = logging.getLogger(__name__)
 
@@ -179,8 +183,33 @@ class TrajectoryCache:
             return None
 
     def put(self, key: str, trajectory: Trajectory) -> None:
+        """Store a plan (atomically); the failure record and the gains of an older one go."""
         trajectory.save(self.path(key))
         self.directory.joinpath(f'{key}.failed').unlink(missing_ok=True)
+        for old in self.directory.glob(f'{key}.tvlqr-*.npy'):
+            old.unlink(missing_ok=True)
+
+    def gains_path(self, key: str, q: Sequence[float], r: float) -> Path:
+        """The TV-LQR gains of plan ``key`` for the weights (q, r)."""
+        tag = hashlib.sha256(json.dumps([[float(v) for v in q], float(r)]).encode()).hexdigest()
+        return self.directory / f'{key}.tvlqr-{tag[:16]}.npy'
+
+    def get_gains(self, key: str, q: Sequence[float], r: float) -> np.ndarray | None:
+        """Cached gains (N, 4) of plan ``key`` for (q, r), or None."""
+        try:
+            return np.load(self.gains_path(key, q, r), allow_pickle=False)
+        except (OSError, ValueError):
+            return None
+
+    def put_gains(self, key: str, q: Sequence[float], r: float, gains: np.ndarray) -> None:
+        path = self.gains_path(key, q, r)
+        tmp = path.with_name(f'{path.name}.{os.getpid()}.tmp')
+        try:
+            with open(tmp, 'wb') as f:
+                np.save(f, np.asarray(gains, dtype=float), allow_pickle=False)
+            os.replace(tmp, path)
+        except OSError as error:  # no writable cache: they are built again next time
+            logger.warning('could not store the gains %s: %s', path, error)
 
     def failure(self, key: str) -> str | None:
         """Why the last solve of ``key`` raised, if it did (and no plan was stored since)."""
@@ -275,12 +304,26 @@ def _solve_and_store(problem: MinimumTimeProblem, grid: float | None, cache: Tra
     return plan
 
 
+def cached_tracking_gains(problem: MinimumTimeProblem, plan: Trajectory, key: str,
+                          q: Sequence[float], r: float, cache: TrajectoryCache) -> np.ndarray:
+    """The TV-LQR gains of ``plan`` (cached as ``key``) for (q, r): a file read, else built
+    (:func:`~cartpole_control.trajectory_optimization.tracking_gains`: CasADi's import
+    and about 10 ms) and stored next to the plan, so that the next load needs no CasADi."""
+    gains = cache.get_gains(key, q, r)
+    if gains is None or gains.shape != (len(plan.forces), 4):
+        gains = tracking_gains(problem, plan, q, r)
+        cache.put_gains(key, q, r, gains)
+    return gains
+
+
 # -- the background worker ----------------------------------------------------------------------
 def start_background_solve(problem: MinimumTimeProblem, grid: float | None,
                            cache: TrajectoryCache | None = None,
+                           tvlqr: tuple[Sequence[float], float] | None = None,
                            **options) -> subprocess.Popen | None:
     """Start a detached worker process solving ``problem`` into ``cache``; never blocks.
 
+    With ``tvlqr`` = (q, r) the worker stores the plan's tracking gains too.
     Returns the worker (its output goes to ``<key>.log``), or None when the plan
     is cached already or a live process holds its lock.
     """
@@ -289,7 +332,8 @@ def start_background_solve(problem: MinimumTimeProblem, grid: float | None,
     if cache.has(key) or cache.lock(key).holder() is not None:
         return None
     cache.directory.mkdir(parents=True, exist_ok=True)
-    request = {'problem': problem.to_dict(), 'grid': grid, 'options': options}
+    request = {'problem': problem.to_dict(), 'grid': grid, 'options': options,
+               'tvlqr': None if tvlqr is None else [[float(v) for v in tvlqr[0]], float(tvlqr[1])]}
     with open(cache.log_path(key), 'ab') as log:
         return subprocess.Popen(
             [sys.executable, '-m', 'cartpole_control.plan_cache', '--cache', str(cache.directory),
@@ -322,6 +366,9 @@ def main(argv: list[str] | None = None) -> int:
     except PlanError:
         return 1  # logged with its reason
     plan = result.plan
+    if plan.success and request.get('tvlqr'):
+        q, r = request['tvlqr']
+        cached_tracking_gains(problem, plan, problem.key(request['grid']), q, r, cache)
     logger.info('%s: %s, T = %.3f s, %.1f s', result.path.name,
                 'plan stored' if plan.success else 'no feasible plan (stored as unsuccessful)',
                 plan.final_time, plan.solve_time)

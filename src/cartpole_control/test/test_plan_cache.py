@@ -137,3 +137,21 @@ def test_no_background_solve_for_a_cached_plan_or_one_being_solved(tmp_path):
         lock.release()
     cache.put(key, fake_plan())
     assert plan_cache.start_background_solve(PROBLEM, TS, cache) is None
+
+
+def test_tracking_gains_are_cached_with_the_plan_and_go_with_it(tmp_path, monkeypatch):
+    built = []
+    monkeypatch.setattr(plan_cache, 'tracking_gains',
+                        lambda problem, plan, q, r: built.append(r) or np.full((2, 4), r))
+    cache, key = TrajectoryCache(tmp_path), PROBLEM.key(TS)
+    cache.put(key, fake_plan())
+    q = (300.0, 300.0, 10.0, 10.0)
+    first = plan_cache.cached_tracking_gains(PROBLEM, fake_plan(), key, q, 0.02, cache)
+    again = plan_cache.cached_tracking_gains(PROBLEM, fake_plan(), key, q, 0.02, cache)
+    other = plan_cache.cached_tracking_gains(PROBLEM, fake_plan(), key, q, 0.5, cache)
+    assert built == [0.02, 0.5]  # read back, not built again; other weights, other gains
+    np.testing.assert_array_equal(first, again)
+    assert other[0, 0] == 0.5
+    cache.put(key, fake_plan())  # a new plan for the key: its old gains are gone
+    plan_cache.cached_tracking_gains(PROBLEM, fake_plan(), key, q, 0.02, cache)
+    assert built == [0.02, 0.5, 0.02]

@@ -16,6 +16,7 @@ import pytest
 from cartpole_control.controller import ControlContext, ControllerState
 from cartpole_control.controllers import time_optimal
 from cartpole_control.controllers.time_optimal import FALLBACK, PLAN, TimeOptimalSwingUp
+from cartpole_control import plan_cache
 from cartpole_control.plan_cache import TrajectoryCache
 from cartpole_control.registry import load_controllers
 from cartpole_sim.model import CartPoleParameters
@@ -56,8 +57,8 @@ def test_cold_cache_offline_run_solves_the_plan_first_and_tracks_it(cold_plan_ru
     s = json.loads(run.stdout)
     assert s['swingup_law'] == 'time_optimal:plan', run.stderr
     assert s['catch_time_s'] <= 1.55 and s['success'], s  # the plan's catch, not 1.81 s
-    # One plan stored; no lock, failure record or worker log left behind.
-    assert sorted(p.suffix for p in directory.iterdir()) == ['.npz']
+    # One plan and its TV-LQR gains stored; no lock, failure record or worker log left.
+    assert sorted(p.suffix for p in directory.iterdir()) == ['.npy', '.npz']
 
 
 @pytest.mark.slow
@@ -75,8 +76,9 @@ def test_activation_only_looks_the_prepared_plan_up(cache_dir, monkeypatch):
 
     def no_work(*args, **kwargs):
         raise AssertionError('slow work inside activate')
-    monkeypatch.setattr(time_optimal, 'tracking_gains', no_work)
-    monkeypatch.setattr(TrajectoryCache, 'get', no_work)
+    monkeypatch.setattr(plan_cache, 'tracking_gains', no_work)
+    for read in ('get', 'get_gains', 'has'):
+        monkeypatch.setattr(TrajectoryCache, read, no_work)
     c.activate(ControllerState(0.0, 0.004, math.pi + 0.03, 0.0, 0.0))
     assert c.mode == PLAN and c.law == 'time_optimal:plan'
     c.activate(ControllerState(0.0, 0.30, math.pi, 0.0, 0.0))
@@ -101,7 +103,6 @@ def test_a_start_without_a_loaded_plan_loads_it_off_the_cycle_for_the_next_swing
 
 def test_prepare_returns_the_gains_that_load_the_plan_and_solves_nothing_cached(
         cache_dir, monkeypatch):
-    from cartpole_control import plan_cache
     from cartpole_control.manager import ControllerManager
     monkeypatch.setattr(plan_cache, 'solve_minimum_time', lambda *a, **k: 1 / 0)
     m = ControllerManager(P, sample_time=TS)

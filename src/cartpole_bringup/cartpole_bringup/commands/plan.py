@@ -72,7 +72,8 @@ def prepare_for_run(args: argparse.Namespace, nominal, label: str) -> dict[str, 
 def main(args: argparse.Namespace) -> int:
     from cartpole_control.controllers.time_optimal import (TimeOptimalSwingUp, plan_problem,
                                                            solve_plan_for)
-    from cartpole_control.plan_cache import PlanError, TrajectoryCache, solve_cached
+    from cartpole_control.plan_cache import (PlanError, TrajectoryCache, cached_tracking_gains,
+                                             solve_cached)
     from cartpole_control.trajectory_optimization import MinimumTimeProblem
 
     say = options.progress_printer('cartpole plan')
@@ -89,19 +90,22 @@ def main(args: argparse.Namespace) -> int:
     if not (math.isfinite(x0) and 0.0 <= x0 <= nominal.travel):
         raise SystemExit(f'cartpole plan: --x0 {x0} m is outside the travel [0, {nominal.travel}] m')
     x_ref, ts = float(values['x_ref']), nominal.sample_time
+    problem = plan_problem(nominal, x_ref, x0, gains)
+    cache = TrajectoryCache(gains['cache_dir'] or None)
     if args.force:
-        problem = plan_problem(nominal, x_ref, x0, gains)
-        TrajectoryCache(gains['cache_dir'] or None).path(problem.key(ts)).unlink(missing_ok=True)
+        cache.path(problem.key(ts)).unlink(missing_ok=True)
     try:
         result = solve_plan_for(nominal, x_ref, ts, gains, x0, say)
     except PlanError as error:
         print(f'cartpole plan: the solve failed: {error}', file=sys.stderr)
         return 1
     plan = result.plan
+    if plan.success:  # the TV-LQR gains too, so that the controller's configure only reads
+        cached_tracking_gains(problem, plan, problem.key(ts), tuple(gains['q']), gains['r'],
+                              cache)
     bound = None
     if not args.no_bound:
         problem = MinimumTimeProblem(nominal, (round(x0, 2), math.pi, 0.0, 0.0), friction=True)
-        cache = TrajectoryCache(gains['cache_dir'] or None)
         if not cache.has(problem.key(None)):
             say(f'solving the minimum-time bound from x = {x0:.2f} m (full force, whole rail) ...')
         try:

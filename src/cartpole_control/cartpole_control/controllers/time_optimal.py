@@ -70,9 +70,9 @@ import numpy as np
 from cartpole_sim.model import CartPoleParameters
 
 from ..controller import SWINGUP, ControlContext, Controller, ControllerState, ParameterSpec
-from ..plan_cache import (CachedPlan, PlanError, Progress, TrajectoryCache, solve_cached,
-                          start_background_solve)
-from ..trajectory_optimization import CatchRegion, MinimumTimeProblem, Trajectory, tracking_gains
+from ..plan_cache import (CachedPlan, PlanError, Progress, TrajectoryCache,
+                          cached_tracking_gains, solve_cached, start_background_solve)
+from ..trajectory_optimization import CatchRegion, MinimumTimeProblem, Trajectory
 from .energy_saturated import EnergySaturatedSwingUp
 
 logger = logging.getLogger(__name__)
@@ -253,6 +253,10 @@ class TimeOptimalSwingUp(Controller):
                            'swings up')
             return dict(overrides, precompute=False)
         plan = result.plan
+        if plan.success:  # built now, read by the run's configure
+            problem = plan_problem(context.plant, context.x_ref, x0, g)
+            cached_tracking_gains(problem, plan, problem.key(context.sample_time),
+                                  tuple(g['q']), g['r'], TrajectoryCache(g['cache_dir'] or None))
         if result.solved or not plan.success:
             _say(progress, f'time_optimal: plan from x = {x0:.2f} m: ' + (
                 f'T = {plan.final_time:.3f} s (solved in {plan.solve_time:.1f} s, {result.path})'
@@ -299,10 +303,12 @@ class TimeOptimalSwingUp(Controller):
         plan = cache.get(ident[0])
         if plan is None:
             if solve_missing:
-                self._solve_in_background(problem, cache, x0, context.sample_time)
+                self._solve_in_background(problem, cache, x0, context.sample_time,
+                                          (ident[1], ident[2]))
             return None
         if plan.success:
-            prepared = PreparedPlan(ident, plan, tracking_gains(problem, plan, ident[1], ident[2]))
+            k_gains = cached_tracking_gains(problem, plan, *ident, cache)
+            prepared = PreparedPlan(ident, plan, k_gains)
         else:
             prepared = PreparedPlan(ident, plan, None)
             logger.warning('time_optimal: the optimiser found no plan from x = %.2f m (%s); '
@@ -312,14 +318,15 @@ class TimeOptimalSwingUp(Controller):
         return prepared
 
     def _solve_in_background(self, problem: MinimumTimeProblem, cache: TrajectoryCache,
-                             x0: float, grid: float) -> None:
+                             x0: float, grid: float, tvlqr: tuple) -> None:
         key = problem.key(grid)
         if key in self._requested:
             return  # once per instance: a failing solve is not started again and again
         self._requested.add(key)
         previous = cache.failure(key)
         try:
-            worker = start_background_solve(problem, grid, cache, n_intervals=PLAN_INTERVALS)
+            worker = start_background_solve(problem, grid, cache, tvlqr,
+                                            n_intervals=PLAN_INTERVALS)
         except OSError as error:
             logger.warning('time_optimal: cannot start the plan solve for x = %.2f m (%s); '
                            'swing-ups from there use energy_saturated', x0, error)
@@ -368,7 +375,8 @@ class TimeOptimalSwingUp(Controller):
             if self.gains['plan_on_activation']:
                 self._load_later(x0)
         elif prepared.gains is None:
-            self._fall_back(state, 'no feasible plan', f'the optimiser found none from x = {x0:.2f} m')
+            self._fall_back(state, 'no feasible plan',
+                            f'the optimiser found none from x = {x0:.2f} m')
         elif abs(prepared.plan.states[0, 0] - state.x) > self.gains['start_tolerance_x']:
             self._fall_back(state, 'start off the plan')
         else:
