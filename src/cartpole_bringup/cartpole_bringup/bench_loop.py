@@ -48,6 +48,8 @@ SAMPLE_TIME = 0.005
 EXECUTORS = {'single': ('events', 'single'), 'processes': ('single',)}
 """Executors measured per mode (one process: either, ``cartpole run --executor``;
 one process a node: node_main.run_node's SingleThreadedExecutor)."""
+BARE_ROLES = ('source', 'relay1', 'relay2')
+"""The floor's chain."""
 SPIN_TIMEOUT = {'single': 0.05, 'processes': 0.1}
 """spin_once timeout of the floor: Graph.spin_until's and run_node's."""
 
@@ -195,19 +197,19 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def _cpu_by_process(procs: list[subprocess.Popen], label: str) -> dict[str, int]:
-    """The processes to account CPU to: each started one and, for a graph started with
-    one process a node, its node processes (by node name). Name -> PID."""
+def _cpu_by_process(procs: list[subprocess.Popen], labels: list[str]) -> dict[str, int]:
+    """The processes to account CPU to: each started one (named by ``labels``) and, for
+    a graph started with one process a node, its node processes (by node name). Name -> PID."""
     out: dict[str, int] = {}
-    for i, p in enumerate(procs):
-        out[_process_name(p.pid, label if len(procs) == 1 else f'{label} {i + 1}')] = p.pid
+    for p, label in zip(procs, labels):
+        out[label] = p.pid
         for child in _children(p.pid):
             out[_process_name(child, f'child {child}')] = child
     return out
 
 
 def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
-             duration: float, label: str, warmup: float = 3.0) -> dict[str, Any]:
+             duration: float, labels: list[str], warmup: float = 3.0) -> dict[str, Any]:
     probe = _Probe(sample_topic, command_topic)
     procs = [_start(c) for c in cmds]
     try:
@@ -217,7 +219,7 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
         probe.record(warmup)
         probe.sample_stamps.clear()
         probe.latencies.clear()
-        pids = _cpu_by_process(procs, label)
+        pids = _cpu_by_process(procs, labels)
         cpu0 = {name: _cpu_seconds(pid) for name, pid in pids.items()}
         t0 = time.monotonic()
         probe.record(duration)
@@ -245,8 +247,8 @@ def _bare_cmds(mode: str, executor: str) -> list[list[str]]:
     me = [sys.executable, '-m', 'cartpole_bringup.bench_loop', '--executor', executor,
           '--spin-timeout', repr(SPIN_TIMEOUT[mode])]
     if mode == 'processes':
-        return [me + ['--node', 'source'], me + ['--node', 'relay1'], me + ['--node', 'relay2']]
-    return [me + ['--node', 'source', '--node', 'relay1', '--node', 'relay2']]
+        return [me + ['--node', role] for role in BARE_ROLES]
+    return [me + [arg for role in BARE_ROLES for arg in ('--node', role)]]
 
 
 def _ratio(graph: dict[str, Any], bare: dict[str, Any], key: str) -> float | None:
@@ -267,9 +269,10 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
             if ex in executors or mode == 'processes']
     for mode, ex in runs:
         graph = _measure(_graph_cmds(mode, duration, ex), '/joint_states',
-                         '/cartpole/force_command', duration, 'cartpole run')
+                         '/cartpole/force_command', duration,
+                         ['cartpole run (monitor)' if mode == 'processes' else 'cartpole run'])
         bare = _measure(_bare_cmds(mode, ex), '/bench/source', '/bench/relay2', duration,
-                        'floor')
+                        list(BARE_ROLES) if mode == 'processes' else ['floor'])
         results.setdefault(mode, {})[ex] = {
             'graph': graph, 'bare': bare, 'p50_ratio': _ratio(graph, bare, 'p50_ms'),
             'p99_ratio': _ratio(graph, bare, 'p99_ms')}
@@ -346,7 +349,7 @@ def _bare_main(roles: list[str], executor_kind: str, spin_timeout: float) -> int
 
 if __name__ == '__main__':
     parser = argparse.ArgumentParser(description='bare rclpy chain for the loop benchmark')
-    parser.add_argument('--node', action='append', choices=['source', 'relay1', 'relay2'], required=True)
+    parser.add_argument('--node', action='append', choices=BARE_ROLES, required=True)
     parser.add_argument('--executor', choices=EXECUTORS['single'], default='single')
     parser.add_argument('--spin-timeout', type=float, default=SPIN_TIMEOUT['single'])
     cli = parser.parse_args()
