@@ -254,7 +254,8 @@ def solve_cached(problem: MinimumTimeProblem, grid: float | None,
     Raises
     ------
     PlanError
-        The solve raised (the reason is logged and kept in ``<key>.failed``).
+        The solve raised (the reason is logged and kept in ``<key>.failed``), or the
+        cache directory cannot be written.
     TimeoutError
         ``timeout`` seconds passed waiting for another solver.
     """
@@ -267,7 +268,11 @@ def solve_cached(problem: MinimumTimeProblem, grid: float | None,
         plan = cache.get(key)
         if plan is not None:
             return CachedPlan(plan, False, cache.path(key))
-        if lock.acquire():
+        try:
+            acquired = lock.acquire()
+        except OSError as error:
+            raise PlanError(f'cannot use the plan cache {cache.directory}: {error}') from error
+        if acquired:
             try:
                 plan = cache.get(key)  # stored by the holder we waited for
                 if plan is not None:
@@ -300,7 +305,10 @@ def _solve_and_store(problem: MinimumTimeProblem, grid: float | None, cache: Tra
     if not plan.success:
         logger.warning('minimum-time solve %s: IPOPT found no feasible plan from %s; stored as '
                        'unsuccessful', key[:12], problem.start)
-    cache.put(key, plan)
+    try:
+        cache.put(key, plan)
+    except OSError as error:
+        raise PlanError(f'cannot store the plan in {cache.directory}: {error}') from error
     return plan
 
 

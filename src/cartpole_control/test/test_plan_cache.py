@@ -155,3 +155,10 @@ def test_tracking_gains_are_cached_with_the_plan_and_go_with_it(tmp_path, monkey
     cache.put(key, fake_plan())  # a new plan for the key: its old gains are gone
     plan_cache.cached_tracking_gains(PROBLEM, fake_plan(), key, q, 0.02, cache)
     assert built == [0.02, 0.5, 0.02]
+
+
+def test_an_unwritable_cache_is_a_plan_error_with_the_reason(tmp_path, fake_solver):
+    blocker = tmp_path / 'file'
+    blocker.write_text('not a directory')
+    with pytest.raises(PlanError, match='cannot use the plan cache'):
+        solve_cached(PROBLEM, TS, TrajectoryCache(blocker / 'cache'))
