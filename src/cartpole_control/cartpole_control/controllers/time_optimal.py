@@ -192,7 +192,6 @@ class TimeOptimalSwingUp(Controller):
                       '$CARTPOLE_CACHE_DIR or ~/.cache/cartpole/trajectories'),
     )
 
-
     def __init__(self) -> None:
         super().__init__()
         self.fallback = EnergySaturatedSwingUp()
