@@ -57,8 +57,11 @@ def test_cold_cache_offline_run_solves_the_plan_first_and_tracks_it(cold_plan_ru
     s = json.loads(run.stdout)
     assert s['swingup_law'] == 'time_optimal:plan', run.stderr
     assert s['catch_time_s'] <= 1.55 and s['success'], s  # the plan's catch, not 1.81 s
-    # One plan and its TV-LQR gains stored; no lock, failure record or worker log left.
-    assert sorted(p.suffix for p in directory.iterdir()) == ['.npy', '.npz']
+    # The plan and its TV-LQR gains stored; no lock, failure record or worker log left.
+    key = time_optimal.plan_problem(P, P.x_middle, 0.0, TimeOptimalSwingUp.defaults()).key(TS)
+    cache = TrajectoryCache(directory)
+    assert cache.get(key).success and len(list(directory.glob(f'{key}.tvlqr-*.npy'))) == 1
+    assert not [p for p in directory.iterdir() if p.suffix in ('.lock', '.failed', '.log')]
 
 
 @pytest.mark.slow
