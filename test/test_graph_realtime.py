@@ -25,6 +25,7 @@ def test_real_time_sim_run_records_and_succeeds(tmp_path):
     assert summary['end_stop_contact'] is False, summary
     assert summary['theta_amp_deg'] < 2.0 and summary['x_err_max_m'] <= 0.10, summary
     assert summary['success'] is True, summary
+    assert summary['swingup_law'] == 'pendulum_energy', summary
     assert len(list(runs.glob('*/bag/metadata.yaml'))) == 1  # the recorded run reads back
 
 

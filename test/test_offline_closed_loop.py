@@ -55,8 +55,10 @@ def test_cartpole_offline_json_prints_the_summary_keys():
                          capture_output=True, text=True, timeout=300, check=True)
     summary = json.loads(out.stdout)
     assert list(summary) == ['catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
-                             'mse_x', 'mse_theta', 'end_stop_contact', 'success']
+                             'mse_x', 'mse_theta', 'end_stop_contact', 'success',
+                             'swingup_law']
     assert summary['catch_time_s'] < 10.0 and summary['theta_amp_deg'] < 2.0
+    assert summary['swingup_law'] == 'sign_based'  # the law that swung up (SPEC 8)
 
 
 def test_cartpole_offline_refuses_an_unknown_controller_with_the_list():

@@ -91,23 +91,22 @@ def run_sweep(cases: Sequence[BenchCase], *, workers: int = 1, dask_address: str
                         progress=progress)
 
 
-def prepare(swingups: Sequence[str]) -> None:
-    """Solve, before the sweep, what a swing-up would otherwise solve in the background.
+def prepare(swingups: Sequence[str], progress=None) -> None:
+    """Do, once before the sweep, the plugins' slow work for the runs' start.
 
-    ``time_optimal`` plans its trajectory in a background thread and uses its
-    fall-back until the plan is in the cache; solving it first makes every
-    run of the sweep use the plan, whatever the executor and its timing.
-    Every scenario starts at hanging rest at the left stop, the default start.
+    ``time_optimal`` solves its plan (blocking) if it is not cached, so that
+    the pool's workers do not all wait for it at their first run. Every
+    scenario starts at hanging rest at the left stop, the default start.
     """
-    if 'time_optimal' not in swingups:
-        return
-    from cartpole_control.controller import ControlContext
-    from cartpole_control.registry import create
+    from cartpole_control.controller import ControllerState
+    from cartpole_control.manager import ControllerManager
 
     p = CartPoleParameters()
-    plugin = create('swingup', 'time_optimal')
-    plugin.configure({}, ControlContext(plant=p, x_ref=p.x_middle, sample_time=p.sample_time))
-    plugin.wait_for_plans()
+    start = ControllerState(0.0, *Scenario().initial_state())
+    for name in swingups:
+        manager = ControllerManager(p, sample_time=p.sample_time)
+        if manager.set_parameters({'swingup': name}).successful:
+            manager.prepare(start, progress)
 
 
 def _percentile(values: Iterable[float], q: float) -> float | None:

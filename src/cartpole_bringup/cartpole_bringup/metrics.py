@@ -23,7 +23,7 @@ WINDOW_S = 10.0
 """The thesis's table 10.2 measures the last 10 s."""
 
 SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
-                'mse_x', 'mse_theta', 'end_stop_contact', 'success')
+                'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'swingup_law')
 
 
 def wrap(theta: np.ndarray) -> np.ndarray:
@@ -35,7 +35,7 @@ def wrap(theta: np.ndarray) -> np.ndarray:
 
 def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
               x_ref: float, catch_time: float | None, end_stop_contact: bool,
-              window: float = WINDOW_S) -> dict[str, Any]:
+              window: float = WINDOW_S, swingup_law: str | None = None) -> dict[str, Any]:
     """The SPEC section 5 summary of one run from hanging rest.
 
     Parameters
@@ -51,6 +51,11 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         Whether the cart touched an end stop.
     window
         Length of the final window for the amplitude, error and MSE figures.
+    swingup_law
+        What produced the swing-up (SPEC 8): the swing-up plugin's law at the
+        first catch (else at the end), e.g. ``pendulum_energy``,
+        ``time_optimal:plan``, ``time_optimal:fallback(no plan)``; None when
+        not known (a bag recorded before the status carried it).
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -74,6 +79,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         'mse_theta': float(np.mean(theta_w[last] ** 2)),
         'end_stop_contact': bool(end_stop_contact),
         'success': success,
+        'swingup_law': swingup_law,
     }
 
 

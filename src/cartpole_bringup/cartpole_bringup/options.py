@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from cartpole_sim import scenario_options
 from cartpole_sim.model import CartPoleParameters
@@ -90,3 +91,10 @@ def print_summary(summary: dict[str, Any], as_json: bool) -> None:
         else:
             text = 'null' if value is None else str(value)
         print(f'{key:<{width}}  {text}')
+
+
+def progress_printer(prefix: str) -> Callable[[str], None]:
+    """A ``progress`` callback: one line on stderr (stdout stays the summary, e.g. JSON)."""
+    def say(text: str) -> None:
+        print(f'{prefix}: {text}', file=sys.stderr, flush=True)
+    return say

@@ -42,8 +42,36 @@ def test_known_trajectory_gives_the_known_summary(known_bag):
     assert s['mse_theta'] == pytest.approx(0.01 ** 2 / 2 * 1000 / 1001, rel=1e-6)
     assert s['end_stop_contact'] is False
     assert s['success'] is True
+    assert s['swingup_law'] is None  # not recorded: not guessed
     assert a.topics['/cartpole/true_state'] == 2001
     assert a.series.t[0] == 0.0 and a.series.t[-1] == pytest.approx(20.0)
+
+
+def test_summary_names_the_swingup_law_of_the_catch(tmp_path):
+    # The status at the catch names the law that swung up; what the swing-up plugin
+    # reports later (here: after the catch, a fall-back reason) does not change it.
+    path = tmp_path / 'bag'
+    bag_synth.write_run(path, swingup_laws=('time_optimal:plan',
+                                            'time_optimal:fallback(not at hanging rest)'))
+    assert analyze_bag(path).summary['swingup_law'] == 'time_optimal:plan'
+    bag_synth.write_run(tmp_path / 'bag2', swingup_laws=('time_optimal:fallback(no plan)',
+                                                         'time_optimal:fallback(no plan)'))
+    assert analyze_bag(tmp_path / 'bag2').summary['swingup_law'] == 'time_optimal:fallback(no plan)'
+
+
+def test_series_builder_takes_the_law_at_the_catch_from_a_status_series():
+    from cartpole_bringup.analyze import SeriesBuilder
+    b = SeriesBuilder()
+    statuses = [('swingup', '', 'time_optimal'), ('swingup', '', 'time_optimal:plan'),
+                ('stabilizing', 'catch', 'time_optimal:plan'),
+                ('swingup', 'fall', 'time_optimal:fallback(not at hanging rest)')]
+    for k, (mode, event, law) in enumerate(statuses):
+        b.status(k, {'mode': mode, 'event': event, 'swingup_law': law,
+                     'state_stamp': repr(k * 0.005)})
+    assert b.swingup_law == 'time_optimal:plan'
+    never = SeriesBuilder()
+    never.status(0, {'mode': 'swingup', 'event': '', 'swingup_law': 'pendulum_energy'})
+    assert never.swingup_law == 'pendulum_energy'
 
 
 def test_x_ref_option_overrides_the_bag(known_bag):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 from cartpole_sim.model import CartPoleParameters, wrap_angle
 
@@ -183,6 +183,29 @@ class Controller(ABC):
 
     def on_configure(self) -> None:
         """Recompute derived quantities from :attr:`gains` and :attr:`context`."""
+
+    @classmethod
+    def prepare(cls, gains: Mapping[str, Any], context: ControlContext, start: ControllerState,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+        """Do the slow work a run from ``start`` needs before it starts; may block for long.
+
+        Batch and lockstep runs call it once before their first cycle (a
+        real-time loop never waits for it), with the run's ``gains`` and
+        ``context``. Returns the gain changes that make the run's instance
+        use that work (e.g. the start to load a plan for); ``progress``
+        takes one-line messages for the user. Default: nothing to do.
+        """
+        return {}
+
+    @property
+    def law(self) -> str:
+        """What produces the output now (``swingup_law`` of the status and summary, SPEC 8).
+
+        The plugin's name; a plugin that switches between laws says which,
+        as ``<name>:<law>`` (e.g. ``time_optimal:plan``,
+        ``time_optimal:fallback(no plan)``). Read every cycle: keep it cheap.
+        """
+        return self.name
 
     def activate(self, state: ControllerState) -> None:
         """Start from ``state`` without a bump (reset integrators, filters)."""

@@ -28,7 +28,7 @@ import logging
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
 
@@ -103,6 +103,10 @@ class ManagerOutput:
     catch_time: float | None
     """Time of the first catch since :meth:`ControllerManager.reset`, or None."""
     fault_reason: str
+    swingup_law: str = ''
+    """What the swing-up plugin runs (:attr:`Controller.law`): its name, or e.g.
+    ``time_optimal:plan`` / ``time_optimal:fallback(no plan)``; the last one
+    that ran while another mode is active."""
 
 
 _new_object = object.__new__
@@ -126,7 +130,7 @@ def _controller_state(t: float, x: float, theta: float, x_dot: float, theta_dot:
 
 def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
                     raw_force, feedforward, event, catch_count, fall_count, catch_time,
-                    fault_reason) -> ManagerOutput:
+                    fault_reason, swingup_law) -> ManagerOutput:
     """``ManagerOutput(...)`` with every field positional, built directly (see
     :func:`_controller_state`); a test checks it equals the dataclass's own."""
     out = _new_object(ManagerOutput)
@@ -135,7 +139,7 @@ def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy
         'enabled': enabled, 'energy': energy, 'energy_error': energy_error,
         'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
         'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
-        'fault_reason': fault_reason})
+        'fault_reason': fault_reason, 'swingup_law': swingup_law})
     return out
 
 
@@ -350,6 +354,30 @@ class ControllerManager:
             self._pending.update(accepted)
         return SetResult(True)
 
+    def prepare(self, start: ControllerState,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+        """Before a batch or lockstep run from ``start``: each configured plugin's
+        :meth:`Controller.prepare` (blocking: e.g. a missing plan is solved now).
+
+        The gain changes the plugins ask for are queued like
+        :meth:`set_parameters` and returned as ``<plugin>.<gain>`` parameters
+        (for a graph started afterwards). ValueError if one is refused.
+        """
+        with self._lock:
+            values = dict(self._values)
+        context = self._make_context(values)
+        changes: dict[str, Any] = {}
+        for kind in KINDS:
+            name = values[kind]
+            asked = self._registry[kind][name].prepare(self._gains(name, values), context, start,
+                                                       progress)
+            changes.update({f'{name}.{key}': value for key, value in asked.items()})
+        if changes:
+            result = self.set_parameters(changes)
+            if not result.successful:
+                raise ValueError(f'prepared parameters refused: {result.reason}')
+        return changes
+
     # -- requests -----------------------------------------------------------------------
     def restart(self) -> str:
         """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
@@ -559,4 +587,4 @@ class ControllerManager:
                                self._enabled, energy, self._upright_energy - energy, raw,
                                feedforward, ';'.join(events) if events else '',
                                self.catch_count, self.fall_count, self.catch_time,
-                               self.fault_reason)
+                               self.fault_reason, self._plugins[SWINGUP].law)

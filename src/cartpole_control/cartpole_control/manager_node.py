@@ -50,7 +50,8 @@ NODE_NAME = 'controller_manager'
 STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
 STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
-               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp')
+               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
+               'swingup_law')
 """The KeyValues of the controller status, in this order (docs/architecture.md)."""
 
 
@@ -272,6 +273,7 @@ def status_message(out: ManagerOutput, stamp) -> DiagnosticArray:
         'fall_count': repr(float(out.fall_count)),
         'event': out.event,
         'state_stamp': repr(_stamp_seconds(stamp)),
+        'swingup_law': out.swingup_law,
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',

@@ -144,6 +144,7 @@ def test_cycle_publishes_force_and_status_with_the_state_stamp(graph):
     assert float(kv['force']) == command.effort[0]
     assert float(kv['state_stamp']) == pytest.approx(12.345)
     assert float(kv['catch_count']) == 1.0
+    assert kv['swingup_law'] == 'pendulum_energy'  # the law of the swing-up that was caught
     assert float(kv['energy_error']) == pytest.approx(
         P.upright_energy - float(kv['energy']), abs=1e-12)
 

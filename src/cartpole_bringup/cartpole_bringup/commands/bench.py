@@ -64,6 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp.add_argument('--duration', type=float, default=60.0, metavar='S', help='wall seconds per mode')
     lp.add_argument('--modes', nargs='*', default=['single', 'processes'],
                     choices=['single', 'processes'])
+    lp.add_argument('--executors', nargs='*', default=['events', 'single'],
+                    choices=['events', 'single'],
+                    help='executors of the one-process graph and its floor (default both; one '
+                         'process a node always spins the SingleThreadedExecutor)')
 
     a = sub.add_parser('all', help='control, robustness, offline and loop with their defaults')
     _common(a)
@@ -253,7 +257,8 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     from ..bench_loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
-    result = run_loop_benchmark(duration=args.duration, modes=args.modes)
+    result = run_loop_benchmark(duration=args.duration, modes=args.modes,
+                                executors=args.executors)
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))

@@ -46,7 +46,8 @@ def main(args: argparse.Namespace) -> int:
         run = run_closed_loop(options.nominal_parameters(args), options.scenario_from_args(args),
                               duration=args.duration,
                               manager_parameters=manager_parameters_from_args(args),
-                              ekf_config=ekf_config_from_args(args))
+                              ekf_config=ekf_config_from_args(args),
+                              progress=options.progress_printer('cartpole offline'))
     except ValueError as exc:
         raise SystemExit(f'cartpole offline: {exc}') from None
     options.print_summary(run.summary, args.json)
