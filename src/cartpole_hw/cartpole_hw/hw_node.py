@@ -13,7 +13,10 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 - ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
   ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
-  status ``hw_bridge``) every ``health_period``.
+  status ``hw_bridge``) every ``health_period``;
+- after a homing (the position reference moved: x = 0 now), announces it on
+  ``/cartpole/plant_reset`` (std_msgs/Header, stamp = the first sample's)
+  before that sample, so the EKF re-initialises instead of filtering the jump.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
 from . import protocol as jp
@@ -123,6 +127,8 @@ class HwBridgeNode(Node):
 
         self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
+        self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', 10)
+        self._homes_announced = 0
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/home', self._on_home)
@@ -143,6 +149,10 @@ class HwBridgeNode(Node):
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
+        homes = self.core.homes
+        if homes != self._homes_announced:
+            self._homes_announced = homes
+            self._reset_pub.publish(Header(stamp=msg.header.stamp))
         self._joint_pub.publish(msg)
         if self._home_pending and self.core.link_ready:
             self._home_pending = False
