@@ -52,7 +52,7 @@ from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -159,7 +159,8 @@ class ControllerManagerNode(Node):
                                                  PUBLISH_DEPTH)
         # Created before the state subscription: when both are ready at once, the
         # executor hands over the reset first.
-        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset, 10)
+        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+                                 PLANT_RESET_QOS)
         self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
         self._reset_from: float | None = None

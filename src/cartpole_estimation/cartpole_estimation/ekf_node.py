@@ -30,7 +30,7 @@ from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 JOINT_NAMES = ('cart', 'pendulum')
 
@@ -122,7 +122,8 @@ class EkfNode(Node):
         self._reset_from: float | None = None
         self.cycle_gaps = CycleGapMeter()
         # Before /joint_states: when both are ready at once, the reset is taken first.
-        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset, 10)
+        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+                                 PLANT_RESET_QOS)
         self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)

@@ -36,7 +36,7 @@ from std_srvs.srv import SetBool, Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -127,7 +127,7 @@ class HwBridgeNode(Node):
 
         self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
-        self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', 10)
+        self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
         self._homes_announced = 0
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)

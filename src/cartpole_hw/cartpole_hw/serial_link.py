@@ -10,11 +10,16 @@ long after it was due, while the device's lines piled up) the lines are taken
 first, so the watchdogs judge the device, not this process's own scheduling. Writes come from this thread and from the
 caller's (ROS executor) thread; both hold ``lock``, the same lock that
 guards the core, so the order of the lines on the wire is the order of the
-core's decisions. A failed write or read closes the port; the core is told
+core's decisions. A write fails only when the port stays unwritable for
+:data:`WRITE_TIMEOUT` (pyserial's own write timeout also fires when the
+writing thread merely waited that long for the interpreter lock, after the
+bytes were written). A failed write or read closes the port; the core is told
 (it disarms) and the thread starts re-opening it. No ROS import.
 """
 from __future__ import annotations
 
+import os
+import select
 import threading
 import time
 from typing import Callable
@@ -24,8 +29,27 @@ import serial
 from . import protocol as jp
 from .bridge import BridgeCore, JointSample
 
+WRITE_TIMEOUT = 0.05
+"""Longest time the port may stay unwritable before the link counts as broken [s]."""
 MAX_DEFERRED_TICKS = 16
 """Reads in a row that may put the watchdogs off because more bytes are waiting."""
+
+
+def write_all(fd: int, data: bytes, timeout: float) -> None:
+    """Write every byte to the non-blocking ``fd``; TimeoutError only if it stays
+    unwritable until ``timeout`` s after the call (a late thread is not a dead port)."""
+    deadline = time.monotonic() + timeout
+    view = memoryview(data)
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+            continue
+        except BlockingIOError:
+            pass
+        _, ready, _ = select.select([], [fd], [], max(0.0, deadline - time.monotonic()))
+        if not ready:
+            raise TimeoutError(f'port not writable for {timeout:g} s '
+                               f'({len(view)} of {len(data)} bytes unsent)')
 
 
 class SerialLink:
@@ -84,8 +108,8 @@ class SerialLink:
         if port is None:
             return
         try:
-            port.write(b''.join(lines))
-        except (serial.SerialException, OSError) as exc:
+            write_all(port.fileno(), b''.join(lines), WRITE_TIMEOUT)
+        except (serial.SerialException, OSError, ValueError) as exc:
             self._broken = f'write failed: {exc}'
 
     @property
@@ -96,7 +120,7 @@ class SerialLink:
     def _open(self) -> bool:
         try:
             port = serial.Serial(self.port, self.baud, timeout=self.core.config.tick_period,
-                                 write_timeout=0.05, exclusive=True)
+                                 exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
             if str(exc) != self.open_error:
                 self.log(f'cannot open {self.port}: {exc}')

@@ -1,17 +1,43 @@
 """The serial link's reader loop on a fake port, in simulated time: a stall of the host
-process must not be mistaken for a silent device."""
+process must not be mistaken for a silent device, nor a late writer for a dead port."""
+import fcntl
+import os
+
+import pytest
+
 from cartpole_hw import protocol as jp
 from cartpole_hw.bridge import BridgeCore
-from cartpole_hw.serial_link import SerialLink
+from cartpole_hw.serial_link import SerialLink, write_all
+
+
+def pipe():
+    """A non-blocking pipe (as pyserial opens a port): (read end, write end)."""
+    r, w = os.pipe()
+    for fd in (r, w):
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
+    return r, w
 
 
 class FakePort:
-    """What pyserial's Serial offers the link: read, in_waiting, write."""
+    """What pyserial's Serial offers the link: read, in_waiting, fileno (writes)."""
 
     def __init__(self):
         self.pending = b''
-        self.written = b''
         self.read_times_out = False
+        self._r, self._w = pipe()
+
+    def fileno(self):
+        return self._w
+
+    @property
+    def written(self):
+        out = b''
+        while True:
+            try:
+                chunk = os.read(self._r, 65536)
+            except BlockingIOError:
+                return out
+            out += chunk
 
     @property
     def in_waiting(self):
@@ -23,9 +49,6 @@ class FakePort:
             return b''
         data, self.pending = self.pending[:n], self.pending[n:]
         return data
-
-    def write(self, data):
-        self.written += data
 
 
 class Clock:
@@ -82,3 +105,20 @@ def test_a_silent_device_still_trips_the_sample_timeout():
     link._poll(port)
     assert not link.core.armed and 'no valid sample' in link.core.last_error
     assert port.written.endswith(jp.encode(jp.Setpoint(0)) + jp.encode(jp.Enable(False)))
+
+
+def test_a_late_writer_is_not_a_dead_port_but_a_full_one_is():
+    r, w = pipe()
+    try:
+        write_all(w, b'U,0*49\n', timeout=0.0)      # no time left, but writable: written
+        assert os.read(r, 100) == b'U,0*49\n'
+        while True:                                   # fill the pipe: nobody reads it
+            try:
+                os.write(w, b'x' * 65536)
+            except BlockingIOError:
+                break
+        with pytest.raises(TimeoutError, match='not writable'):
+            write_all(w, b'U,0*49\n', timeout=0.01)
+    finally:
+        os.close(r)
+        os.close(w)

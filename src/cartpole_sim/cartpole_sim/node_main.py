@@ -14,7 +14,7 @@ while the node shuts down. Bad start-up parameters (and a bad
 
 After start-up the process gets the real-time hygiene of
 :mod:`cartpole_sim.realtime` (collector frozen and run between callbacks;
-SCHED_FIFO for the loop's nodes).
+SCHED_FIFO for the loop's nodes in real time).
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ import rclpy
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from . import realtime
@@ -59,7 +60,8 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     try:
         node = make_node()
         executor.add_node(node)
-        hygiene = realtime.node_hygiene(node.get_name(), node.get_logger())
+        hygiene = realtime.node_hygiene(node.get_name(), node.get_logger(),
+                                        node.get_parameter('use_sim_time').value)
         while rclpy.ok() and stop.signum is None:
             executor.spin_once(timeout_sec=0.1)
             realtime.collect_when_idle()
@@ -83,6 +85,12 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
+
+PLANT_RESET_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""QoS of ``/cartpole/plant_reset`` (publishers and subscribers): the last reset is kept
+for late joiners, so a homing announced while the graph is still discovering itself
+reaches the EKF and the controller manager."""
 
 PUBLISH_DEPTH = 100
 """History depth of the 200 Hz publishers: a slow subscriber (the recorder on a

@@ -11,8 +11,10 @@ start-up by :func:`enter_loop` and undone by :meth:`LoopHygiene.leave`:
   matrices are 4x4; a BLAS thread pool only adds threads that wake, spin and
   compete with the loop for the two cores.
 - **Garbage collector frozen after start-up, collecting only when idle.**
-  Everything built while starting (modules, nodes, plugins) is collected once
-  and then frozen (:func:`gc.freeze`), so no later collection scans it. The
+  Everything built while starting (modules, nodes, plugins) is frozen
+  (:func:`gc.freeze`), so no later collection scans it; it is not collected
+  first: a full collection of the start-up heap pauses the process for up to
+  half a second on a loaded machine, and the loop may already run. The
   automatic collection is pushed far out (:data:`SAFETY_THRESHOLD` allocations:
   a safety net only), and the loop calls :func:`collect_when_idle` where it has
   time to spare (after a cycle's command is out, or between two executor
@@ -22,9 +24,13 @@ start-up by :func:`enter_loop` and undone by :meth:`LoopHygiene.leave`:
   executor, the DDS threads, the serial reader) gets ``SCHED_FIFO`` at
   :data:`DEFAULT_PRIORITY`, well below the kernel's own real-time threads
   (threaded interrupts at 50, migration and watchdog at 99), with
-  ``SCHED_RESET_ON_FORK`` so that child processes start at normal priority.
+  ``SCHED_RESET_ON_FORK`` so that child processes (and threads started later,
+  e.g. background work) start at normal priority: call it once the executor
+  spins, when the loop's threads exist.
   Only the loop's processes take it (:data:`LOOP_NODES`, the one-process
-  graph, the device emulator). So that it can never starve the machine, a
+  graph, the device emulator), and only in real time: a lockstep run
+  (simulated time) runs flat out by design and must not hold a core at
+  real-time priority. So that it can never starve the machine, a
   thread that runs :data:`RUNAWAY_LIMIT` s without blocking gets ``SIGXCPU``
   from the kernel (``RLIMIT_RTTIME``) and the whole process drops back to
   normal priority, with a log line; the kernel's real-time throttling
@@ -64,8 +70,8 @@ the kernel's threaded interrupts (50) and its migration and watchdog threads (99
 MAX_PRIORITY = 49
 LOOP_NODES = frozenset({'sim', 'hw_bridge', 'ekf', 'controller_manager'})
 """Nodes whose executables take the real-time priority (the recorder does not)."""
-IDLE_THRESHOLDS = (700, 10, 10)
-"""CPython's default collector thresholds, applied by :func:`collect_when_idle`."""
+IDLE_THRESHOLDS = (700, 10)
+"""CPython's default thresholds of the young generations, applied by :func:`collect_when_idle`."""
 SAFETY_THRESHOLD = 200_000
 """Generation-0 threshold of the automatic collection while the policy is active: it
 only runs if the loop has not called :func:`collect_when_idle` for that long."""
@@ -122,16 +128,17 @@ def collect_when_idle() -> int:
     its threshold, :data:`IDLE_THRESHOLDS`), made here, at a moment the loop
     has to spare, instead of at whatever allocation crosses the threshold.
     Returns -1 when nothing is due or the policy is not active. Cheap: a
-    young collection with the start-up heap frozen takes tens of us.
+    young collection with the start-up heap frozen takes tens of us. The
+    oldest generation is never collected here: its pause grows with
+    everything the run keeps (the monitor's series), which CPython itself
+    only scans when it has grown by a quarter; it is left to the safety net.
     """
     if gc.get_threshold()[0] < SAFETY_THRESHOLD:
         return -1
     counts = gc.get_count()
     if counts[0] <= IDLE_THRESHOLDS[0]:
         return -1
-    generation = 0
-    if counts[1] >= IDLE_THRESHOLDS[1]:
-        generation = 2 if counts[2] >= IDLE_THRESHOLDS[2] else 1
+    generation = 1 if counts[1] >= IDLE_THRESHOLDS[1] else 0
     gc.collect(generation)
     return generation
 
@@ -265,7 +272,6 @@ def enter_loop(priority: int | None = None, *, log: Callable[[str], None] = prin
     if not 0 <= priority <= MAX_PRIORITY:
         raise ValueError(f'priority must be in 0..{MAX_PRIORITY}, got {priority}')
     hygiene = LoopHygiene(log=warn)
-    gc.collect()
     gc.freeze()
     hygiene.frozen = gc.get_freeze_count()
     hygiene._previous_thresholds = gc.get_threshold()
@@ -300,13 +306,15 @@ def enter_loop(priority: int | None = None, *, log: Callable[[str], None] = prin
     return hygiene
 
 
-def node_hygiene(node_name: str, logger) -> LoopHygiene:
-    """:func:`enter_loop` for a node process: priority only for :data:`LOOP_NODES`.
+def node_hygiene(node_name: str, logger, simulated_time: bool = False) -> LoopHygiene:
+    """:func:`enter_loop` for a node process: priority only for :data:`LOOP_NODES` in
+    real time (not on ``simulated_time``, i.e. ``use_sim_time`` in lockstep).
 
     ``logger`` has ``info`` and ``warning`` (an rclpy logger or a
     :class:`logging.Logger`). Every node gets the collector policy.
     """
-    priority = priority_from_environment() if node_name in LOOP_NODES else 0
+    real_time_loop = node_name in LOOP_NODES and not simulated_time
+    priority = priority_from_environment() if real_time_loop else 0
     return enter_loop(priority, log=logger.info, warn=logger.warning, what=node_name)
 
 

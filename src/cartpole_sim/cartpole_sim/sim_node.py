@@ -51,7 +51,7 @@ from std_srvs.srv import Trigger
 from .model import CartPoleParameters
 from .plant import Scenario
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
-from .node_main import PUBLISH_DEPTH, run_node
+from .node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
@@ -104,7 +104,7 @@ class SimNode(Node):
 
         self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
         self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
-        self._pub_reset = self.create_publisher(Header, 'cartpole/plant_reset', 10)
+        self._pub_reset = self.create_publisher(Header, 'cartpole/plant_reset', PLANT_RESET_QOS)
         self._reset_stamp_ns = -1
         """Commands stamped before this [ns] answer the run before the last reset."""
         self._pub_clock = None
