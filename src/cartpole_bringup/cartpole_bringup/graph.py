@@ -294,21 +294,21 @@ class Graph:
             self._start_processes()
         else:
             self._start_in_process()
-        self.wall_start = time.monotonic()
-        if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
-            if self.should_stop():
-                return
-            raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
-                             f'{self._process_report()}')
-        if not self.spec.processes:
             # The loop's real-time hygiene for this process (cartpole_sim.realtime), once
-            # the executor spins (its threads exist then and take the priority too).
+            # the executor has spun (its threads exist then and take the priority too).
+            self.executor.spin_once(timeout_sec=0.0)
             try:
                 self.realtime = realtime.enter_loop(
                     0 if self.spec.lockstep else None, what='cartpole run',
                     log=self.monitor.get_logger().info, warn=self.monitor.get_logger().warning)
             except ValueError as error:
                 raise GraphError(str(error)) from None
+        self.wall_start = time.monotonic()
+        if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
+            if self.should_stop():
+                return
+            raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
+                             f'{self._process_report()}')
         if self.spec.lockstep:
             self._ensure_loop_started()
         self.wall_start = time.monotonic()

@@ -220,6 +220,19 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     assert values_of(status_array)[1]['mode'] in ('swingup', 'stabilizing')
 
 
+def test_a_late_stale_check_leaves_the_verdict_to_the_next_check(graph):
+    """A check that itself comes late means this process did not run (the states may
+    be queued): no fault then; the next, timely check still faults if none came."""
+    node, h = graph
+    h.send_state(3.0)
+    now = node.get_clock().now().nanoseconds
+    node._last_state_ns = node._last_check_ns = now - 200_000_000   # stalled 200 ms
+    node._check_stale()
+    assert not node._stale and node.manager.mode != 'fault'
+    node._check_stale()
+    assert node._stale and node.manager.mode == 'fault'
+
+
 def test_enabled_false_is_idle_with_zero_force(graph):
     node, h = graph
     (result,) = h.set(enabled=False)

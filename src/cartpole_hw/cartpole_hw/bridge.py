@@ -14,6 +14,13 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
   encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
   ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
   the device ``U,0`` every sample (zero force, device watchdog quiet).
+- An arming requested ahead (``arm_requested``, the ``armed`` parameter at
+  start) waits, besides, for a warm loop: ``warm_commands`` consecutive
+  commands received while disarmed, each fresh within half the
+  ``command_timeout``. A loop still starting up (a backlog of samples being
+  worked off, commands older than the watchdog) would otherwise be armed and
+  at once disarmed by the watchdogs. An explicit :meth:`BridgeCore.arm` arms
+  at once.
 - Host watchdog: once commands flow, no fresh command for ``command_timeout``
   -> ``U,0``, ``E,0``, disarmed (a *trip*). Non-finite or stale commands
   (stamp older than ``command_timeout``) are not fresh. The watchdogs run at
@@ -79,6 +86,9 @@ class BridgeConfig:
     """The device's sample period Ts [s] (one sequence number per period)."""
     sequence_slack: float = 0.1
     """Sequence jumps beyond elapsed time / sample_time + this / sample_time are refused [s]."""
+    warm_commands: int = 20
+    """Consecutive fresh commands (within command_timeout / 2) an arming requested ahead
+    waits for: the control loop answers the samples in time (100 ms at 200 Hz)."""
 
     def __post_init__(self) -> None:
         for name in ('command_timeout', 'sample_timeout', 'answer_timeout', 'tick_period',
@@ -86,6 +96,8 @@ class BridgeConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+        if not (isinstance(self.warm_commands, int) and self.warm_commands >= 0):
+            raise ValueError(f'warm_commands must be an integer >= 0, got {self.warm_commands!r}')
 
 
 @dataclass(frozen=True)
@@ -150,6 +162,9 @@ class BridgeCore:
         """Longest gap between two valid samples' receipts (a stall figure)."""
         self.homes = 0
         """Completed homings (each moves the position reference: x = 0 now)."""
+        self.warm_run = 0
+        """Consecutive fresh commands received while disarmed (see warm_commands)."""
+        self._last_warm_command = -math.inf
         # counters for the health report
         self.samples = 0
         self.bad_lines: Counter[str] = Counter()
@@ -204,6 +219,7 @@ class BridgeCore:
         self.armed = True
         self.arm_requested = True
         self.commands_live = False
+        self.warm_run = 0
         self.armed_at = now
         self._since_resync = 0
         return True, 'armed', [E_ON, U_ZERO]
@@ -256,6 +272,10 @@ class BridgeCore:
         """A force command [N] from the controller; ``latency`` = now - its stamp [s]."""
         if not self.armed:
             self.ignored_commands += 1
+            fresh = math.isfinite(force) and (latency is None
+                                              or latency <= 0.5 * self.config.command_timeout)
+            self.warm_run = self.warm_run + 1 if fresh else 0
+            self._last_warm_command = now
             return []
         if not math.isfinite(force):
             self.bad_commands += 1
@@ -296,9 +316,17 @@ class BridgeCore:
                 self.last_error = 'homing failed: no V answer after R'
             self.ping_sent = now
             out += [PING, STREAM_ON]
-        if self.arm_requested and not self.armed and not self.arm_refusal():
+        if self.arm_requested and not self.armed and not self.arm_refusal() \
+                and self.loop_warm(now):
             out += self.arm(now)[2]
         return out
+
+    def loop_warm(self, now: float) -> bool:
+        """The control loop answers in time: ``warm_commands`` fresh commands in a row,
+        the latest within ``command_timeout`` (see the module docstring)."""
+        cfg = self.config
+        return self.warm_run >= cfg.warm_commands and \
+            (cfg.warm_commands == 0 or now - self._last_warm_command <= cfg.command_timeout)
 
     # -- received lines ------------------------------------------------------------------------------
     def on_line(self, line: bytes | jp.DecodeError, now: float) -> Output:
@@ -420,6 +448,8 @@ class BridgeCore:
             'armed': str(self.armed).lower(),
             'homed': str(self.homed).lower(),
             'homing': str(self.homing).lower(),
+            'arm_requested': str(self.arm_requested).lower(),
+            'warm_commands': str(self.warm_run),
             'samples': str(self.samples),
             'lost_samples': str(self.tracker.lost),
             'bad_lines': str(sum(self.bad_lines.values())),

@@ -102,7 +102,8 @@ class HwBridgeNode(Node):
                         'at the left stop and the pendulum hanging still', **ro))
         self.declare_parameter('armed', False, ParameterDescriptor(
             description='true enables the amplifier and forwards force commands; true at start '
-                        'arms as soon as the device answers and the encoders are homed; any '
+                        'arms as soon as the device answers, the encoders are homed and the '
+                        'control loop answers the samples in time (20 fresh commands); any '
                         'fault sets it back to false'))
 
         p = {name: self.get_parameter(name).value for name in _CALIBRATION}

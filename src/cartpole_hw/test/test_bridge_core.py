@@ -148,6 +148,26 @@ def test_absurd_sequence_jump_is_a_bad_sample_not_lost_samples():
     assert (h['lost_samples'], h['bad_samples'], h['sequence_resyncs']) == ('30', '3', '1')
 
 
+def test_an_arming_requested_ahead_waits_for_a_warm_loop():
+    """armed:=true at start: no E,1 while the loop still works off a backlog (stale
+    commands), only after 20 fresh commands in a row; an explicit arm is immediate."""
+    core = ready_core()
+    core.arm_requested = True
+    t = 0.0
+    for k in range(1, 60):
+        t = k * 0.005
+        core.on_line(sample(k), t)
+        core.on_command(1.0, t + 0.001, latency=0.08 if k < 30 else 0.002)   # backlog, then live
+        lines = core.on_tick(t + 0.002)
+        if core.armed:
+            break
+        assert E_ON not in lines
+    assert core.armed and k == 29 + core.config.warm_commands
+    assert lines == [E_ON, U_ZERO]
+    other = ready_core()
+    assert other.arm(0.0)[0]                                     # the ~/arm service: at once
+
+
 def test_stale_and_nonfinite_commands_are_not_fresh():
     core = ready_core()
     core.arm(0.0)
