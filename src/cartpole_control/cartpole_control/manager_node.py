@@ -23,9 +23,10 @@ Wiring only; every decision is the manager's.
 - service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
   fault; ``success`` false and the reason when there is nothing to restart;
 - subscribes ``/cartpole/plant_reset`` (std_msgs/Header, published by the
-  simulator's ``~/reset``): the plant is back in its initial state from
-  ``stamp`` on, so the first state stamped at or after it starts a new run
-  (:meth:`ControllerManager.reset`: swing-up, or idle when disabled; event
+  simulator's ``~/reset`` and the bridge's homing): the plant (or the
+  position reference) is new from ``stamp`` on, so the first state stamped at
+  or after it starts a new run (:meth:`ControllerManager.reset`: swing-up, or
+  idle when disabled; event
   ``plant_reset``) instead of the running controller (and the rail guard)
   seeing the jump;
 - ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between

@@ -353,6 +353,7 @@ class BridgeCore:
             self.homing = False
             self.homed = True
             self.homes += 1
+            self.gaps.last = None      # the samples discarded while homing are no stall
             self._unwrap_cart.reset()
             self._unwrap_pend.reset()
         return []
