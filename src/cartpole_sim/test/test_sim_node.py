@@ -166,9 +166,14 @@ def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(gr
                                                                              spin_until):
     """SPEC 8 by simulated stamps: the last command answers sample 2 (it arrives at t_2);
     the controller then falls silent and the sim steps on its lockstep timeout."""
-    sim, probe, executor = graph(echo_force=20.0, lockstep=True, lockstep_timeout=0.001,
+    from rclpy.parameter import Parameter
+
+    sim, probe, executor = graph(echo_force=20.0, lockstep=True, lockstep_timeout=30.0,
                                  x0=0.3)
     probe.max_commands = 3
+    assert spin_until(executor, lambda: 3 * TS_NS in probe.stamps(), timeout=30.0)
+    # All three answered in lockstep; from now on the sim steps without commands.
+    assert sim.set_parameters([Parameter('lockstep_timeout', value=0.001)])[0].successful
     assert spin_until(executor, lambda: len(probe.truth) >= 20, timeout=30.0)
     last_command_ns = 2 * TS_NS
     pushed = [m for m in probe.truth if m.effort[0] > 19.0]
