@@ -379,21 +379,39 @@ class ControllerManager:
         return changes
 
     # -- requests -----------------------------------------------------------------------
-    def restart(self) -> str:
+    def restart(self) -> SetResult:
         """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
 
         A fault is cleared and the rail guard re-armed (after its brake has
-        stopped the cart). With ``enabled`` false the manager stays idle.
-        Returns what will happen, for a service reply.
+        stopped the cart). The answer says truthfully what will happen, for
+        the service reply: ``successful`` is False when there is nothing to
+        restart (control running, or idle because ``enabled`` is false) and
+        then nothing is requested.
         """
+        mode = self.mode
         with self._lock:
-            self._restart_requested = True
-            enabled = self._values['enabled']
-        if self.mode in (SWINGUP_MODE, STABILIZING):
-            return f'already running ({self.mode}); nothing to restart'
+            enabled = bool(self._values['enabled'])
+            if mode == FAULT or (mode == IDLE and enabled):
+                self._restart_requested = True
+        if mode == FAULT:
+            cleared = f'fault ({self.fault_reason}) cleared' if self.fault_reason \
+                else 'fault cleared'
+            if not enabled:
+                return SetResult(True, f'{cleared}; control is disabled (enabled = false), '
+                                       'staying idle')
+            if self._guard.status == BRAKING:
+                return SetResult(True, f'{cleared}; swing-up restarts once the rail guard has '
+                                       'braked the cart to rest')
+            return SetResult(True, f'{cleared}; swing-up restarts at the next control cycle')
+        if mode == IDLE:
+            if not enabled:
+                return SetResult(False, 'nothing to restart: control is disabled (enabled = '
+                                        'false); set enabled to true to start a swing-up')
+            return SetResult(True, 'swing-up starts at the next control cycle')
         if not enabled:
-            return 'fault cleared; control is disabled (enabled = false), staying idle'
-        return 'swing-up restarts at the next control cycle'
+            return SetResult(False, f'nothing to restart: control ({mode}) is being disabled '
+                                    '(enabled = false)')
+        return SetResult(False, f'already running ({mode}); nothing to restart')
 
     def reset(self) -> None:
         """Back to the start of a run: counters cleared, guard re-armed, swing-up (or idle) next.

@@ -334,7 +334,9 @@ def test_stale_state_commands_zero_and_faults_until_restart():
         0.0, FAULT, 'stale state', 'fault:stale state')
     out = m.update(state(0.065))
     assert (out.force, out.mode, out.event) == (0.0, FAULT, '')
-    assert 'restarts' in m.restart()
+    answer = m.restart()
+    assert answer.successful and answer.reason == (
+        'fault (stale state) cleared; swing-up restarts at the next control cycle')
     out = m.update(state(0.07))
     assert (out.mode, out.event, out.fault_reason) == (SWINGUP_MODE, 'restart', '')
     assert out.force > 5.0
@@ -373,8 +375,34 @@ def test_disable_gives_idle_and_zero_force_enable_restarts_swingup():
 def test_starts_idle_when_disabled_and_restart_keeps_it_idle():
     m = make(enabled=False)
     assert m.update(state(0.0)).mode == IDLE
-    assert 'disabled' in m.restart()
-    assert m.update(state(TS)).mode == IDLE
+    answer = m.restart()
+    assert not answer.successful and 'nothing to restart' in answer.reason
+    assert 'disabled' in answer.reason and 'fault' not in answer.reason
+    out = m.update(state(TS))
+    assert (out.mode, out.event) == (IDLE, '')
+
+
+def test_restart_answers_truthfully_in_every_mode():
+    m = make(swingup='push_a', **{'push_a.force': 5.0})
+    m.update(state(0.0))
+    running = m.restart()                                  # swing-up: nothing to do
+    assert not running.successful and running.reason.startswith('already running (swingup)')
+    assert m.update(state(TS)).event == ''
+    m.set_parameters({'enabled': False})                   # being disabled, not yet applied
+    assert 'being disabled' in m.restart().reason
+    assert m.update(state(2 * TS)).mode == IDLE
+    idle = m.restart()                                     # disabled: no fault to clear
+    assert not idle.successful and 'fault' not in idle.reason
+    assert m.update(state(3 * TS)).event == ''             # and no restart happens
+    m.set_parameters({'enabled': True})
+    assert m.update(state(4 * TS)).event == 'restart'      # enabling restarts, as documented
+    m.stale(5 * TS)
+    m.set_parameters({'enabled': False})                   # a fault, then disabled
+    disabled_fault = m.restart()
+    assert disabled_fault.successful and disabled_fault.reason.startswith(
+        'fault (stale state) cleared; control is disabled')
+    out = m.update(state(6 * TS))
+    assert (out.mode, out.fault_reason) == (IDLE, '')
 
 
 def test_reset_clears_counters():

@@ -221,6 +221,19 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     assert values_of(status_array)[1]['mode'] in ('swingup', 'stabilizing')
 
 
+def test_a_late_stale_check_leaves_the_verdict_to_the_next_check(graph):
+    """A check that itself comes late means this process did not run (the states may
+    be queued): no fault then; the next, timely check still faults if none came."""
+    node, h = graph
+    h.send_state(3.0)
+    now = node.get_clock().now().nanoseconds
+    node._last_state_ns = node._last_check_ns = now - 200_000_000   # stalled 200 ms
+    node._check_stale()
+    assert not node._stale and node.manager.mode != 'fault'
+    node._check_stale()
+    assert node._stale and node.manager.mode == 'fault'
+
+
 def test_enabled_false_is_idle_with_zero_force(graph):
     node, h = graph
     (result,) = h.set(enabled=False)
@@ -229,6 +242,32 @@ def test_enabled_false_is_idle_with_zero_force(graph):
     status, kv = values_of(status_array)
     assert command.effort[0] == 0.0 and status.level == DiagnosticStatus.WARN
     assert kv['mode'] == 'idle' and kv['enabled'] == 'false'
+    # No fault to clear: the answer says there is nothing to restart, and nothing changes.
+    reply = h.call(h.restart_client, Trigger.Request())
+    assert not reply.success and 'nothing to restart' in reply.message
+    assert 'fault' not in reply.message
+    _, status_array = h.send_state(4.005)
+    assert values_of(status_array)[1]['mode'] == 'idle'
+
+
+def test_plant_reset_starts_a_new_swingup_from_the_first_state_after_it(graph):
+    from std_msgs.msg import Header
+
+    from cartpole_sim.node_main import PLANT_RESET_QOS
+    node, h = graph
+    _, status_array = h.send_state(5.0, theta=0.05)                  # caught: stabilising
+    assert values_of(status_array)[1]['mode'] == 'stabilizing'
+    pub = h.node.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
+    reset = Header()
+    reset.stamp.sec, reset.stamp.nanosec = 5, 10_000_000              # from t = 5.01 s on
+    pub.publish(reset)
+    assert h.spin_until(h.executor, lambda: node._reset_from is not None, 10.0)
+    _, status_array = h.send_state(5.005, theta=0.06)                 # before it: unchanged
+    assert values_of(status_array)[1]['mode'] == 'stabilizing'
+    _, status_array = h.send_state(5.01, x=0.0, theta=math.pi)        # the reset state
+    kv = values_of(status_array)[1]
+    assert (kv['mode'], kv['event'], kv['catch_count']) == ('swingup', 'plant_reset', '0.0')
+    assert float(kv['longest_cycle_gap_s']) >= 0.0
 
 
 def test_parameters_from_overrides_and_bad_overrides_refuse_to_start(ros_context):

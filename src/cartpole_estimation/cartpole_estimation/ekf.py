@@ -349,11 +349,11 @@ class ExtendedKalmanFilter:
         self._s = s
         self._pc = self._p0
 
-    def request_reset(self) -> None:
-        """Re-initialise from the next measurement, reported as 'requested'."""
+    def request_reset(self, reason: str = 'requested') -> None:
+        """Re-initialise from the next measurement, reported as ``reason``."""
         self.reset()
         self.resets += 1
-        self._pending_reason = 'requested'
+        self._pending_reason = reason
 
     @property
     def initialised(self) -> bool:

@@ -7,6 +7,12 @@ the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
 (diagnostic_msgs/DiagnosticArray) every ``health_period``. The numerical work
 is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
 wires it to ROS.
+
+A ``/cartpole/plant_reset`` (std_msgs/Header, the simulator's ``~/reset``)
+re-initialises the filter from the first sample stamped at or after its
+``stamp`` (reset reason ``plant reset``): the jump of the plant back to its
+initial state is not an innovation to filter. The health reports the
+longest wall-clock gap between two samples (``longest_cycle_gap_s``).
 """
 from __future__ import annotations
 
@@ -17,12 +23,14 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 JOINT_NAMES = ('cart', 'pendulum')
 
@@ -111,6 +119,11 @@ class EkfNode(Node):
         self._state_msg.name = list(JOINT_NAMES)
         self._state_pub = self.create_publisher(JointState, '/cartpole/state', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/ekf/health', 10)
+        self._reset_from: float | None = None
+        self.cycle_gaps = CycleGapMeter()
+        # Before /joint_states: when both are ready at once, the reset is taken first.
+        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+                                 PLANT_RESET_QOS)
         self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -220,6 +233,12 @@ class EkfNode(Node):
             if self._last_estimate is not None:
                 self._state_pub.publish(self._state_msg)
             return
+        self.cycle_gaps.tick()
+        if self._reset_from is not None and t >= self._reset_from:
+            self._reset_from = None
+            self.filter.request_reset('plant reset')
+            self._force_by_stamp.clear()  # commands of the run before the reset
+            self._force_received_at = None
         force = self._prediction_force()
         est = self.filter.update(t, x, theta, force)
         if est.rejected:
@@ -246,6 +265,12 @@ class EkfNode(Node):
         self.last_bad = why
         self.get_logger().warning(f'/joint_states sample dropped: {why}',
                                   throttle_duration_sec=1.0)
+
+    def _on_plant_reset(self, msg: Header) -> None:
+        """The plant is back in its initial state from ``msg.stamp`` on (simulator reset)."""
+        self._reset_from = _stamp_seconds(msg.stamp)
+        if self._last_sample_t is not None and self._last_sample_t >= self._reset_from:
+            self._reset_from = self._last_sample_t  # came late: the next sample re-initialises
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.filter.request_reset()
@@ -283,6 +308,7 @@ class EkfNode(Node):
             'bad_commands': self.bad_commands,
             'rejected_samples': f.rejected_samples, 'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
+            'longest_cycle_gap_s': self.cycle_gaps.longest,
         }
         status.values = [KeyValue(key=k, value=repr(float(v)) if isinstance(v, (int, float))
                                   else str(v)) for k, v in values.items()]

@@ -11,7 +11,16 @@ more than 0.2 s resynchronises and is counted in ``overruns``).
 
 Per sample period: read the limit switches (cart within ``limit_margin`` of a
 stop or in it), run the watchdog, send ``S`` if streaming, then hold the DAC
-output over the next 5 ms of the plant (zero-order hold).
+output over the next 5 ms of the plant (zero-order hold). Host lines are
+handled as they arrive (the loop waits on the pty between periods), each at
+its own device time, as the firmware handles them at ``micros()``; so the
+watchdog measures from a ``U``'s real arrival and the current is zero from
+the period that starts at most 50 ms after it (SPEC 8).
+
+Like the firmware it stands in for, the emulator must not stall: ``cartpole
+emulate`` takes the loop processes' real-time hygiene
+(:mod:`cartpole_sim.realtime`: SCHED_FIFO when permitted, collector frozen
+and run between periods).
 
 The plant runs the scenario's disturbances (:mod:`cartpole_sim.scenario`:
 delay, jitter, actuator gain and lag, force noise, pushes, model errors);
@@ -45,6 +54,7 @@ import time
 import tty
 from dataclasses import dataclass, field
 
+from cartpole_sim import realtime
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario, wrap_counter
 from cartpole_sim.scenario_options import add_scenario_arguments, scenario_from_args
@@ -83,7 +93,8 @@ class Emulator:
         self.plant = Plant(self.params, self.scenario)
         self.calibration = jp.Calibration.from_parameters(self.params)
         self.device = DeviceLogic(name=name, dac_zero=self.calibration.dac_zero,
-                                  dac_max=self.calibration.dac_max)
+                                  dac_max=self.calibration.dac_max,
+                                  sample_period_us=int(round(self.params.sample_time * 1e6)))
         self.link = link
         self.faults = faults or FaultConfig()
         self.limit_margin = float(limit_margin)
@@ -188,7 +199,9 @@ class Emulator:
         except (BlockingIOError, OSError):
             self.tx_dropped += 1   # nobody reads the pty: its buffer is full
 
-    def _receive(self) -> None:
+    def _receive(self, now_us: int | None = None) -> None:
+        """Read the pty and handle its lines at device time ``now_us`` (default: the
+        coming period's)."""
         if self._master is None or time.monotonic() < self._stall_until:
             return
         try:
@@ -197,6 +210,10 @@ class Emulator:
             return
         except OSError:
             return
+        self.feed(data, self.t_us if now_us is None else now_us)
+
+    def feed(self, data: bytes, now_us: int) -> None:
+        """Host bytes arriving at device time ``now_us`` [us]: handle every complete line."""
         for item in self._splitter.feed(data):
             if isinstance(item, jp.DecodeError):
                 self._send(self.device.error(jp.ERROR_CODES[item.reason], item.reason))
@@ -204,11 +221,16 @@ class Emulator:
             self.lines_in += 1
             self.received.append(item)
             del self.received[:-200]
-            replies, reset = self.device.handle_line(item, self.t_us)
+            replies, reset = self.device.handle_line(item, now_us)
             if reset:
                 self._offset = self.plant.encoder_counts()
             for reply in replies:
                 self._send(reply)
+
+    def device_time_us(self, until_next_period: float) -> int:
+        """Device time [us] ``until_next_period`` wall seconds before the coming period."""
+        ahead = min(max(int(until_next_period * 1e6), 0), self.device.sample_period_us - 1)
+        return (self.t_us - ahead) % jp.UINT32
 
     # -- one sample period ---------------------------------------------------------------
     def limits(self) -> tuple[bool, bool]:
@@ -273,6 +295,7 @@ class Emulator:
                 self._receive()
                 self._scheduled_faults(k * ts)
                 self.sample_period()
+                realtime.collect_when_idle()   # the period's work is done
                 k += 1
                 if now - (t0 + k * ts) > 0.2:      # far behind (suspended?): resynchronise
                     self.overruns += 1
@@ -285,7 +308,7 @@ class Emulator:
                 except (OSError, ValueError):
                     ready = []
                 if ready:
-                    self._receive()
+                    self._receive(self.device_time_us(deadline - time.monotonic()))
             else:
                 self._stop.wait(timeout)
 
@@ -382,10 +405,18 @@ def main(argv: list[str] | None = None) -> int:
         emulator._stop.set()
 
     previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    hygiene = None
     try:
         emulator.open()
+        hygiene = realtime.enter_loop(what='emulator',
+                                      log=lambda text: print(text, file=sys.stderr))
         emulator.run(args.duration)
+    except ValueError as exc:          # a bad CARTPOLE_REALTIME
+        print(f'cartpole emulate: error: {exc}', file=sys.stderr)
+        return 2
     finally:
+        if hygiene is not None:
+            hygiene.leave()
         emulator.close()
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -72,7 +72,8 @@ def rig(ros_context, tmp_path):
     r.command, r.spin = command, spin
     r.h = lambda: r.health[-1] if r.health else {}
     try:
-        assert spin(lambda: r.h().get('armed') == 'true'), r.h()
+        # armed:=true at start arms once the loop is warm: a controller answering (0 N)
+        assert spin(lambda: r.h().get('armed') == 'true', force=0.0), r.h()
         yield r
     finally:
         node.destroy_node()

@@ -20,6 +20,14 @@ controller cannot hang the graph. Until the first matching command arrives
 timeout does not apply, so a graph whose controller starts slowly still starts
 from the same sample and runs the same way every time.
 
+Reset (service ``~/reset``): the plant goes back to the scenario's initial
+state with zero force, and the node announces it on ``cartpole/plant_reset``
+(std_msgs/Header, ``stamp`` = the time from which samples show the reset
+plant: the reset sample's stamp in lockstep, the reset's time in real time)
+before the first sample after it, so that the EKF re-initialises and the
+controller manager starts a new swing-up instead of seeing the jump. Force
+commands stamped before the reset (answers to the old run) are ignored.
+
 Topic names are relative (``joint_states`` is ``/joint_states`` without a
 namespace), so a graph can run in a namespace; ``/clock`` stays global.
 """
@@ -37,13 +45,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .model import CartPoleParameters
 from .plant import Scenario
 from .scenario import DELAY_MAX, parse_push
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
-from .node_main import PUBLISH_DEPTH, run_node
+from .node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
@@ -97,6 +106,9 @@ class SimNode(Node):
 
         self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
         self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
+        self._pub_reset = self.create_publisher(Header, 'cartpole/plant_reset', PLANT_RESET_QOS)
+        self._reset_stamp_ns = -1
+        """Commands stamped before this [ns] answer the run before the last reset."""
         self._pub_clock = None
         self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -334,10 +346,13 @@ class SimNode(Node):
                 f'ignored force command without a finite effort for {CART_JOINT!r} '
                 f'({self.rejected_commands} so far)', throttle_duration_sec=5.0)
             return
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if not self._lockstep:
+            if stamp_ns < self._reset_stamp_ns:
+                self.stale_commands += 1
+                return
             self._runner.command(force)
             return
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if stamp_ns != self._runner.stamp_ns:
             self.stale_commands += 1
             return
@@ -361,6 +376,9 @@ class SimNode(Node):
             response.success = False
             response.message = f'reset refused: {error}'
             return response
+        stamp = self._stamp(sample)
+        self._reset_stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        self._pub_reset.publish(Header(stamp=stamp))
         if self._lockstep:
             self._publish_lockstep(sample)
             self._timeout_timer.reset()

@@ -155,9 +155,33 @@ def test_real_time_applies_command_then_watchdog_zeroes_it(graph, spin_until):
     assert spin_until(executor, lambda: any(abs(m.effort[0]) < 1e-3
                                             for m in probe.truth[pushed:]), timeout=10.0)
     assert sim.runner.watchdog_trips == 1
+    # The command acts from the sample it arrived after (t_k) and shows in samples
+    # k+1..k+9; sample k+10, 50 ms after t_k, shows zero force (SPEC 8).
     pushed_samples = sum(1 for m in probe.truth[pushed:] if m.effort[0] > 1.0)
-    assert 9 <= pushed_samples <= 12  # 50 ms / 5 ms, plus the sample the lag decays in
+    assert pushed_samples == 9
     assert probe.truth[-1].position[0] > 0.3
+
+
+def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(graph,
+                                                                             spin_until):
+    """SPEC 8 by simulated stamps: the last command answers sample 2 (it arrives at t_2);
+    the controller then falls silent and the sim steps on its lockstep timeout."""
+    from rclpy.parameter import Parameter
+
+    sim, probe, executor = graph(echo_force=20.0, lockstep=True, lockstep_timeout=30.0,
+                                 x0=0.3)
+    probe.max_commands = 3
+    assert spin_until(executor, lambda: 3 * TS_NS in probe.stamps(), timeout=30.0)
+    # All three answered in lockstep; from now on the sim steps without commands.
+    assert sim.set_parameters([Parameter('lockstep_timeout', value=0.001)])[0].successful
+    assert spin_until(executor, lambda: len(probe.truth) >= 20, timeout=30.0)
+    last_command_ns = 2 * TS_NS
+    pushed = [m for m in probe.truth if m.effort[0] > 19.0]
+    zero = next(m for m in probe.truth
+                if stamp_ns(m.header.stamp) > last_command_ns and abs(m.effort[0]) < 1e-9)
+    assert stamp_ns(zero.header.stamp) - last_command_ns == 50_000_000
+    assert stamp_ns(pushed[-1].header.stamp) - last_command_ns == 45_000_000
+    assert sim.runner.watchdog_trips == 1
 
 
 # -- lockstep -------------------------------------------------------------------------------------
@@ -311,8 +335,14 @@ def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
     from rclpy.parameter import Parameter
     from std_srvs.srv import Trigger
 
+    from std_msgs.msg import Header
+
     sim, probe, executor = graph(echo_force=15.0, lockstep=True, lockstep_timeout=30.0, x0=0.3,
                                  theta0=3.0)
+    announced = []
+    probe.node.create_subscription(
+        Header, '/cartpole/plant_reset',
+        lambda msg: announced.append((stamp_ns(msg.stamp), len(probe.truth))), 10)
     probe.max_commands = 30
     assert spin_until(executor, lambda: len(probe.stamps()) >= 31, timeout=30.0)
     moved = sim.runner.plant.state
@@ -333,6 +363,9 @@ def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
     after = [m for m in probe.truth if stamp_ns(m.header.stamp) == 31 * TS_NS][0]
     assert list(after.position) == [0.35, 3.0]
     assert list(after.velocity) == [0.0, 0.0]
+    # Announced with the reset sample's stamp.
+    assert spin_until(executor, lambda: announced, timeout=10.0)
+    assert [stamp for stamp, _ in announced] == [31 * TS_NS]
 
 
 # -- scenario disturbances (cartpole_sim.scenario) ------------------------------------------------
