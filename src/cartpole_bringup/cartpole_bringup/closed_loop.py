@@ -131,5 +131,5 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     end_stop_contact=plant.end_stop_contact, x_ref=x_ref,
                     upright_energy=true_params.upright_energy)
     run.summary = metrics.summarize(run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
-                                    end_stop_contact=plant.end_stop_contact)
+                                    end_stop_contact=plant.end_stop_contact, force=run.force)
     return run

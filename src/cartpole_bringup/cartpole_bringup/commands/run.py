@@ -249,7 +249,8 @@ def main(args: argparse.Namespace) -> int:
             series, contact = graph.monitor.builder.build(
                 params=nominal, x_ref=x_ref, lockstep=args.lockstep, label='run')
             summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
-                                        catch_time=series.catch_time, end_stop_contact=contact)
+                                        catch_time=series.catch_time, end_stop_contact=contact,
+                                        force=series.force, t_force=series.t_force)
     except (ValueError, OSError) as exc:
         print(f'cartpole run: no summary: {exc}', file=sys.stderr)
     plots: list[Path] = []
