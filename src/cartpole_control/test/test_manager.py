@@ -600,3 +600,10 @@ def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
     for obj in (s, out):
         with pytest.raises(Exception):
             obj.t = 5.0  # still frozen
+    from cartpole_control.controller import CommandFeedback
+    from cartpole_control.manager import _command_feedback
+    fb = _command_feedback(40.0, 34.25, 1, False)
+    assert type(fb) is CommandFeedback and fb == CommandFeedback(40.0, 34.25, 1, False)
+    assert fb.blocks(0.1) and not fb.blocks(-0.1) and not fb.blocks(0.0)
+    with pytest.raises(Exception):
+        fb.force = 0.0
