@@ -142,7 +142,7 @@ def test_unknown_controller_is_refused_with_the_list_and_nothing_changes():
     before = m.get_parameters()
     result = m.set_parameters({'x_ref': 0.3, 'stabilizer': 'mpc'})
     assert not result.successful
-    assert "'mpc'" in result.reason and "['broken', 'hold_a', 'hold_b']" in result.reason
+    assert "'mpc'" in result.reason and "['broken', 'deaf', 'hold_a', 'hold_b', 'listening']" in result.reason
     assert m.get_parameters() == before
     out = m.update(upright(TS))
     assert out.stabilizer == 'hold_a' and out.event == ''
