@@ -32,8 +32,9 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
             capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stderr[-3000:]
         summary = json.loads(run.stdout.strip().splitlines()[-1])
-        assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, summary
-        assert summary['theta_amp_deg'] < 2.0, summary
+        why = (summary, run.stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
+        assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, why
+        assert summary['theta_amp_deg'] < 2.0, why
         assert summary['x_err_max_m'] <= 0.10, summary
         assert summary['end_stop_contact'] is False, summary
         assert summary['success'] is True, summary
