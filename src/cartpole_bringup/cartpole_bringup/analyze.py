@@ -310,7 +310,8 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
                                     label=label or run_label(path))
     summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
                                 catch_time=series.catch_time, end_stop_contact=contact,
-                                swingup_law=builder.swingup_law)
+                                swingup_law=builder.swingup_law,
+                                force=series.force, t_force=series.t_force)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
                        topics=topics, controllers=dict(builder.controllers))
 

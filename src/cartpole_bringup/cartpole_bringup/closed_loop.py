@@ -184,7 +184,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     ekf_missed_samples=ekf.missed_samples_total)
     run.summary = metrics.summarize(run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
                                     end_stop_contact=plant.end_stop_contact,
-                                    swingup_law=out.swingup_law if law is None else law)
+                                    swingup_law=out.swingup_law if law is None else law,
+                                    force=run.force)
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)

@@ -6,7 +6,11 @@ the current state (bumpless, like ros2_control's
 ``set_current_state_as_first_setpoint``), updated once per control cycle and
 deactivated. It returns the *raw* force of its law; the controller manager adds
 the cart friction feedforward (6.12), saturates to what the actuator can give
-and guards the rail.
+and guards the rail. After each update the manager tells the plugin what became
+of its force (:class:`CommandFeedback`, :meth:`Controller.command_applied`), so
+that a law with an integrator stops integrating while its command is not what
+reaches the cart (anti-windup). The hook has a default that does nothing: a
+plugin without integrators ignores it.
 
 The contract carries a version number (:data:`API_VERSION`); the registry
 refuses plugins written for another major version.
@@ -129,13 +133,45 @@ class ControlContext:
     work then (no background solves, no files), just refuse bad gains."""
 
 
+@dataclass(frozen=True)
+class CommandFeedback:
+    """What the manager did with the active plugin's raw force in one cycle.
+
+    The input of the anti-windup of every integrator (conditional
+    integration): an integrator must not grow while its push does not reach
+    the cart.
+    """
+
+    raw: float
+    """The plugin's force u of this cycle [N]."""
+    force: float
+    """The force command sent to the actuator [N], after the feedforward (6.12),
+    the saturation to [force_min, force_max] (Appendix C) and the rail guard."""
+    limited: int
+    """+1 if the command was cut from above (saturated at force_max, or the rail
+    guard withheld a push to the right), -1 if cut from below, 0 if it passed:
+    the sign of ``u + B_ff(x_dot, u) - force``."""
+    held: bool = False
+    """The force is not the law's at all (the rail guard brakes or holds the
+    cart): every integrator keeps its value."""
+
+    def blocks(self, effect: float) -> bool:
+        """True if an increment changing the force by ``effect`` [N] must not be taken.
+
+        That is while the force is held, or while the command is limited in
+        the direction the increment would push it further.
+        """
+        return self.held or self.limited * effect > 0.0
+
+
 class Controller(ABC):
     """Base class of every swing-up law and stabiliser plugin.
 
     Subclasses set :attr:`kind` and :attr:`name`, list their tunables in
     :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
     ``configure`` (any time, between updates), ``activate`` (bumpless, from
-    the current state), ``update`` once per cycle, ``deactivate``.
+    the current state), ``update`` once per cycle, each followed by the
+    manager's :meth:`command_applied`, ``deactivate``.
     """
 
     api_version: ClassVar[int] = API_VERSION
@@ -214,6 +250,16 @@ class Controller(ABC):
     @abstractmethod
     def update(self, state: ControllerState) -> float:
         """The law's raw force [N] for ``state`` (before feedforward and saturation)."""
+
+    def command_applied(self, feedback: CommandFeedback) -> None:
+        """What became of the force of the last :meth:`update` (the anti-windup's input).
+
+        Called by the manager once after every update of the active plugin,
+        in the same cycle. The default does nothing; a law with an integrator
+        takes back the increment of this cycle when
+        ``feedback.blocks(effect)`` (see :class:`CommandFeedback`). A plugin
+        used without the manager simply never hears of it.
+        """
 
     def deactivate(self) -> None:
         self.active = False

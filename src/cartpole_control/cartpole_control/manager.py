@@ -13,7 +13,11 @@ One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
 4. the active plugin's raw force ``u``; only one controller runs (section 6.4);
 5. ``u + B_ff(x_dot, u)``, the cart friction feedforward (6.12);
 6. saturation to ``[force_min, force_max]`` (Appendix C);
-7. the rail guard (:mod:`cartpole_control.rail_guard`).
+7. the rail guard (:mod:`cartpole_control.rail_guard`);
+8. the active plugin hears what became of its force
+   (:meth:`~cartpole_control.controller.Controller.command_applied`): cut by
+   the saturation or the rail guard, or held; its integrators stop then
+   (anti-windup).
 
 Modes: ``idle`` (disabled, zero force), ``swingup``, ``stabilizing`` and
 ``fault`` (zero force until :meth:`~ControllerManager.restart`; the one
@@ -33,8 +37,8 @@ from typing import Any, Callable, Mapping
 from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
 
 from .catch import CatchTrigger
-from .controller import KINDS, STABILIZER, SWINGUP, ControlContext, Controller, ControllerState, \
-    ParameterSpec
+from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, ControlContext, Controller, \
+    ControllerState, ParameterSpec
 from .feedforward import FrictionFeedforward
 from .rail_guard import BRAKING, STOPPED, RailGuard
 from .registry import load_controllers
@@ -54,13 +58,15 @@ _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 
 MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
-CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness')
+CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
+                'feedforward.velocity_band')
 """Manager parameters that the plugins see through their ControlContext."""
 
 
 def _friction_feedforward(values: Mapping[str, Any]) -> FrictionFeedforward:
     return FrictionFeedforward(values['feedforward.right'], values['feedforward.left'],
-                               values['feedforward.steepness'])
+                               values['feedforward.steepness'],
+                               values['feedforward.velocity_band'])
 
 
 def _changes_context(changes: Mapping[str, Any], current: Mapping[str, Any]) -> bool:
@@ -126,6 +132,14 @@ def _controller_state(t: float, x: float, theta: float, x_dot: float, theta_dot:
                                        'theta_dot': theta_dot, 'x_ddot': x_ddot,
                                        'theta_ddot': theta_ddot})
     return state
+
+
+def _command_feedback(raw: float, force: float, limited: int, held: bool) -> CommandFeedback:
+    """``CommandFeedback(raw, force, limited, held)``, built directly (see :func:`_controller_state`)."""
+    feedback = _new_object(CommandFeedback)
+    _set_attribute(feedback, '__dict__', {'raw': raw, 'force': force, 'limited': limited,
+                                          'held': held})
+    return feedback
 
 
 def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
@@ -240,6 +254,10 @@ class ControllerManager:
                           'while x_dot < 0 [N] (thesis 9.2.1: 2.8)', low=0.0, high=20.0),
             ParameterSpec('feedforward.steepness', 20.0, 'k of tanh(k u) in (6.12) [1/N]; 0 turns '
                           'the feedforward off', low=0.0, high=1000.0),
+            ParameterSpec('feedforward.velocity_band', 0.0005, 'Cart friction feedforward while '
+                          'stabilising: above this |x_dot| [m/s] the kinetic friction is '
+                          'compensated along the velocity, below it blended into (6.12); '
+                          '0 = (6.12) at every speed', low=0.0, high=1.0),
             ParameterSpec('rail.margin', 0.02, 'Rail guard: distance kept from each end stop [m]',
                           low=0.0, high=0.15),
             ParameterSpec('rail.max_brake_force', 30.0, 'Rail guard: braking force F_b [N], '
@@ -561,7 +579,8 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    feedforward = self._feedforward(x_dot, raw)
+                    feedforward = (self._feedforward.stabilizing(x_dot, raw)
+                                   if self.mode == STABILIZING else self._feedforward(x_dot, raw))
                     force = min(max(raw + feedforward, self._force_min), self._force_max)
         guard = self._guard
         # After a trip the guard keeps hold: a cart it has stopped is braked again
@@ -570,8 +589,24 @@ class ControllerManager:
             force, tripped = guard.command(x, x_dot, theta_dot, force)
             if tripped:
                 self._fault('rail guard', events)
+        if active is not None and active is self._active \
+                and not self._tell_plugin(active, raw, raw + feedforward, force, events):
+            force = 0.0
         self._last_force = force
         return self._output(t, force, raw, feedforward, events)
+
+    def _tell_plugin(self, plugin: Controller, raw: float, wanted: float, force: float,
+                     events: list[str]) -> bool:
+        """Step 8: the plugin's anti-windup input; False if the plugin raised (then a fault)."""
+        limited = 1 if wanted > force else (-1 if wanted < force else 0)
+        held = self._guard.status == BRAKING or self._guard.status == STOPPED
+        try:
+            plugin.command_applied(_command_feedback(raw, force, limited, held))
+        except Exception as error:  # a plugin bug: fail safe, say why
+            logger.exception('controller %s failed', plugin.name)
+            self._fault(f'{plugin.name} failed: {type(error).__name__}: {error}', events)
+            return False
+        return True
 
     def stale(self, t: float) -> ManagerOutput:
         """No state for ``state_timeout``: zero force and fault 'stale state' (until restart)."""

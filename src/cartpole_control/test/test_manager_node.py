@@ -170,7 +170,7 @@ def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
     (result,) = h.set(lqg__q=[-1.0, 400.0, 100.0, 400.0])  # element out of range: we refuse
     assert not result.successful and 'below its minimum' in result.reason
     (result,) = h.set(lqg__q=[1.0, 2.0])
-    assert not result.successful and 'needs 4 numbers' in result.reason
+    assert not result.successful and 'needs 4 entries' in result.reason
     (result,) = h.set(fall__angle_deg=10.0)
     assert not result.successful and 'catch angle' in result.reason
     (result,) = h.set(x_ref='middle')  # wrong type: rclpy refuses
@@ -187,7 +187,8 @@ def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
 
 def test_describe_parameters_shows_descriptions_and_ranges(graph):
     node, h = graph
-    names = ['catch.angle_deg', 'stabilizer', 'lqg.q', 'sample_time', 'pendulum_energy.k_e']
+    names = ['catch.angle_deg', 'stabilizer', 'lqg.q', 'sample_time', 'pendulum_energy.k_e',
+             'pid.cart_gains']
     descriptors = h.call(h.describe_client,
                          DescribeParameters.Request(names=names)).descriptors
     d = dict(zip(names, descriptors))
@@ -196,7 +197,8 @@ def test_describe_parameters_shows_descriptions_and_ranges(graph):
     assert (rng.from_value, rng.to_value) == (1.0, 90.0)
     assert 'lqg' in d['stabilizer'].additional_constraints
     assert 'smc' in d['stabilizer'].additional_constraints
-    assert '4 numbers' in d['lqg.q'].additional_constraints
+    assert '3 numbers' in d['pid.cart_gains'].additional_constraints
+    assert '4 entries' in d['lqg.q'].description and '5' in d['lqg.q'].description
     assert d['sample_time'].read_only and not d['catch.angle_deg'].read_only
     assert d['pendulum_energy.k_e'].description
     assert not any(x.dynamic_typing for x in descriptors)

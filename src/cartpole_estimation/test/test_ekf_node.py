@@ -155,16 +155,27 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
 def test_refused_q_keeps_the_old_one_with_a_reason(harness, spin_until):
     from rclpy.parameter import Parameter
     h = harness()
-    for bad in ([1.0, 1.0, 50.0], [1.0, 1.0, 50.0, -1.0]):
+    default = list(h.ekf.get_parameter('q').value)
+    assert len(default) == 5 and h.ekf.filter.config.q_force == default[4] > 0.0
+    for bad in ([1.0, 1.0, 50.0], [1.0, 1.0, 50.0, -1.0], [1.0, 1.0, 50.0, 50.0, -1.0],
+                [1.0] * 6):
         result = h.ekf.set_parameters([Parameter('q', value=bad)])[0]
         assert not result.successful and 'q' in result.reason
-    assert list(h.ekf.get_parameter('q').value) == [1.0, 1.0, 50.0, 50.0]
-    assert h.ekf.filter.config.q_diag == (1.0, 1.0, 50.0, 50.0)
+    assert list(h.ekf.get_parameter('q').value) == default
+    assert h.ekf.filter.config.q_diag == tuple(default[:4])
     result = h.ekf.set_parameters([Parameter('r', value=[0.01])])[0]
     assert not result.successful and 'r needs 2' in result.reason
-    result = h.ekf.set_parameters([Parameter('q', value=[2.0, 2.0, 20.0, 30.0])])[0]
+    # the thesis's Q (9.2), one parameter away: 4 entries, no force noise
+    result = h.ekf.set_parameters([Parameter('q', value=[1.0, 1.0, 50.0, 50.0])])[0]
+    assert result.successful
+    assert h.ekf.filter.config.q_diag == (1.0, 1.0, 50.0, 50.0)
+    assert h.ekf.filter.config.q_force == 0.0
+    result = h.ekf.set_parameters([Parameter('q', value=[2.0, 2.0, 20.0, 30.0, 5.0])])[0]
     assert result.successful
     assert h.ekf.filter.config.q_diag == (2.0, 2.0, 20.0, 30.0)
+    assert h.ekf.filter.config.q_force == 5.0
+    result = h.ekf.set_parameters([Parameter('discretisation', value='rk4')])[0]
+    assert not result.successful and 'midpoint' in result.reason
     result = h.ekf.set_parameters([Parameter('plant_params_file', value='x.yaml')])[0]
     assert not result.successful
 

@@ -24,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c.add_argument('--swingups', nargs='*', default=None, metavar='NAME', help='default: all registered')
     c.add_argument('--stabilizers', nargs='*', default=None, metavar='NAME', help='default: all registered')
     c.add_argument('--scenarios', nargs='*', default=None, metavar='NAME',
-                   help='default: the whole grid (nominal, mass-20%%, mass-10%%, mass+10%%, friction x0.8, '
-                        'friction x1.2, offset +0.05, offset -0.05)')
+                   help='default: the whole grid (nominal, mass-20%%, mass-10%%, mass+10%%, friction '
+                        'x0.8, x1.2 and x1.5, offset +-0.01, +-0.02, +-0.05 and +-0.1, '
+                        'offset +0.05 mass-20%%)')
     c.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='local process pool size (default: the number of cores; 1 = serial)')
     c.add_argument('--no-bound', action='store_true',

@@ -27,14 +27,9 @@ def manager_parameters_from_args(args: argparse.Namespace) -> dict:
 
 
 def ekf_config_from_args(args: argparse.Namespace):
-    from cartpole_estimation.ekf import EkfConfig
-    ros = options.load_ros_parameters(args.params, 'ekf')
-    changes = {}
-    if 'q' in ros:
-        changes['q_diag'] = tuple(float(v) for v in ros['q'])
-    if 'r' in ros:
-        changes['r_diag'] = tuple(float(v) for v in ros['r'])
-    return EkfConfig(**changes)
+    """The filter's configuration: the --params file's ``ekf`` section (the node's parameters)."""
+    from cartpole_estimation.ekf_config import EkfConfig, changes_from_parameters
+    return EkfConfig(**changes_from_parameters(options.load_ros_parameters(args.params, 'ekf')))
 
 
 def main(args: argparse.Namespace) -> int:

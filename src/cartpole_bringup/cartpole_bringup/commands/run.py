@@ -267,7 +267,8 @@ def main(args: argparse.Namespace) -> int:
                 params=nominal, x_ref=x_ref, lockstep=args.lockstep, label='run')
             summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
                                         catch_time=series.catch_time, end_stop_contact=contact,
-                                        swingup_law=graph.monitor.builder.swingup_law)
+                                        swingup_law=graph.monitor.builder.swingup_law,
+                                        force=series.force, t_force=series.t_force)
     except (ValueError, OSError) as exc:
         print(f'cartpole run: no summary: {exc}', file=sys.stderr)
     plots: list[Path] = []
