@@ -24,8 +24,11 @@ plus gravity). If ``x_1 +- d`` would leave ``[margin, travel - margin]`` while
 the cart moves towards that side:
 
 - a cart at rest (``|x_dot| <= rest_speed``, e.g. sitting at the left stop
-  after reset) is not braked; only the force pushing it towards that stop is
-  withheld (set to zero). Pushing away from a stop is always allowed.
+  after reset), or moving away from that stop (only the commanded force would
+  carry it there), is not braked; only the force pushing it towards that stop
+  is withheld (set to zero). Inside a margin, a push further in is withheld
+  whatever the velocity estimate says. Pushing away from a stop is always
+  allowed.
 - a moving cart trips the guard: it brakes with the full opposing force
   (the last step proportional, ``(m_c + m_p) |v| / Ts``, so it does not
   reverse the cart) until ``|x_dot| <= rest_speed``, then holds zero force.
@@ -166,13 +169,17 @@ class RailGuard:
         if status == BRAKING:
             return self._brake(x_dot), False
         stop = self.stopping_position(x, x_dot, theta_dot, force)
-        towards_right = stop > self._high and stop > x
-        towards_left = stop < self.margin and stop < x
+        # Inside a margin a push further in is never passed, whatever x_dot reads.
+        towards_right = (stop > self._high and stop > x) or (x > self._high and force > 0.0)
+        towards_left = (stop < self.margin and stop < x) or (x < self.margin and force < 0.0)
         if not (towards_right or towards_left):
             self.status = ARMED
             return force, False
-        if abs(x_dot) <= self.rest_speed:
-            # At rest near a stop: never push further in, but allow pushing out.
+        if abs(x_dot) <= self.rest_speed or (x_dot < 0.0 if towards_right else x_dot > 0.0):
+            # At rest, or moving away from that stop (only the command would carry
+            # the cart there): never push further in, but allow pushing out. Braking
+            # against x_dot here would push towards the very stop (a cart at the left
+            # stop whose noisy velocity estimate reads +3 cm/s).
             self.status = LIMITED
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING

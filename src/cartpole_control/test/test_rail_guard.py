@@ -55,6 +55,31 @@ def test_cart_at_rest_at_the_left_stop_is_not_braked_and_may_push_away():
     assert (action.force, action.status) == (-20.0, ARMED)
 
 
+def test_a_cart_at_a_stop_that_reads_as_moving_away_is_never_pushed_in():
+    """Measurement noise at rest: the estimate says +3 cm/s away from the left stop,
+    the swing-up wants -20 N. Braking against +3 cm/s would push the cart into the
+    stop it sits at (the bench's sign_based, offset -0.1 rad, seed 0); the push
+    is withheld instead and the guard does not trip."""
+    for x, x_dot, force in ((0.0, 0.03, -20.0), (P.travel, -0.03, 20.0)):
+        guard = RailGuard(P)
+        action = guard.check(x, x_dot, 0.0, force)
+        assert (action.force, action.status, action.tripped) == (0.0, LIMITED, False)
+        away = -force
+        assert guard.check(x, x_dot, 0.0, away).force == away
+
+
+def test_a_cart_at_a_stop_in_the_closed_loop_never_touches_it():
+    """The plant says so (penetration past the stop), with a guard fed a velocity
+    estimate biased away from the stop while the command pushes into it."""
+    plant = Plant(P, Scenario())
+    guard = RailGuard(P)
+    for k in range(400):
+        x, _, x_dot, theta_dot = plant.true_state()
+        noisy = x_dot + (0.03 if k % 3 else -0.01)
+        plant.step(guard.check(x, noisy, theta_dot, -20.0).force)
+        assert not plant.in_end_stop()
+
+
 def test_no_override_in_the_middle():
     guard = RailGuard(P)
     for v in (-1.0, 0.0, 1.0):
