@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 from cartpole_bringup import cli
-from cartpole_bringup.identify import (IdentificationError, Recording, identify, load_recording,
-                                       parse_free, pulse_forces, recording_from_messages,
-                                       simulate_test)
+from cartpole_bringup.identification.bag_input import load_recording, recording_from_messages
+from cartpole_bringup.identification.fit import identify, parse_free
+from cartpole_bringup.identification.recording import IdentificationError, Recording
+from cartpole_bringup.identification.synthetic import pulse_forces, simulate_test
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
 
@@ -116,7 +117,7 @@ def test_fitted_parameters_reproduce_a_test_they_did_not_see(fit):
     t = np.arange(int(round(2.5 / TS))) * TS
     check = simulate_test(_true_params(), pulse_forces(t, [(0.1, 0.2, -14.0), (1.2, 0.2, 13.0)]),
                           Scenario(x0=0.6))
-    from cartpole_bringup.identify import simulate
+    from cartpole_bringup.identification.replay import simulate
     x_fit, _ = simulate(check, fit.params, (0.6, math.pi, 0.0, 0.0), FIT_STEP)
     x_thesis, _ = simulate(check, THESIS, (0.6, math.pi, 0.0, 0.0), FIT_STEP)
     assert np.max(np.abs(x_fit - check.x)) < 1e-3
@@ -205,7 +206,7 @@ def test_messages_become_a_zoh_recording_on_the_sample_grid():
 
 def test_bursty_receipt_stamps_keep_the_sample_count():
     """USB serial delivers samples in bursts: pairs 10 ms apart, a 30 ms stall, one loss."""
-    from cartpole_bringup.identify import sample_indices
+    from cartpole_bringup.identification.bag_input import sample_indices
     true_k = np.array([k for k in range(200) if k != 120])  # sample 120 lost
     latency = np.where(true_k % 2 == 0, TS - 0.0001, 0.0003)  # an even one waits for the next
     t = true_k * TS + latency
@@ -383,7 +384,7 @@ def test_bad_options_give_a_clear_error(tmp_path, recordings, capsys, argv, mess
 
 # -- playing a pulse test ---------------------------------------------------------------------------
 def test_pulse_plan_is_parsed_and_checked():
-    from cartpole_bringup.identify import Pulse, parse_pulse_plan
+    from cartpole_bringup.identification.pulse_plan import Pulse, parse_pulse_plan
     assert parse_pulse_plan('15:0.25, -9:0.2') == (Pulse(15.0, 0.25), Pulse(-9.0, 0.2))
     for bad, message in (('15', 'FORCE:LENGTH'), ('40:0.2', 'within'), ('0:0.2', 'non-zero'),
                          ('10:2', 'length'), ('', 'empty')):
@@ -392,7 +393,8 @@ def test_pulse_plan_is_parsed_and_checked():
 
 
 def test_rehearsal_plays_the_plan_and_flags_unsafe_plans():
-    from cartpole_bringup.identify import parse_pulse_plan, rehearsal_warnings, rehearse
+    from cartpole_bringup.identification.pulse_plan import parse_pulse_plan
+    from cartpole_bringup.identification.pulse_player import rehearsal_warnings, rehearse
     rec, player = rehearse(parse_pulse_plan('15:0.25,-9:0.25'), THESIS)
     assert player.done and rehearsal_warnings(rec, player) == []
     # Zero for the 0.5 s lead-in, then 50 samples of 15 N, later 50 of -9 N.
@@ -425,8 +427,9 @@ def test_pulse_plan_on_the_lockstep_simulator_records_a_bag_that_fits(tmp_path, 
     """Play, record, fit: the pulse player drives the simulator node, the bag gives m_c, c_c."""
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.identify import PulsePlayer, parse_pulse_plan
-    from cartpole_bringup.identify_node import play_pulse_plan
+    from cartpole_bringup.identification.pulse_plan import parse_pulse_plan
+    from cartpole_bringup.identification.pulse_player import PulsePlayer
+    from cartpole_bringup.identification.node import play_pulse_plan
     from cartpole_sim.sim_node import SimNode
 
     truth = tmp_path / 'truth.yaml'
@@ -453,8 +456,9 @@ def test_pulse_plan_on_the_lockstep_simulator_records_a_bag_that_fits(tmp_path, 
 def test_pulse_player_refuses_without_samples_or_with_an_unsafe_plan(tmp_path, ros_context):
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.identify import PulsePlayer, parse_pulse_plan
-    from cartpole_bringup.identify_node import play_pulse_plan
+    from cartpole_bringup.identification.pulse_plan import parse_pulse_plan
+    from cartpole_bringup.identification.pulse_player import PulsePlayer
+    from cartpole_bringup.identification.node import play_pulse_plan
     from cartpole_sim.sim_node import SimNode
 
     player = PulsePlayer(parse_pulse_plan('15:0.25'), THESIS)

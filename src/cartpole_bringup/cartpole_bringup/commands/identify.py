@@ -1,7 +1,7 @@
 """``cartpole identify BAG [BAG ...]``: fit the plant parameters to recorded open-loop tests.
 
 Thesis (4.22)-(4.26) and section 4.3.2; the work is in
-:mod:`cartpole_bringup.identify`, this module reads the options, the bags,
+:mod:`cartpole_bringup.identification`, this module reads the options, the bags,
 prints the result and writes the parameters file.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ PROG = 'cartpole identify'
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..identify import DEFAULT_FREE
+    from ..identification.fit import DEFAULT_FREE
 
     parser.add_argument('bags', nargs='*', type=Path, metavar='BAG',
                         help='rosbag2 bags of open-loop tests (/joint_states and '
@@ -174,7 +174,8 @@ def pulse_main(args: argparse.Namespace) -> int:
     """``--pulse-plan``: rehearse a pulse test on the model, then play (and record) it."""
     import math
 
-    from ..identify import PulsePlayer, parse_pulse_plan, rehearsal_warnings, rehearse
+    from ..identification.pulse_plan import parse_pulse_plan
+    from ..identification.pulse_player import PulsePlayer, rehearsal_warnings, rehearse
 
     if args.bags:
         return _fail('give either BAGs to fit or --pulse-plan to play, not both')
@@ -215,7 +216,7 @@ def pulse_main(args: argparse.Namespace) -> int:
                 print(f'unsafe: {problem}')
         return 0 if not problems else 1
 
-    from ..identify_node import run_pulse_plan
+    from ..identification.node import run_pulse_plan
 
     player = PulsePlayer(pulses, params, **options)
     try:
@@ -252,7 +253,9 @@ def _settled_positions(rec) -> list[float]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ..identify import IdentificationError, identify, load_recording, parse_free
+    from ..identification.bag_input import load_recording
+    from ..identification.fit import identify, parse_free
+    from ..identification.recording import IdentificationError
 
     if args.pulse_plan is not None:
         return pulse_main(args)

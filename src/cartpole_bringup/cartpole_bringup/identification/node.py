@@ -1,6 +1,6 @@
 """The pulse player node ``pulse_player``: an open-loop pulse test on the rig or the simulator.
 
-A thin adapter around :class:`cartpole_bringup.identify.PulsePlayer`: it
+A thin adapter around :class:`cartpole_bringup.identification.pulse_player.PulsePlayer`: it
 answers every ``/joint_states`` sample with one ``/cartpole/force_command``
 (``name=['cart']``, ``effort=[F]``, ``header.stamp`` = the sample's stamp,
 as the controller manager does, so a lockstep simulator steps on it and the
@@ -25,7 +25,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
-from .identify import PulsePlayer
+from .pulse_player import PulsePlayer
 
 CART = 'cart'
 PENDULUM = 'pendulum'
@@ -93,7 +93,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     recorder = None
     try:
         if record is not None:
-            from .record import RecorderNode
+            from ..record import RecorderNode
             recorder = RecorderNode(context=context, parameter_overrides=[
                 Parameter('output', value=str(record))])
             nodes.append(recorder)
