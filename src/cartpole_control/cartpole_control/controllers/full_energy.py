@@ -93,9 +93,8 @@ class FullEnergySwingUp(Controller):
                 f'changes sign and drives the cart into an end stop; raise k_v or lower k_e')
         self.denominator_min = g['k_v'] / (p.m_c + p.m_p) - g['k_e'] * p.upright_energy
 
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Start a new swing-up: the energy integral starts from zero now."""
-        super().activate(state)
         self.integral = 0.0
         self._clock.reset(state.t)
 

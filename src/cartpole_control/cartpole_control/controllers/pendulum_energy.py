@@ -47,9 +47,8 @@ class PendulumEnergySwingUp(Controller):
         """int_0^t (E* - E_p) dt [J s] since activation."""
         self._clock = StepClock()
 
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Start a new swing-up: the energy integral starts from zero now."""
-        super().activate(state)
         self.integral = 0.0
         self._clock.reset(state.t)
 
