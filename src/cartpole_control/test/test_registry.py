@@ -59,9 +59,22 @@ def load(caplog):
         return registry.load_controllers(STABILIZER)
 
 
+def the_warning(caplog):
+    """The one record logged, a warning; its message."""
+    [record] = caplog.records
+    assert record.levelno == logging.WARNING
+    return record.getMessage()
+
+
+def stabilizer(site, dist, version, cls, name):
+    """Install a good stabiliser class ``cls`` named ``name`` in module ``<dist>`` (underscored)."""
+    module = dist.replace('-', '_')
+    site(dist, version, module, GOOD.format(cls=cls, name=name, extra=''),
+         [(name, f'{module}:{cls}')])
+
+
 def test_a_good_third_party_plugin_is_found_next_to_the_installed_ones(site, caplog):
-    site('fake-good', '1.0', 'fake_good', GOOD.format(cls='Mine', name='mine', extra=''),
-         [('mine', 'fake_good:Mine')])
+    stabilizer(site, 'fake-good', '1.0', 'Mine', 'mine')
     found = load(caplog)
     assert found['mine'].__module__ == 'fake_good'
     assert {'lqg', 'pid', 'smc'} <= set(found) and not caplog.records
@@ -89,22 +102,16 @@ def test_an_unusable_plugin_is_skipped_with_a_warning_naming_it_and_its_distribu
     found = load(caplog)
     assert 'mine' not in found, case
     assert {'lqg', 'pid', 'smc'} <= set(found)  # the installed ones are unaffected
-    [record] = caplog.records
-    message = record.getMessage()
-    assert record.levelno == logging.WARNING
+    message = the_warning(caplog)
     assert message.startswith(f'skipping controller plugin mine ({value}) from fake-bad 0.3: ')
     assert reason in message, message
 
 
 def test_a_duplicate_name_uses_the_first_on_the_path_and_the_warning_names_both(site, caplog):
-    site('fake-twin-a', '1.0', 'fake_twin_a', GOOD.format(cls='TwinA', name='twin', extra=''),
-         [('twin', 'fake_twin_a:TwinA')])
-    site('fake-twin-b', '2.5', 'fake_twin_b', GOOD.format(cls='TwinB', name='twin', extra=''),
-         [('twin', 'fake_twin_b:TwinB')])
-    found = load(caplog)
-    assert found['twin'].__module__ == 'fake_twin_a'
-    [record] = caplog.records
-    message = record.getMessage()
+    stabilizer(site, 'fake-twin-a', '1.0', 'TwinA', 'twin')
+    stabilizer(site, 'fake-twin-b', '2.5', 'TwinB', 'twin')
+    assert load(caplog)['twin'].__module__ == 'fake_twin_a'
+    message = the_warning(caplog)
     assert 'skipping controller plugin twin (fake_twin_b:TwinB) from fake-twin-b 2.5' in message
     assert 'taken by TwinA from fake-twin-a 1.0, which is used' in message
     assert 'fake_twin_b' not in sys.modules  # the loser is not even imported
@@ -112,11 +119,9 @@ def test_a_duplicate_name_uses_the_first_on_the_path_and_the_warning_names_both(
 
 def test_a_duplicate_of_an_installed_name_names_both_distributions(site, caplog):
     # The fake comes first on sys.path, so it is the one used; the installed pid is skipped.
-    site('fake-pid', '9.9', 'fake_pid', GOOD.format(cls='OtherPid', name='pid', extra=''),
-         [('pid', 'fake_pid:OtherPid')])
-    found = load(caplog)
-    assert found['pid'].__qualname__ == 'OtherPid'
-    [record] = caplog.records
-    message = record.getMessage()
-    assert 'from cartpole-control' in message or 'from cartpole_control' in message
+    stabilizer(site, 'fake-pid', '9.9', 'OtherPid', 'pid')
+    assert load(caplog)['pid'].__qualname__ == 'OtherPid'
+    message = the_warning(caplog)
+    assert 'skipping controller plugin pid (cartpole_control.controllers.pid:PidStabilizer) ' \
+           'from cartpole' in message
     assert 'taken by OtherPid from fake-pid 9.9' in message
