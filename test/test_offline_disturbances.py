@@ -62,7 +62,9 @@ def test_stop_on_failure_ends_a_failed_run_early_with_the_same_trajectory():
     full = run_closed_loop(scenario=scenario, duration=20.0)
     short = run_closed_loop(scenario=scenario, duration=20.0, stop_on_failure=True)
     assert not full.summary['success']
-    assert any(e.startswith('fault:') for _, e in full.events)
+    faults = [e for _, e in full.events if e.startswith('fault:')]
+    assert faults == ['fault:rail guard'], faults      # that fault, once, and no other
+    assert full.catch_time is None and not full.end_stop_contact   # stopped before the stop
     stop = short.summary['stopped_at_s']
     assert short.summary['success'] is False and stop < 15.0 and short.t[-1] == stop
     n = len(short.t)

@@ -15,7 +15,7 @@ What is measured, the same way for the graph and for its floor:
   spun**: in one process by the same executor (:func:`cartpole_bringup.graph.make_executor`,
   ``spin_once`` every 0.05 s as :class:`~cartpole_bringup.graph.Graph` does), one
   process a node by rclpy's SingleThreadedExecutor as every node's ``main``
-  (:func:`cartpole_sim.node_main.run_node`). The ratio of the two isolates
+  (:func:`cartpole_sim.node_runner.run_node`). The ratio of the two isolates
   what our nodes add to what rclpy and DDS cost on this machine.
 
 Executors (:data:`EXECUTORS`): the one-process graph runs on the C++
@@ -47,7 +47,7 @@ SAMPLE_TIME = 0.005
 
 EXECUTORS = {'single': ('events', 'single'), 'processes': ('single',)}
 """Executors measured per mode (one process: either, ``cartpole run --executor``;
-one process a node: node_main.run_node's SingleThreadedExecutor)."""
+one process a node: node_runner.run_node's SingleThreadedExecutor)."""
 BARE_ROLES = ('source', 'relay1', 'relay2')
 """The floor's chain."""
 SPIN_TIMEOUT = {'single': 0.05, 'processes': 0.1}
@@ -335,7 +335,7 @@ def _bare_main(roles: list[str], executor_kind: str, spin_timeout: float) -> int
     for n in nodes:
         executor.add_node(n)
     try:
-        while rclpy.ok():  # as Graph.spin_until and node_main.run_node spin
+        while rclpy.ok():  # as Graph.spin_until and node_runner.run_node spin
             executor.spin_once(timeout_sec=spin_timeout)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -23,7 +23,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from cartpole_sim.node_main import run_node
+from cartpole_sim.node_runner import run_node
 
 from .bag import TOPICS, BagWriter
 

@@ -12,6 +12,15 @@ that a law with an integrator stops integrating while its command is not what
 reaches the cart (anti-windup). The hook has a default that does nothing: a
 plugin without integrators ignores it.
 
+Activation is a template method, as ros2_control's lifecycle transitions
+call ``on_activate``: :meth:`Controller.activate` and
+:meth:`Controller.deactivate` do the manager's bookkeeping (:attr:`Controller.active`)
+and call the plugin's hooks :meth:`Controller.on_activate` and
+:meth:`Controller.on_deactivate`. A plugin overrides the hooks only (there is
+no ``super()`` to forget); a class that overrides ``activate`` or
+``deactivate`` themselves is refused when it is defined (TypeError), so the
+registry skips it like any plugin that fails to import.
+
 The contract carries a version number (:data:`API_VERSION`); the registry
 refuses plugins written for another major version.
 """
@@ -20,14 +29,15 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence, final
 
 from cartpole_sim.model import CartPoleParameters, wrap_angle
 
 from .feedforward import FrictionFeedforward
 
-API_VERSION = 1
-"""Version of this contract. Bump on any incompatible change."""
+API_VERSION = 2
+"""Version of this contract. Bump on any incompatible change (2: activate/deactivate
+became template methods around the on_activate/on_deactivate hooks)."""
 
 SWINGUP = 'swingup'
 STABILIZER = 'stabilizer'
@@ -171,13 +181,26 @@ class Controller(ABC):
     :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
     ``configure`` (any time, between updates), ``activate`` (bumpless, from
     the current state), ``update`` once per cycle, each followed by the
-    manager's :meth:`command_applied`, ``deactivate``.
+    manager's :meth:`command_applied`, ``deactivate``. Subclasses put their
+    start and stop work into :meth:`on_activate` / :meth:`on_deactivate`.
     """
 
     api_version: ClassVar[int] = API_VERSION
     kind: ClassVar[str] = ''
     name: ClassVar[str] = ''
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+
+    _TEMPLATE_METHODS: ClassVar[dict[str, str]] = {'activate': 'on_activate',
+                                                   'deactivate': 'on_deactivate'}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Refuse a subclass that overrides a template method instead of its hook."""
+        super().__init_subclass__(**kwargs)
+        for method, hook in Controller._TEMPLATE_METHODS.items():
+            if method in vars(cls):
+                raise TypeError(f'{cls.__module__}.{cls.__qualname__} overrides {method}(); '
+                                f'override {hook}() instead ({method}() keeps the manager\'s '
+                                f'bookkeeping and calls it)')
 
     def __init__(self) -> None:
         self.gains: dict[str, Any] = {spec.name: spec.default for spec in self.parameters}
@@ -243,9 +266,19 @@ class Controller(ABC):
         """
         return self.name
 
+    @final
     def activate(self, state: ControllerState) -> None:
-        """Start from ``state`` without a bump (reset integrators, filters)."""
+        """Start from ``state``: mark the plugin active, then call :meth:`on_activate`.
+
+        Not to be overridden (see :meth:`__init_subclass__`). The plugin is
+        marked active before its hook runs, so that a hook that raises still
+        leaves a plugin the manager deactivates.
+        """
         self.active = True
+        self.on_activate(state)
+
+    def on_activate(self, state: ControllerState) -> None:
+        """Start from ``state`` without a bump (reset integrators, filters). Default: nothing."""
 
     @abstractmethod
     def update(self, state: ControllerState) -> float:
@@ -261,5 +294,16 @@ class Controller(ABC):
         used without the manager simply never hears of it.
         """
 
+    @final
     def deactivate(self) -> None:
-        self.active = False
+        """Stop: call :meth:`on_deactivate`, then mark the plugin inactive (even if the hook raises).
+
+        Not to be overridden (see :meth:`__init_subclass__`).
+        """
+        try:
+            self.on_deactivate()
+        finally:
+            self.active = False
+
+    def on_deactivate(self) -> None:
+        """Stop work started by :meth:`on_activate` (e.g. a fall-back law). Default: nothing."""

@@ -55,7 +55,7 @@ from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
-from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -331,7 +331,7 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
 def main(args=None) -> None:
     """Run the node until Ctrl-C / SIGTERM; its destroy_node commands zero force.
 
-    :func:`cartpole_sim.node_main.run_node` keeps the context alive while the
+    :func:`cartpole_sim.node_runner.run_node` keeps the context alive while the
     node shuts down, so the last zero force is still published.
     """
     run_node(ControllerManagerNode, args, name='controller_manager')

@@ -32,12 +32,10 @@ class Recording(Controller):
         if abs(self.gains['force']) > self.gains['limit']:
             raise ValueError(f"force {self.gains['force']} exceeds limit {self.gains['limit']}")
 
-    def activate(self, state):
-        super().activate(state)
+    def on_activate(self, state):
         self.calls.append(('activate', state.t))
 
-    def deactivate(self):
-        super().deactivate()
+    def on_deactivate(self):
         self.calls.append(('deactivate',))
 
     def update(self, state):
@@ -317,6 +315,59 @@ def test_catch_fires_exactly_on_the_conditions():
     assert out.energy_error == pytest.approx(0.0, abs=1e-9)
     assert out.raw_force == plugin(m, STABILIZER).gains['force']
     assert not plugin(m, SWINGUP).active and plugin(m, STABILIZER).active
+
+
+class Forgetful(Controller):
+    """Hooks that do their own work and never call ``super()``: the contract needs none."""
+
+    kind, name = STABILIZER, 'forgetful'
+
+    def __init__(self):
+        super().__init__()
+        self.started = self.stopped = 0
+
+    def on_activate(self, state):
+        self.started += 1
+
+    def on_deactivate(self):
+        self.stopped += 1
+
+    def update(self, state):
+        return 0.0
+
+
+class ForgetfulSwingUp(Forgetful):
+    kind, name = SWINGUP, 'forgetful_swingup'
+
+
+def test_hooks_without_super_keep_the_managers_bookkeeping_through_catch_fall_and_switch():
+    registry = {SWINGUP: {'forgetful_swingup': ForgetfulSwingUp},
+                STABILIZER: {'forgetful': Forgetful, 'hold_a': HoldA}}
+    m = ControllerManager(P, TS, registry=registry, swingup='forgetful_swingup',
+                          stabilizer='forgetful')
+    m.update(state(0.0))
+    swing, stab = plugin(m, SWINGUP), plugin(m, STABILIZER)
+    assert swing.active and not stab.active and swing.started == 1
+    out = m.update(upright(TS, theta=0.1))                       # catch
+    assert out.mode == STABILIZING
+    assert stab.active and not swing.active and (swing.stopped, stab.started) == (1, 1)
+    out = m.update(upright(2 * TS, theta=math.radians(-46.0)))   # fall
+    assert out.mode == SWINGUP_MODE and swing.active and not stab.active
+    assert (swing.started, stab.stopped) == (2, 1)
+    m.update(upright(3 * TS, theta=0.0))                         # caught again, then switched
+    assert m.set_parameters({'stabilizer': 'hold_a'}).successful
+    out = m.update(upright(4 * TS, theta=0.0))
+    assert out.stabilizer == 'hold_a' and plugin(m, STABILIZER).active
+    assert not stab.active and stab.stopped == 2
+    m.reset()
+    assert not plugin(m, STABILIZER).active and not swing.active
+
+
+def test_a_plugin_that_overrides_activate_or_deactivate_is_refused_at_definition():
+    for method in ('activate', 'deactivate'):
+        with pytest.raises(TypeError, match=f'overrides {method}.*on_{method}'):
+            type('Overrides', (Controller,), {method: lambda self, *a: None,
+                                              'update': lambda self, s: 0.0})
 
 
 def test_catch_is_latched_until_a_fall_then_rearmed():

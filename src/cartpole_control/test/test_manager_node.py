@@ -255,7 +255,7 @@ def test_enabled_false_is_idle_with_zero_force(graph):
 def test_plant_reset_starts_a_new_swingup_from_the_first_state_after_it(graph):
     from std_msgs.msg import Header
 
-    from cartpole_sim.node_main import PLANT_RESET_QOS
+    from cartpole_sim.node_runner import PLANT_RESET_QOS
     node, h = graph
     _, status_array = h.send_state(5.0, theta=0.05)                  # caught: stabilising
     assert values_of(status_array)[1]['mode'] == 'stabilizing'

@@ -27,7 +27,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_sim.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter

@@ -279,7 +279,7 @@ def test_plant_reset_reinitialises_from_the_first_sample_after_it(harness, spin_
     """/sim/reset puts the cart back at the stop: the jump is not filtered as an innovation."""
     from std_msgs.msg import Header
 
-    from cartpole_sim.node_main import PLANT_RESET_QOS
+    from cartpole_sim.node_runner import PLANT_RESET_QOS
     h = harness()
     assert connected(h, spin_until)
     reset_pub = h.node.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)

@@ -60,7 +60,6 @@ import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
 
-from cartpole_sim.plant import CounterUnwrapper
 from cartpole_sim.realtime import CycleGapMeter
 
 from . import protocol as jp
@@ -152,8 +151,8 @@ class BridgeCore:
         self.armed_at = -math.inf
         self.flags = 0
         self.tracker = jp.SequenceTracker()
-        self._unwrap_cart = CounterUnwrapper(self.config.calibration.counter_bits)
-        self._unwrap_pend = CounterUnwrapper(self.config.calibration.counter_bits)
+        self._unwrap_cart = jp.CounterUnwrapper(self.config.calibration.counter_bits)
+        self._unwrap_pend = jp.CounterUnwrapper(self.config.calibration.counter_bits)
         self._since_resync = 0
         self._last_sequence_receipt: float | None = None
         self._jump_candidate: int | None = None

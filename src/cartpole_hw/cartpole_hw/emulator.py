@@ -56,7 +56,8 @@ from dataclasses import dataclass, field
 
 from cartpole_sim import realtime
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import Plant, Scenario, wrap_counter
+from cartpole_sim.model import wrap_counter
+from cartpole_sim.plant import Plant, Scenario
 from cartpole_sim.scenario_options import add_scenario_arguments, scenario_from_args
 
 from . import protocol as jp

@@ -47,8 +47,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Iterable, Union
 
-from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import CounterUnwrapper, wrap_counter  # noqa: F401 (re-exported)
+from cartpole_sim.model import CartPoleParameters, EncoderResolution, wrap_counter
 
 PROTOCOL_VERSION = 1
 """Version the device announces in ``V`` and the host expects."""
@@ -455,12 +454,40 @@ class SequenceTracker:
         self.last = None
 
 
+@dataclass
+class CounterUnwrapper:
+    """Rebuilds a continuous count from a wrapping signed counter (the HCTL-2021's int16).
+
+    Correct as long as the counter moves less than half its range between two
+    reads (16 revolutions of the pendulum in 5 ms is far beyond the rig).
+    """
+
+    bits: int = 16
+    _last: int | None = None
+    _total: int = 0
+
+    def update(self, raw: int) -> int:
+        if self._last is None:
+            self._total = raw
+        else:
+            self._total += wrap_counter(raw - self._last, self.bits)
+        self._last = raw
+        return self._total
+
+    def reset(self) -> None:
+        self._last = None
+        self._total = 0
+
+
 # -- conversions (2.3), (2.4), (A.3) ----------------------------------------------------------
 @dataclass(frozen=True)
-class Calibration:
+class Calibration(EncoderResolution):
     """Ticks <-> SI and force <-> setpoint of the rig.
 
-    Signs are +1 when a positive count means the cart moved right (x grows)
+    The encoder figures default to those of :class:`CartPoleParameters` (the
+    one place the thesis's 8737 ticks over 0.769 m, 2000 ticks/rev and 16-bit
+    counters are written, SPEC section 3), as floats (the bridge's parameters
+    are doubles); the resolutions are :class:`EncoderResolution`'s. Signs are +1 when a positive count means the cart moved right (x grows)
     and the pendulum turned towards positive theta, and when a positive
     setpoint pushes the cart right; flip them if the wiring is reversed.
     """
@@ -468,11 +495,11 @@ class Calibration:
     cart_sign: int = 1
     pendulum_sign: int = 1
     force_sign: int = 1
-    cart_ticks_over_travel: float = 8737.0
+    cart_ticks_over_travel: float = float(CartPoleParameters.cart_ticks_over_travel)
     """Cart ticks over the whole travel (2.4)."""
-    travel: float = 0.769
+    travel: float = CartPoleParameters.travel
     """Cart travel between the end stops [m] (section 2.3)."""
-    pendulum_ticks_per_rev: float = 2000.0
+    pendulum_ticks_per_rev: float = float(CartPoleParameters.pendulum_ticks_per_rev)
     """Pendulum ticks per revolution (2.3)."""
     setpoint_per_newton: float = 56.744
     """1 / 0.017623 N, setpoint per newton (A.3)."""
@@ -480,7 +507,8 @@ class Calibration:
     """DAC value of zero current (Appendix A: offset 2000 corrected to 1953)."""
     dac_max: int = 4095
     """Largest value of the 12-bit DAC."""
-    counter_bits: int = 16
+    counter_bits: int = CartPoleParameters.counter_bits
+    """Width of the HCTL-2021 counters; they wrap (section 2.3)."""
 
     def __post_init__(self) -> None:
         for name in ('cart_sign', 'pendulum_sign', 'force_sign'):
@@ -505,16 +533,6 @@ class Calibration:
                     counter_bits=params.counter_bits)
         base.update(changes)
         return cls(**base)
-
-    @property
-    def cart_resolution(self) -> float:
-        """Metres per cart tick (2.4): 0.769 / 8737 = 88.016e-6 m."""
-        return self.travel / self.cart_ticks_over_travel
-
-    @property
-    def pendulum_resolution(self) -> float:
-        """Radians per pendulum tick (2.3): 2 pi / 2000 = pi * 1e-3 rad."""
-        return 2.0 * math.pi / self.pendulum_ticks_per_rev
 
     @property
     def setpoint_min(self) -> int:

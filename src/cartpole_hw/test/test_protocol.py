@@ -7,8 +7,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from cartpole_hw import protocol as jp
-from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import CounterUnwrapper, wrap_counter
+from cartpole_hw.protocol import CounterUnwrapper
+from cartpole_sim.model import CartPoleParameters, wrap_counter
+from cartpole_sim.plant import Plant, Scenario
 
 _spec = importlib.util.spec_from_file_location('hw_vectors', Path(__file__).with_name('vectors.py'))
 vectors = importlib.util.module_from_spec(_spec)
@@ -193,6 +194,18 @@ def test_calibration_matches_the_thesis_resolutions():
     assert cal.setpoint_to_force(cal.setpoint_min) == pytest.approx(-34.42, abs=0.01)
 
 
+def test_calibration_defaults_are_the_plant_parameters_encoder_figures():
+    default, p = jp.Calibration(), CartPoleParameters()
+    assert default == jp.Calibration.from_parameters(p)
+    assert (default.cart_ticks_over_travel, default.travel, default.pendulum_ticks_per_rev,
+            default.counter_bits) == (8737.0, 0.769, 2000.0, 16)     # SPEC section 3, thesis 2.3
+    assert isinstance(default.cart_ticks_over_travel, float)            # the bridge's doubles
+    assert (default.cart_resolution, default.pendulum_resolution) == (p.cart_resolution,
+                                                                      p.pendulum_resolution)
+    rig = jp.Calibration.from_parameters(p.replace(cart_ticks_over_travel=9000, travel=0.8))
+    assert rig.cart_resolution == pytest.approx(0.8 / 9000)
+
+
 def test_calibration_signs_and_refusals():
     cal = jp.Calibration(cart_sign=-1, pendulum_sign=-1, force_sign=-1)
     assert cal.cart_position(100) < 0
@@ -205,7 +218,31 @@ def test_calibration_signs_and_refusals():
             jp.Calibration(**bad)
 
 
-def test_unwrapping_the_16_bit_counters_reuses_the_plant_unwrapper():
+def test_unwrapper_rebuilds_count_across_wraps_synthetic():
+    unwrapper = CounterUnwrapper()
+    counts = list(range(0, 200_000, 997)) + list(range(200_000, -150_000, -1499))
+    rebuilt = [unwrapper.update(wrap_counter(c)) for c in counts]
+    assert rebuilt == counts
+    unwrapper.reset()
+    assert unwrapper.update(wrap_counter(70_000)) == wrap_counter(70_000)
+
+
+def test_the_plants_positions_are_what_the_unwrapper_rebuilds_from_its_wrapping_counters():
+    # ~35 rad/s for 4 s is ~20 revolutions = 40,000 ticks > 32,767: the raw counter wraps.
+    p = CartPoleParameters(c_c_right=0.0, c_c_left=0.0, c_p=0.0, v_p=0.0)
+    plant = Plant(p, Scenario(x0=p.x_middle, theta_dot0=40.0,
+                              x_dot0=-p.m_p * p.l * 40.0 / (p.m_c + p.m_p)))
+    cal = jp.Calibration.from_parameters(p)
+    cart, pend = CounterUnwrapper(16), CounterUnwrapper(16)
+    for _ in range(800):
+        m = plant.measure()
+        assert m.x == cal.cart_position(cart.update(m.cart_ticks))
+        assert m.theta == cal.pendulum_angle(pend.update(m.pendulum_ticks))
+        plant.step(0.0)
+    assert pend.update(m.pendulum_ticks) > 32767   # it did wrap
+
+
+def test_unwrapping_the_16_bit_counters_across_many_revolutions():
     cal = jp.Calibration()
     unwrap = CounterUnwrapper(16)
     counts = (0, 20000, 32767, 35536, 60536, 85536, 60000, 40000)   # many revolutions

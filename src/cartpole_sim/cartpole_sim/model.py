@@ -22,8 +22,39 @@ import numpy as np
 STATE_NAMES = ('x', 'theta', 'x_dot', 'theta_dot')
 
 
+def wrap_counter(ticks: int, bits: int = 16) -> int:
+    """A count as a ``bits``-wide two's complement counter shows it (the HCTL-2021's, section 2.3)."""
+    half = 1 << (bits - 1)
+    return ((ticks + half) % (1 << bits)) - half
+
+
+class EncoderResolution:
+    """The encoder resolutions (2.3), (2.4) of anything that has the encoder figures.
+
+    A mixin of :class:`CartPoleParameters` and of the hardware bridge's
+    ``cartpole_hw.protocol.Calibration``, which both carry ``travel``,
+    ``cart_ticks_over_travel`` and ``pendulum_ticks_per_rev``: one formula
+    for the simulated encoders and the rig's.
+    """
+
+    __slots__ = ()
+    travel: float
+    cart_ticks_over_travel: float
+    pendulum_ticks_per_rev: float
+
+    @property
+    def cart_resolution(self) -> float:
+        """min dx, metres per cart tick (2.4): 0.769 m / 8737 = 88.016e-6 m."""
+        return self.travel / self.cart_ticks_over_travel
+
+    @property
+    def pendulum_resolution(self) -> float:
+        """min dtheta, radians per pendulum tick (2.3): 2 pi / 2000 = pi * 1e-3 rad."""
+        return 2.0 * math.pi / self.pendulum_ticks_per_rev
+
+
 @dataclass(frozen=True)
-class CartPoleParameters:
+class CartPoleParameters(EncoderResolution):
     """Physical parameters of the rig (Table 2.1, Table 4.1 "new", Appendix A/C).
 
     Every field is in SI units. The defaults are the thesis values of SPEC
@@ -106,16 +137,6 @@ class CartPoleParameters:
     def force_min(self) -> float:
         """Largest force to the left, a negative number [N] (-37.4 N)."""
         return self.current_min * self.force_per_ampere
-
-    @property
-    def cart_resolution(self) -> float:
-        """min dx, metres per cart tick (2.4): 88.016e-6 m."""
-        return self.travel / self.cart_ticks_over_travel
-
-    @property
-    def pendulum_resolution(self) -> float:
-        """min dtheta, radians per pendulum tick (2.3): pi * 1e-3 rad."""
-        return 2.0 * math.pi / self.pendulum_ticks_per_rev
 
     @property
     def upright_energy(self) -> float:

@@ -32,7 +32,7 @@ import numpy as np
 
 from .disturbance import STREAM_DROP, STREAM_FORCE_NOISE, CommandDelayLine, DisturbedHold, \
     RandomStream
-from .model import CartPoleParameters, acceleration_function, accelerations
+from .model import CartPoleParameters, acceleration_function, accelerations, wrap_counter
 from .scenario import Push, Scenario, parse_push  # noqa: F401 (re-exported: the plant's scenario)
 
 END_STOP_TOLERANCE = 1.0e-6
@@ -71,37 +71,6 @@ def _measurement(t: float, cart_ticks: int, pendulum_ticks: int, x: float,
                                        'pendulum_ticks': pendulum_ticks, 'x': x,
                                        'theta': theta})
     return m
-
-
-def wrap_counter(ticks: int, bits: int = 16) -> int:
-    """A count as a ``bits``-wide two's complement counter shows it."""
-    half = 1 << (bits - 1)
-    return ((ticks + half) % (1 << bits)) - half
-
-
-@dataclass
-class CounterUnwrapper:
-    """Rebuilds a continuous count from a wrapping signed counter.
-
-    Correct as long as the counter moves less than half its range between two
-    reads (16 revolutions of the pendulum in 5 ms is far beyond the rig).
-    """
-
-    bits: int = 16
-    _last: int | None = None
-    _total: int = 0
-
-    def update(self, raw: int) -> int:
-        if self._last is None:
-            self._total = raw
-        else:
-            self._total += wrap_counter(raw - self._last, self.bits)
-        self._last = raw
-        return self._total
-
-    def reset(self) -> None:
-        self._last = None
-        self._total = 0
 
 
 @dataclass
@@ -162,8 +131,6 @@ class Plant(DisturbedHold):
         self._drop_draws = RandomStream(sc.seed, STREAM_DROP, 'uniform') if sc.drop else None
         self._force_noise_draws = (RandomStream(sc.seed, STREAM_FORCE_NOISE, 'normal')
                                    if sc.force_noise else None)
-        self._unwrap_cart = CounterUnwrapper(self.params.counter_bits)
-        self._unwrap_pend = CounterUnwrapper(self.params.counter_bits)
         # Encoders are zeroed at the left stop and with the pendulum at
         # pi + encoder_offset (Appendix H).
         self._theta_at_reset = math.pi + self.scenario.encoder_offset
@@ -332,22 +299,32 @@ class Plant(DisturbedHold):
     # -- encoders (2.3), (2.4) ----------------------------------------------------------
     def encoder_counts(self) -> tuple[int, int]:
         """The raw 16-bit counters (cart, pendulum) now, noise included if enabled."""
-        p = self.params
+        cart, pend = self._continuous_counts()
+        bits = self.params.counter_bits
+        return wrap_counter(cart, bits), wrap_counter(pend, bits)
+
+    def _continuous_counts(self) -> tuple[int, int]:
+        """The quadrature counts (cart, pendulum) since the reset, before the counters wrap."""
         x = self.state[0]
         theta = self.state[1] - self._theta_at_reset
         if self.scenario.noise:
             x += self._rng.normal(0.0, self.scenario.noise_std_cart)
             theta += self._rng.normal(0.0, self.scenario.noise_std_pendulum)
-        cart = math.floor(x / self._cart_resolution + 0.5)
-        pend = math.floor(theta / self._pendulum_resolution + 0.5)
-        return wrap_counter(cart, p.counter_bits), wrap_counter(pend, p.counter_bits)
+        return (math.floor(x / self._cart_resolution + 0.5),
+                math.floor(theta / self._pendulum_resolution + 0.5))
 
     def measure(self) -> Measurement:
-        """Sample the encoders: raw counters and the positions they stand for."""
-        cart_raw, pend_raw = self.encoder_counts()
-        cart = self._unwrap_cart.update(cart_raw)
-        pend = self._unwrap_pend.update(pend_raw)
-        return _measurement(self.t, cart_raw, pend_raw, cart * self._cart_resolution,
+        """Sample the encoders: raw counters and the positions they stand for.
+
+        The positions are those of the continuous counts, which is what the
+        host rebuilds from the wrapping counters (``cartpole_hw.protocol.
+        CounterUnwrapper``, exact while a counter moves less than half its
+        range between two samples; a test checks both agree).
+        """
+        cart, pend = self._continuous_counts()
+        bits = self.params.counter_bits
+        return _measurement(self.t, wrap_counter(cart, bits), wrap_counter(pend, bits),
+                            cart * self._cart_resolution,
                             math.pi + pend * self._pendulum_resolution)
 
     def true_state(self) -> np.ndarray:

@@ -52,7 +52,7 @@ from .model import CartPoleParameters
 from .plant import Scenario
 from .scenario import DELAY_MAX, parse_push
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
-from .node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from .node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import END_STOP_TOLERANCE, CounterUnwrapper, Plant, Scenario, \
-    wrap_counter
+from cartpole_sim.model import wrap_counter
+from cartpole_sim.plant import END_STOP_TOLERANCE, Plant, Scenario
 
 NOMINAL = CartPoleParameters()
 FRICTIONLESS = NOMINAL.replace(c_c_right=0.0, c_c_left=0.0, v_c=0.0, c_p=0.0, v_p=0.0)
@@ -153,15 +153,6 @@ def test_wrap_counter_is_16_bit_twos_complement():
     assert wrap_counter(-32769) == 32767
     assert wrap_counter(65536 + 5) == 5
     assert wrap_counter(300, bits=8) == 44
-
-
-def test_unwrapper_rebuilds_count_across_wraps_synthetic():
-    unwrapper = CounterUnwrapper()
-    counts = list(range(0, 200_000, 997)) + list(range(200_000, -150_000, -1499))
-    rebuilt = [unwrapper.update(wrap_counter(c)) for c in counts]
-    assert rebuilt == counts
-    unwrapper.reset()
-    assert unwrapper.update(wrap_counter(70_000)) == wrap_counter(70_000)
 
 
 def test_spinning_pendulum_wraps_the_counter_and_is_unwrapped():

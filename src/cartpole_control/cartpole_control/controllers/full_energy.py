@@ -46,14 +46,13 @@ import numpy as np
 
 from cartpole_sim.model import system_energy
 
-from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
-from . import StepClock
+from ..controller import ControllerState, ParameterSpec
+from .energy_integral import EnergyIntegralSwingUp, i_max_parameter
 
 
-class FullEnergySwingUp(Controller):
+class FullEnergySwingUp(EnergyIntegralSwingUp):
     """Swing-up law (7.27): Lyapunov redesign on the full energy, with integral action."""
 
-    kind = SWINGUP
     name = 'full_energy'
     parameters = (
         ParameterSpec('k_x', 12.0, 'cart position weight k_x of (7.14)/(7.27) [N^2] '
@@ -68,17 +67,13 @@ class FullEnergySwingUp(Controller):
         ParameterSpec('k_i', 0.2, 'integral gain k_i on the energy error of (7.27) '
                       '[N/J]; thesis 0.012 (needs > 30 s to swing up on this '
                       'model, tuned 0.2)', low=0.0, high=10.0),
-        ParameterSpec('i_max', 20.0, 'anti-windup: bound of int (E* - E) dt [J s] '
-                      '(not in the thesis)', low=0.0, high=1000.0),
+        i_max_parameter(20.0, 'E'),
         ParameterSpec('d_min', 0.0, 'floor of the denominator of (7.27) [J]; 0 is the '
                       'thesis law (not in the thesis)', low=0.0, high=10.0),
     )
 
     def __init__(self) -> None:
         super().__init__()
-        self.integral = 0.0
-        """int_0^t (E* - E) dt [J s] since activation."""
-        self._clock = StepClock()
         self.denominator_min = 0.0
         """Smallest possible denominator of (7.27) over all states, k_v/(m_c+m_p) - k_e E*."""
 
@@ -93,12 +88,6 @@ class FullEnergySwingUp(Controller):
                 f'changes sign and drives the cart into an end stop; raise k_v or lower k_e')
         self.denominator_min = g['k_v'] / (p.m_c + p.m_p) - g['k_e'] * p.upright_energy
 
-    def activate(self, state: ControllerState) -> None:
-        """Start a new swing-up: the energy integral starts from zero now."""
-        super().activate(state)
-        self.integral = 0.0
-        self._clock.reset(state.t)
-
     def energy_error(self, state: ControllerState) -> float:
         """E* - E with E the full system energy (7.11) [J]."""
         p = self.context.plant
@@ -108,8 +97,7 @@ class FullEnergySwingUp(Controller):
     def update(self, state: ControllerState) -> float:
         g, p = self.gains, self.context.plant
         error = self.energy_error(state)
-        dt = self._clock.step(state.t, self.context.sample_time)
-        self.integral = max(-g['i_max'], min(g['i_max'], self.integral + error * dt))
+        integral = self.integrate(state, error)
         s, c = math.sin(state.theta), math.cos(state.theta)
         d = p.m_c + p.m_p * s * s
         alpha = 1.0 / d                                                       # (7.17)
@@ -118,5 +106,5 @@ class FullEnergySwingUp(Controller):
                      - g['k_v'] * beta)
         denominator = max(-g['k_e'] * error + g['k_v'] * alpha, g['d_min'], 1e-9)
         # The integral term pumps only while E < E* (gate, not in the thesis).
-        pump = state.theta_dot * c * g['k_i'] * self.integral if error > 0.0 else 0.0
+        pump = state.theta_dot * c * g['k_i'] * integral if error > 0.0 else 0.0
         return numerator / denominator + pump

@@ -168,9 +168,8 @@ class LqgStabilizer(Controller):
         # -K of (8.16), negated once instead of every cycle
         self._minus_gain = tuple(float(-k) for k in self.gain)
 
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Bumpless start: the integral starts from zero at this state."""
-        super().activate(state)
         self._integral.reset()
         self._clock.reset(state.t)
 

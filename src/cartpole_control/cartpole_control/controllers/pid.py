@@ -105,9 +105,8 @@ class PidStabilizer(Controller):
             raise ValueError(f'pid: pendulum_gains K_p = {kp:g} must exceed g = {g:g} m/s^2, '
                              'or the inner loop cannot overcome gravity')
 
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Bumpless start: both integrators start from zero at this state."""
-        super().activate(state)
         self._integral_x.reset()
         self._integral_theta.reset()
         self.theta_ref = 0.0

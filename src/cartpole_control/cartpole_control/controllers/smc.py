@@ -200,9 +200,8 @@ class SlidingModeStabilizer(Controller):
                                                                 1e-9),
                                 c_p=p.c_p if self.gains['friction_steepness'] > 0.0 else 0.0)
 
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Bumpless start: the integral starts from zero at this state."""
-        super().activate(state)
         self._integral.reset()
         self._clock.reset(state.t)
 

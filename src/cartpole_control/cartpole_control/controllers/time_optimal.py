@@ -359,9 +359,8 @@ class TimeOptimalSwingUp(Controller):
         threading.Thread(target=work, name=f'time_optimal-load-{x0:.2f}').start()
 
     # -- lifecycle ---------------------------------------------------------------------------------
-    def activate(self, state: ControllerState) -> None:
+    def on_activate(self, state: ControllerState) -> None:
         """Track the plan prepared for this start, else the fall-back (module docstring)."""
-        super().activate(state)
         self._plan = self._gains_k = None
         self._t0 = state.t
         if not at_hanging_rest(state, self.gains):
@@ -395,8 +394,7 @@ class TimeOptimalSwingUp(Controller):
                        'energy_saturated: %s', state.t, state.x, self.fallback_reason)
         self.fallback.activate(state)
 
-    def deactivate(self) -> None:
-        super().deactivate()
+    def on_deactivate(self) -> None:
         if self.fallback.active:
             self.fallback.deactivate()
 

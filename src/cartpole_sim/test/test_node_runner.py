@@ -13,7 +13,7 @@ CHILD = textwrap.dedent('''
     import os, signal, sys
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
-    from cartpole_sim.node_main import run_node
+    from cartpole_sim.node_runner import run_node
 
     class Busy(Node):
         """Receives its own 200 Hz messages; the 20th callback signals the process and
@@ -55,3 +55,24 @@ def test_a_stop_signal_lets_the_callback_finish_then_shuts_down_cleanly(sig):
     assert lines[0] == 'callback finished'
     assert lines[1].startswith('destroyed after') and lines[-1] == 'clean exit'
     assert 'Traceback' not in result.stderr and 'KeyboardInterrupt' not in result.stderr
+
+
+SIMULATOR_MODULES = ('cartpole_sim.plant', 'cartpole_sim.sim_node', 'cartpole_sim.sim_runner',
+                     'cartpole_sim.scenario', 'cartpole_sim.disturbance')
+
+
+@pytest.mark.parametrize('node_module', ['cartpole_estimation.ekf_node',
+                                         'cartpole_control.manager_node',
+                                         'cartpole_hw.hw_node', 'cartpole_bringup.record'])
+def test_the_nodes_above_the_simulator_load_none_of_its_code(node_module):
+    # The runner and the shared QoS come from cartpole_sim.node_runner, the model from
+    # cartpole_sim.model; neither pulls in the plant or the simulator node.
+    probe = (f'import sys, {node_module}; '
+             f'print(sorted(m for m in sys.modules if m in {SIMULATOR_MODULES!r}))')
+    result = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip().splitlines()[-1] == '[]'
+    assert 'cartpole_sim.node_runner' in subprocess.run(
+        [sys.executable, '-c', f'import sys, {node_module}; print(list(sys.modules))'],
+        capture_output=True, text=True, timeout=60).stdout

@@ -1,5 +1,15 @@
 """``main()`` of every cartpole node: the STYLE.md pattern, made safe for a clean stop.
 
+Why it lives here, in the bottom package, though it has nothing of the
+simulator: the five top-level packages are fixed (sim at the bottom;
+estimation, control and hw above it; bringup on top), and the runner and the
+QoS every node shares (:data:`PUBLISH_DEPTH`, :data:`PLANT_RESET_QOS`) must be
+importable by all of them without a cycle. Every node depends on
+``cartpole_sim`` already for the model (:mod:`cartpole_sim.model`), so this
+module adds no dependency. It imports rclpy and :mod:`cartpole_sim.realtime`
+only, never the plant or the simulator node: the EKF, controller manager,
+hardware bridge and recorder load no simulator code (a test checks it).
+
 rclpy's own SIGINT handler shuts the context down under the spinning
 executor: a callback in the middle of ``take_message`` then fails with an
 RCLError instead of a clean exit, and ``destroy_node`` can no longer publish

@@ -1,0 +1,1 @@
+"""A third-party stabiliser plugin for the cartpole controller manager: pole placement."""
