@@ -38,7 +38,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f'{readme}: cannot generate the tables: {exc.args[0]}', file=sys.stderr)
         return 1
     if args.write:
-        new = rewrite(text, generated)
+        try:
+            new = rewrite(text, generated)
+        except ValueError as exc:  # broken markers: write nothing
+            print(f'{readme}: {exc}', file=sys.stderr)
+            return 1
         missing = problems(new, generated)
         if new != text:
             readme.write_text(new, encoding='utf-8')
@@ -46,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
         for p in missing:
             print(p, file=sys.stderr)
         return 1 if missing else 0
-    found = problems(text, generated)
+    try:
+        found = problems(text, generated)
+    except ValueError as exc:  # broken markers
+        found = [str(exc)]
     for p in found:
         print(p, file=sys.stderr)
     if found:

@@ -33,7 +33,7 @@ def find_regions(text: str) -> list[Region]:
         if r.key in seen:
             raise ValueError(f'README region {r.key!r} appears twice')
         seen.add(r.key)
-    opened = text.count('<!-- generated: ')
+    opened = len(re.findall(r'^<!-- generated: ', text, re.M))
     if opened != len(regions):
         raise ValueError(f'README has {opened} "<!-- generated: " markers but only {len(regions)} '
                          f'complete regions (each needs "{END}" on its own line)')
