@@ -61,7 +61,7 @@ class RecorderNode(Node):
                         'recording_<UTC timestamp> in the working directory.', read_only=True))
         self.declare_parameter('topics', list(TOPICS), ParameterDescriptor(
             description='Topics to record; each must be one of the graph topics of '
-                        'docs/architecture.md.', read_only=True))
+                        'docs/architecture.md (an unknown name is refused).', read_only=True))
         self.declare_parameter('custom_data', [''], ParameterDescriptor(
             description="'key=value' strings stored in the bag's custom_data "
                         '(x_ref, controllers, scenario).', read_only=True))

@@ -65,10 +65,10 @@ class EkfNode(Node):
                         'x [m^2], theta [rad^2], x_dot [(m/s)^2], theta_dot [(rad/s)^2] (each '
                         '> 0) and, as a fifth entry, q_force (>= 0), the variance of a random '
                         'force on the cart [N^2]; 4 entries = no force noise, the thesis (9.2) '
-                        'is [1, 1, 50, 50].'))
+                        'is [1, 1, 50, 50]. Applied from the next sample.'))
         self.declare_parameter('r', list(defaults.r_diag), ParameterDescriptor(
             description='Diagonal of the measurement covariance R_k (thesis 9.1): '
-                        'x [m^2], theta [rad^2]; 2 entries, each > 0.'))
+                        'x [m^2], theta [rad^2]; 2 entries, each > 0. Applied from the next sample.'))
         self.declare_parameter('plant_params_file', '', ParameterDescriptor(
             description="YAML file of the filter's plant parameters "
                         "(CartPoleParameters.to_yaml); '' = the thesis values.",

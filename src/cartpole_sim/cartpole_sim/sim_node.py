@@ -144,11 +144,12 @@ class SimNode(Node):
                         '0.1 s wall and do not apply lockstep_timeout.', read_only=True))
         declare('lockstep_timeout', 1.0, ParameterDescriptor(
             description='Lockstep: wall seconds to wait for the awaited command before stepping '
-                        'with the held one [s].',
+                        'with the held one [s]; takes effect at once.',
             floating_point_range=_float_range(0.001, 3600.0)))
         declare('command_timeout', 0.05, ParameterDescriptor(
             description='Watchdog: zero force when no command arrived for this much simulated '
-                        'time [s].', floating_point_range=_float_range(0.0, 10.0)))
+                        'time [s]; takes effect at once.',
+            floating_point_range=_float_range(0.0, 10.0)))
         declare('x0', 0.0, ParameterDescriptor(
             description='Initial cart position from the left end stop [m]; within the travel.',
             floating_point_range=_float_range(0.0, 10.0)))
@@ -178,7 +179,8 @@ class SimNode(Node):
             integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)]))
         self._declare_disturbances()
         declare('plant_params_file', '', ParameterDescriptor(
-            description="YAML of CartPoleParameters; '' = the thesis values."))
+            description="YAML of CartPoleParameters (must exist and have the node's "
+                        "sample_time); '' = the thesis values."))
         declare('integration_step', 0.001, ParameterDescriptor(
             description='RK4 step of the plant [s]; at most the sample time.',
             floating_point_range=_float_range(1e-5, 0.005)))
@@ -197,8 +199,9 @@ class SimNode(Node):
             description='Extra latency per sample, uniform in [0, jitter] [s].',
             floating_point_range=_float_range(0.0, DELAY_MAX)))
         declare('drop', 0.0, ParameterDescriptor(
-            description='Probability that a sample is lost (not published on joint_states) '
-                        'in [0, 1).', floating_point_range=_float_range(0.0, 1.0)))
+            description='Probability in [0, 1) that a sample is lost: not published on '
+                        '/joint_states (/cartpole/true_state and /clock still are); lockstep '
+                        'steps on at once with the held command.', floating_point_range=_float_range(0.0, 1.0)))
         declare('force_noise', 0.0, ParameterDescriptor(
             description='Std of Gaussian force noise on the cart [N], one draw per sample.',
             floating_point_range=_float_range(0.0, 100.0)))

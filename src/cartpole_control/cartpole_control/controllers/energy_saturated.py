@@ -111,7 +111,10 @@ def saturated_energy_acceleration(x: float, theta: float, x_dot: float, theta_do
 
 
 class EnergySaturatedSwingUp(Controller):
-    """Åström–Furuta saturated energy swing-up with cart centring (module docstring)."""
+    """Åström–Furuta saturated energy swing-up with cart centring and a rail brake.
+
+    The law is in the module docstring.
+    """
 
     kind = SWINGUP
     name = 'energy_saturated'

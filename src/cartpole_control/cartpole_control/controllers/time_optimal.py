@@ -145,7 +145,10 @@ def _say(progress: Progress | None, text: str) -> None:
 
 
 class TimeOptimalSwingUp(Controller):
-    """Minimum-time plan tracked by TV-LQR, energy_saturated fall-back (module docstring)."""
+    """Minimum-time swing-up plan tracked by time-varying LQR, energy_saturated as fall-back.
+
+    The plan, its tracking and the fall-backs are in the module docstring.
+    """
 
     kind = SWINGUP
     name = 'time_optimal'

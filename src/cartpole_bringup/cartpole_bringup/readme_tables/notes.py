@@ -1,0 +1,100 @@
+"""What the code cannot say about a topic or service: its content, in the README's words.
+
+Keys are ``(node, topic or service)`` (or ``(node, '*')``) for the per-node tables and the topic
+name for the graph's topic table. The check (:mod:`.check`) refuses an
+endpoint without a note and a note without an endpoint, so a new topic is
+documented when it is added and a removed one leaves no stale line.
+"""
+from __future__ import annotations
+
+TOPIC_NOTES: dict[str, str] = {
+    '/joint_states': '`cart`, `pendulum` positions as the encoders see them (quantised), 200 Hz',
+    '/cartpole/state': 'estimated position and velocity of both joints; stamp copied from the '
+                       'sample',
+    '/cartpole/force_command': '`cart` effort [N]; stamp = stamp of the state it was computed from',
+    '/cartpole/controller_status': 'mode, active plugins, the swing-up law that runs '
+                                   '(`swingup_law`), energy and its error, raw force, '
+                                   'feedforward, force, catch/fall counts and events',
+    '/cartpole/true_state': 'ground truth (simulation only)',
+    '/cartpole/ekf/health': 'innovation, covariance, resets, missed samples',
+    '/cartpole/hw/health': 'lost samples, bad lines, watchdog trips, latency, limit switches',
+    '/cartpole/plant_reset': 'the plant (simulator reset) or the position reference (bridge '
+                             'homing) moved; reliable, transient local',
+    '/clock': 'simulated time for `use_sim_time` (lockstep)',
+}
+"""Content of each graph topic (the "At a glance" table)."""
+
+ENDPOINT_NOTES: dict[tuple[str, str], str] = {
+    ('sim', '/joint_states'):
+        "1/Ts = 200 Hz: `name=['cart','pendulum']`, `position=[x, theta]` as the encoders see "
+        'them (quantised, unwrapped; theta = pi hanging after reset)',
+    ('sim', '/cartpole/true_state'):
+        'with each sample, same stamp: ground truth `position=[x, theta]`, `velocity=[x_dot, '
+        'theta_dot]`, `effort=[actuator force on the cart, end-stop force on the cart]` (the '
+        "stops' peak spring force over the period, 0.0 unless the cart was pressed into a stop "
+        "by more than 1 um: the plant's contact state, which `end_stop_contact` is taken from)",
+    ('sim', '/clock'): 'before each sample: simulated time of the sample',
+    ('sim', '/cartpole/force_command'):
+        "`name=['cart']`, `effort=[F]` [N]; held over the next period (zero-order hold). A "
+        'message without a finite effort for `cart` is counted and ignored',
+    ('sim', '/cartpole/plant_reset'):
+        'at each `/sim/reset`, before the reset sample: `stamp` = the time from which samples '
+        'show the reset plant (the reset sample\'s stamp in lockstep, the reset\'s time in real '
+        'time). Reliable, transient local (the last one is kept for late joiners). The EKF and '
+        'the controller manager hand over on it (below)',
+    ('sim', '/sim/reset'):
+        'the plant goes back to the scenario\'s initial state (below)',
+    ('ekf', '/joint_states'):
+        'joints found by name (`cart`, `pendulum`); a message without them or with a non-finite '
+        'position is dropped and counted; a repeated stamp is ignored',
+    ('ekf', '/cartpole/force_command'): 'effort of `cart` [N]; held until the next one',
+    ('ekf', '/cartpole/state'):
+        "`name=['cart','pendulum']`, `position=[x, theta]` (theta continuous), `velocity=[x_dot, "
+        'theta_dot]`, `header.stamp` copied from the sample; published inside the '
+        '`/joint_states` callback',
+    ('ekf', '/cartpole/ekf/health'): 'one DiagnosticStatus `ekf`, every `health_period`',
+    ('ekf', '/ekf/reset'): 're-initialise from the next sample (reported as `requested`)',
+    ('ekf', '/cartpole/plant_reset'):
+        'the plant (simulator reset) or the position reference (bridge homing) moved: '
+        're-initialise from the first sample stamped at or after `stamp` (reported as `plant '
+        'reset`), so the jump is not filtered as an innovation',
+    ('controller_manager', '/cartpole/state'):
+        '`cart`/`pendulum` position and velocity, found by name',
+    ('controller_manager', '/cartpole/force_command'):
+        "`name=['cart']`, `effort=[F]`, `header.stamp` = the state's stamp",
+    ('controller_manager', '/cartpole/controller_status'):
+        'every cycle: one status named `controller_manager`. Level is OK, WARN (idle) or ERROR '
+        '(fault); `message` is the mode. KeyValues: `mode`, `swingup`, `stabilizer`, `enabled` '
+        '(`true`/`false`), `energy`, `energy_error`, `raw_force`, `feedforward`, `force`, '
+        '`catch_count`, `fall_count`, `event`, `state_stamp`, `swingup_law` (the swing-up '
+        "plugin's `law`: its name, or for `time_optimal` `time_optimal:plan` / "
+        '`time_optimal:fallback(<why>)`; while stabilising, the law that swung up), '
+        '`longest_cycle_gap_s` (the longest wall-clock gap between two cycles since start). '
+        'Numbers are `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
+        '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
+        'joined by `;`',
+    ('controller_manager', '/cartpole/plant_reset'):
+        'a new run from the first state stamped at or after `stamp` (see "Plant reset")',
+    ('controller_manager', '/controller_manager/restart_swingup'):
+        'a new swing-up from fault (or idle while being enabled): clears the fault and re-arms '
+        'the rail guard once its brake has stopped the cart. The answer is truthful in every '
+        'mode (below)',
+    ('hw_bridge', '/joint_states'):
+        'one message per valid `S` sample: `cart`, `pendulum` positions in SI (conversions below)',
+    ('hw_bridge', '/cartpole/hw/health'): 'one status `hw_bridge` every `health_period` (keys below)',
+    ('hw_bridge', '/cartpole/plant_reset'):
+        'after a homing: stamp = the first sample counted from the new zero',
+    ('hw_bridge', '/cartpole/force_command'):
+        'effort of `cart` [N]; forwarded as `U` setpoints only while armed',
+    ('hw_bridge', '/hw_bridge/arm'): 'arm (true) or disarm (false) at once; refused with the reason',
+    ('hw_bridge', '/hw_bridge/home'): 'send `R` (zero both encoders); refused while armed',
+    ('recorder', '*'): 'recorded: the serialized message as it arrived (`raw=True`, no '
+                       'deserialisation), reliable QoS of depth `queue_depth`',
+}
+"""Content of each node's topics and services (``(node, '*')``: every endpoint of that node) (the per-node tables)."""
+
+MENTIONED_KEYS: dict[tuple[str, str], tuple[str, str]] = {
+    ('controller_manager', '/cartpole/controller_status'):
+        ('cartpole_control.manager_node', 'STATUS_KEYS'),
+}
+"""Notes that must name every key of a tuple in the code (module, attribute), in backticks."""

@@ -1,0 +1,73 @@
+"""The generated regions of README.md: find, compare, rewrite.
+
+A region is ``<!-- generated: KEY -->`` on a line of its own, the generated
+text, and ``<!-- end generated -->``. Everything outside the regions is the
+README's own prose and is never touched.
+"""
+from __future__ import annotations
+
+import difflib
+import re
+from dataclasses import dataclass
+
+BEGIN = '<!-- generated: {key} -->'
+END = '<!-- end generated -->'
+_REGION = re.compile(r'^<!-- generated: (?P<key>[^>]*?) -->\n(?P<body>.*?)^<!-- end generated -->$',
+                     re.S | re.M)
+
+
+@dataclass(frozen=True)
+class Region:
+    key: str
+    body: str
+    start: int
+    end: int
+
+
+def find_regions(text: str) -> list[Region]:
+    """Every generated region of ``text`` in order; a key may appear once only."""
+    regions = [Region(m['key'].strip(), m['body'], m.start('body'), m.end('body'))
+               for m in _REGION.finditer(text)]
+    seen = set()
+    for r in regions:
+        if r.key in seen:
+            raise ValueError(f'README region {r.key!r} appears twice')
+        seen.add(r.key)
+    opened = len(re.findall(r'^<!-- generated: ', text, re.M))
+    if opened != len(regions):
+        raise ValueError(f'README has {opened} "<!-- generated: " markers but only {len(regions)} '
+                         f'complete regions (each needs "{END}" on its own line)')
+    return regions
+
+
+def problems(text: str, generated: dict[str, str]) -> list[str]:
+    """What disagrees between the README ``text`` and the ``generated`` tables, one entry each."""
+    found = {r.key: r for r in find_regions(text)}
+    out = []
+    for key in generated:
+        if key not in found:
+            out.append(f'README has no region "{BEGIN.format(key=key)}" for {key} '
+                       '(add the markers where the table belongs, then --write)')
+    for key, region in found.items():
+        if key not in generated:
+            out.append(f'README region {key!r} names nothing the code has '
+                       f'(known: {", ".join(sorted(generated))})')
+            continue
+        want = generated[key].rstrip('\n') + '\n'
+        if region.body != want:
+            diff = difflib.unified_diff(region.body.splitlines(), want.splitlines(),
+                                        f'README.md [{key}]', f'code [{key}]', lineterm='', n=0)
+            out.append(f'README region {key!r} disagrees with the code:\n' + '\n'.join(diff))
+    return out
+
+
+def rewrite(text: str, generated: dict[str, str]) -> str:
+    """``text`` with every known region's body replaced by its generated table."""
+    pieces, last = [], 0
+    for region in find_regions(text):
+        if region.key in generated:
+            pieces.append(text[last:region.start])
+            pieces.append(generated[region.key].rstrip('\n') + '\n')
+            last = region.end
+    pieces.append(text[last:])
+    return ''.join(pieces)
