@@ -88,6 +88,8 @@ class SeriesBuilder:
     """A ``/cartpole/true_state`` sample carried a non-zero end-stop force."""
     hw_health_seen: bool = False
     status_count: int = 0
+    t0_ns: int = 0
+    """The stamp of t = 0 of the last :meth:`build` [ns] (0 in lockstep, else the first sample)."""
     _limit_open: dict[str, bool] = field(default_factory=dict)
 
     def joint_state(self, topic: str, stamp_ns: int, position: Sequence[float],
@@ -148,6 +150,7 @@ class SeriesBuilder:
         # A sample delivered twice (lockstep re-publishes sample 0 until the loop answers).
         rows = rows[np.concatenate(([True], np.diff(rows[:, 0]) > 0))]
         t0 = 0.0 if lockstep else rows[0, 0]
+        self.t0_ns = int(t0)
         t = (rows[:, 0] - t0) * 1e-9
         forces = np.array(sorted(self.forces), dtype=float).reshape(-1, 2)
         catch = None if self.catch_ns is None else (self.catch_ns - t0) * 1e-9
@@ -238,6 +241,8 @@ class BagAnalysis:
     topics: dict[str, int]
     """Messages per topic in the bag."""
     controllers: dict[str, str]
+    t0_ns: int = 0
+    """The stamp [ns] of the series' t = 0 (0 in lockstep, else the first state sample)."""
 
 
 def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
@@ -305,7 +310,8 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
     summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
                                 catch_time=series.catch_time, end_stop_contact=contact)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
-                       topics=topics, controllers=dict(builder.controllers))
+                       topics=topics, controllers=dict(builder.controllers),
+                       t0_ns=builder.t0_ns)
 
 
 def run_label(path: Path) -> str:

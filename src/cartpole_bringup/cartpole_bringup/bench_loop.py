@@ -14,6 +14,13 @@ What is measured, the same way for the graph and for its floor:
   process or in three, measured by the same probe. The ratio of the two
   isolates what our nodes add to what rclpy and DDS cost on this machine.
 
+With ``view=True`` (``cartpole bench loop --view``) each mode also runs the
+graph with its live viewer (``cartpole run --sim --view``, the ``viewer``
+node in its own process) and a Foxglove WebSocket client subscribed to every
+viewer channel (:class:`cartpole_bringup.viewer_client.ViewerClient`), the
+load a user watching the run puts on it; the ratio of the two p99s is the
+viewer's cost to the loop.
+
 Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
 the previous one, and samples for which no command arrived. CPU: user + system
 time of each process from /proc over the run.
@@ -145,14 +152,19 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
-def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
-             duration: float, warmup: float = 3.0) -> dict[str, Any]:
+def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str, duration: float,
+             warmup: float = 3.0, viewer_url: str | None = None) -> dict[str, Any]:
     probe = _Probe(sample_topic, command_topic)
     procs = [_start(c) for c in cmds]
+    client = None
     try:
         if not probe.wait_for_traffic(timeout=60.0):
             errors = b''.join(p.stderr.read() if p.poll() is not None else b'' for p in procs)
             raise RuntimeError(f'no traffic on {command_topic}: {errors.decode(errors="replace")[-2000:]}')
+        if viewer_url is not None:
+            from .viewer import TOPICS
+            from .viewer_client import ViewerClient
+            client = ViewerClient(viewer_url, TOPICS.values(), timeout=30.0, keep=False)
         probe.record(warmup)
         probe.sample_stamps.clear()
         probe.latencies.clear()
@@ -164,18 +176,32 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
         stats = _stats(probe)
         stats['cpu_percent'] = [None if a is None or b is None else 100.0 * (b - a) / elapsed
                                 for a, b in zip(cpu0, cpu1)]
+        if client is not None:
+            stats['viewer_messages'] = dict(client.counts)
         return stats
     finally:
+        if client is not None:
+            client.close()
         _stop(procs)
         probe.close()
 
 
-def _graph_cmds(mode: str, duration: float) -> list[list[str]]:
+def _graph_cmds(mode: str, duration: float, view_port: int | None = None) -> list[list[str]]:
     cmd = [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration',
            str(duration + 60.0)]
     if mode == 'processes':
         cmd.append('--processes')
+    if view_port is not None:
+        cmd += ['--view', f'127.0.0.1:{view_port}']
     return [cmd]
+
+
+def _free_port() -> int:
+    """A TCP port that is free now (for the viewer of the run to bind)."""
+    import socket
+    with socket.socket() as sock:
+        sock.bind(('127.0.0.1', 0))
+        return sock.getsockname()[1]
 
 
 def _bare_cmds(mode: str) -> list[list[str]]:
@@ -185,8 +211,10 @@ def _bare_cmds(mode: str) -> list[list[str]]:
     return [me + ['--node', 'source', '--node', 'relay1', '--node', 'relay2']]
 
 
-def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes')) -> dict[str, Any]:
-    """Measure graph and floor in each mode; returns results and a markdown table."""
+def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
+                       view: bool = False) -> dict[str, Any]:
+    """Measure graph and floor in each mode (and the graph with its viewer); returns results
+    and a markdown table."""
     env_note = os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     results: dict[str, Any] = {'discovery_range': env_note}
     for mode in modes:
@@ -195,6 +223,14 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes')) ->
                               duration),
             'bare': _measure(_bare_cmds(mode), '/bench/source', '/bench/relay2', duration),
         }
+        if view:
+            port = _free_port()
+            results[mode]['graph_view'] = _measure(
+                _graph_cmds(mode, duration, port), '/joint_states', '/cartpole/force_command',
+                duration, viewer_url=f'ws://127.0.0.1:{port}')
+            gv, g = results[mode]['graph_view'], results[mode]['graph']
+            results[mode]['p99_ratio_view'] = (gv['p99_ms'] / g['p99_ms']) \
+                if gv['p99_ms'] and g['p99_ms'] else None
         g, b = results[mode]['graph'], results[mode]['bare']
         results[mode]['p99_ratio'] = (g['p99_ms'] / b['p99_ms']) if g['p99_ms'] and b['p99_ms'] else None
     md = [f'Real-time graph, {duration:g} s measured per row after 3 s warm-up; latency = receipt of '
@@ -202,16 +238,22 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes')) ->
           'chain shape (source -> relay -> relay) with no computation.\n',
           '| mode | path | p50 [ms] | p99 [ms] | max [ms] | samples | missed cycles | late cycles '
           '| unanswered samples | CPU per process [%] |', '|' + '---|' * 10]
+    labels = {'graph': 'our graph', 'bare': 'bare rclpy floor',
+              'graph_view': 'our graph + viewer (client attached)'}
     for mode in modes:
-        for path in ('graph', 'bare'):
+        for path in [p for p in ('graph', 'graph_view', 'bare') if p in results[mode]]:
             r = results[mode][path]
             cpu = ', '.join('-' if c is None else f'{c:.0f}' for c in r['cpu_percent'])
-            md.append(f'| {mode} | {"our graph" if path == "graph" else "bare rclpy floor"} | '
+            md.append(f'| {mode} | {labels[path]} | '
                       f'{r["p50_ms"]:.3f} | {r["p99_ms"]:.3f} | {r["max_ms"]:.3f} | {r["samples"]} | '
                       f'{r["missed_cycles"]} | {r["late_cycles"]} | {r["unanswered_samples"]} | {cpu} |')
         ratio = results[mode]['p99_ratio']
         md.append(f'| {mode} | p99 ratio graph / floor | {ratio:.2f} | | | | | | | |' if ratio else
                   f'| {mode} | p99 ratio | - | | | | | | | |')
+        if 'p99_ratio_view' in results[mode]:
+            ratio = results[mode]['p99_ratio_view']
+            md.append(f'| {mode} | p99 ratio graph + viewer / graph | '
+                      f'{"-" if ratio is None else f"{ratio:.2f}"} | | | | | | | |')
     results_md = '\n'.join(md) + '\n'
     return {'results': results, 'markdown': results_md}
 

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from cartpole_control.manager import ControllerManager
-from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
+from cartpole_control.manager import ControllerManager, ManagerOutput
+from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter, StateEstimate
 from cartpole_sim.model import CartPoleParameters, pendulum_energy
-from cartpole_sim.plant import Plant, Scenario
+from cartpole_sim.plant import Measurement, Plant, Scenario
 
 from . import metrics
 
@@ -55,7 +55,9 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     manager_parameters: Mapping[str, Any] | None = None,
                     ekf_config: EkfConfig | None = None,
                     integration_step: float = 0.001,
-                    profile: dict[str, float] | None = None) -> RunResult:
+                    profile: dict[str, float] | None = None,
+                    observer: Callable[[Measurement, StateEstimate, ManagerOutput, list[float]],
+                                       None] | None = None) -> RunResult:
     """Run the closed loop for ``duration`` simulated seconds and summarise it (SPEC 5).
 
     ``nominal`` are the parameters the EKF and the controllers use; the plant
@@ -64,6 +66,10 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     ``{'swingup': 'full_energy', 'lqg.q': [...]}``); a refused one raises
     ValueError with the manager's reason. With ``profile`` (a dict) the wall
     time spent in each stage (``plant``, ``ekf``, ``controller``) is added to it.
+    ``observer(measurement, estimate, output, true_state)`` is called once a
+    sample, after the controller and before the plant steps
+    (``cartpole offline --view`` shows the run with it); ``true_state`` is
+    ``[x, theta, x_dot, theta_dot]`` of the plant.
     """
     nominal = nominal or CartPoleParameters()
     scenario = scenario or Scenario()
@@ -106,6 +112,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_ctrl += t3 - t2
         force = out.force
         s = plant.state
+        if observer is not None:
+            observer(meas, est, out, s)
         add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
         add_mode(out.mode)
         if out.event:

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp.add_argument('--duration', type=float, default=60.0, metavar='S', help='wall seconds per mode')
     lp.add_argument('--modes', nargs='*', default=['single', 'processes'],
                     choices=['single', 'processes'])
+    lp.add_argument('--view', action='store_true',
+                    help='also measure each mode with the live viewer (cartpole run --view) '
+                         'and a Foxglove WebSocket client attached')
 
     a = sub.add_parser('all', help='control, offline and loop with their defaults')
     _common(a)
@@ -146,7 +149,8 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     from ..bench_loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
-    result = run_loop_benchmark(duration=args.duration, modes=args.modes)
+    result = run_loop_benchmark(duration=args.duration, modes=args.modes,
+                                view=getattr(args, 'view', False))
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))

@@ -1,0 +1,209 @@
+"""The ``viewer`` node: the running graph, live, in Foxglove (a WebSocket server).
+
+Subscribes the graph's topics (docs/architecture.md) and feeds
+:class:`cartpole_bringup.viewer.LiveView`, which serves the Foxglove
+WebSocket protocol through the foxglove-sdk (channels, rates and contents:
+:mod:`cartpole_bringup.viewer`)::
+
+    ros2 run cartpole_bringup viewer                      # ws://127.0.0.1:8765
+    ros2 run cartpole_bringup viewer --ros-args -p host:=0.0.0.0 -p port:=8765
+
+or ``cartpole run --sim --view``, which starts it in its own process. It
+never publishes on the graph and subscribes the 200 Hz topics best-effort:
+a viewer that falls behind drops samples, the loop never waits for it.
+
+Topics: ``/joint_states`` (the measurement, drawn as the plant on the rig),
+``/cartpole/true_state`` (the simulator's ground truth; drawn instead when
+present), ``/cartpole/state`` (the estimate: each one that is due draws the
+scene), ``/cartpole/force_command``, ``/cartpole/controller_status`` (mode,
+energies, forces, events; reliable), ``/parameter_events`` (x* follows
+``ros2 param set /controller_manager x_ref ...``).
+
+On start it prints one line to stderr, ``viewer: serving ws://HOST:PORT``
+(the real port when ``port`` is 0).
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterEvent, ParameterType, SetParametersResult)
+from rcl_interfaces.srv import GetParameters
+from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from cartpole_sim.geometry import RigGeometry
+from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.node_main import run_node
+
+from .analyze import FORCE, JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
+from .bag import cdr_stamp_ns
+from .diagnostics_cdr import parse_diagnostic_array
+from .viewer import DEFAULT_HOST, DEFAULT_PORT, MAX_RATE_HZ, ControlSample, LiveView, ViewerServer
+
+NODE_NAME = 'viewer'
+X_REF_QUERY_PERIOD = 1.0
+"""Wall seconds between attempts to read the controller manager's x_ref at start."""
+X_REF_QUERY_ATTEMPTS = 30
+
+
+class ViewerNode(Node):
+    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.declare_parameter('host', DEFAULT_HOST, ParameterDescriptor(
+            description='Address the Foxglove WebSocket server binds to (0.0.0.0: every '
+                        'interface)', read_only=True))
+        self.declare_parameter('port', DEFAULT_PORT, ParameterDescriptor(
+            description='TCP port of the server (0: any free port, printed at start)',
+            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=65535, step=1)]))
+        self.declare_parameter('max_rate', MAX_RATE_HZ, ParameterDescriptor(
+            description='Upper bound of the scene, state and control rates [Hz], by stamps',
+            read_only=True, floating_point_range=[FloatingPointRange(
+                from_value=1.0, to_value=MAX_RATE_HZ, step=0.0)]))
+        self.declare_parameter('plant_params_file', '', ParameterDescriptor(
+            description="CartPoleParameters YAML of the drawn rig (travel, l); '' = the thesis "
+                        'values', read_only=True))
+        self.declare_parameter('x_ref', math.nan, ParameterDescriptor(
+            description='x* marked on the rail [m]; NaN = the controller manager\'s x_ref, else '
+                        'the middle of the travel. Follows the controller manager\'s x_ref.'))
+        self.declare_parameter('controller_manager', '/controller_manager', ParameterDescriptor(
+            description='The node whose x_ref parameter x* follows', read_only=True))
+
+        path = self.get_parameter('plant_params_file').value
+        params = CartPoleParameters.from_yaml(path) if path else CartPoleParameters()
+        x_ref = self.get_parameter('x_ref').value
+        self._x_ref_fixed = math.isfinite(x_ref)
+        host = self.get_parameter('host').value
+        port = self.get_parameter('port').value
+        try:
+            self.server = ViewerServer(host=host, port=port)
+        except RuntimeError as error:  # the SDK's FoxgloveError: bind failed, bad address
+            raise OSError(f'cannot serve on {host}:{port}: {error}') from None
+        self.view = LiveView(self.server, RigGeometry.from_parameters(params),
+                             x_ref if self._x_ref_fixed else params.x_middle,
+                             max_rate=self.get_parameter('max_rate').value)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
+        for topic, callback in ((JOINTS, self._on_measurement), (TRUE_STATE, self._on_truth),
+                                (STATE, self._on_estimate), (FORCE, self._on_force)):
+            self.create_subscription(JointState, topic, callback, fast, raw=True)
+        self.create_subscription(DiagnosticArray, STATUS, self._on_status,
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+                                 raw=True)
+        self.bad_messages = 0
+        """Controller status messages that could not be read (counted, dropped)."""
+        self._manager = self.get_parameter('controller_manager').value.rstrip('/') or '/'
+        self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
+                                 QoSProfile(depth=100))
+        self._x_ref_client = self.create_client(GetParameters, f'{self._manager}/get_parameters')
+        self._x_ref_future = None
+        self._x_ref_attempts = 0
+        self._x_ref_timer = None
+        if not self._x_ref_fixed:
+            self._x_ref_timer = self.create_timer(X_REF_QUERY_PERIOD, self._query_x_ref)
+        print(f'viewer: serving {self.server.url}', file=sys.stderr, flush=True)
+
+    # -- topics ----------------------------------------------------------------------------
+    # The measurement, truth and force of a sample that is not drawn are not decoded (the
+    # stamp is the first field; cdr_stamp_ns reads it alone). The force command of a sample
+    # comes after its estimate, so after the decision to draw it.
+    def _on_measurement(self, data: bytes) -> None:
+        if not self.view.wanted(cdr_stamp_ns(data)):
+            return
+        stamp, _, position, _, _ = parse_joint_state(data)
+        if len(position) >= 2:
+            self.view.measurement(stamp, position[0], position[1])
+
+    def _on_truth(self, data: bytes) -> None:
+        if not self.view.wanted(cdr_stamp_ns(data)):
+            return
+        stamp, _, position, velocity, _ = parse_joint_state(data)
+        if len(position) >= 2 and len(velocity) >= 2:
+            self.view.truth(stamp, position[0], position[1], velocity[0], velocity[1])
+
+    def _on_estimate(self, data: bytes) -> None:
+        stamp, _, position, velocity, _ = parse_joint_state(data)
+        if len(position) >= 2 and len(velocity) >= 2:
+            self.view.estimate(stamp, position[0], position[1], velocity[0], velocity[1])
+
+    def _on_force(self, data: bytes) -> None:
+        if not self.view.was_shown(cdr_stamp_ns(data)):
+            return
+        stamp, _, _, _, effort = parse_joint_state(data)
+        if len(effort) >= 1:
+            self.view.force(stamp, effort[0])
+
+    def _on_status(self, data: bytes) -> None:
+        try:
+            stamp, statuses = parse_diagnostic_array(data)
+        except ValueError as error:
+            self.bad_messages += 1
+            self.get_logger().warn(f'{STATUS}: {error}', throttle_duration_sec=5.0)
+            return
+        for status in statuses:
+            if status.name == 'controller_manager':
+                self.view.status(stamp, ControlSample.from_status_values(status.values))
+
+    # -- x* ----------------------------------------------------------------------------------
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == 'x_ref':
+                value = float(p.value)
+                self._x_ref_fixed = math.isfinite(value)
+                if self._x_ref_fixed:
+                    self.view.set_x_ref(value)
+        return SetParametersResult(successful=True)
+
+    def _on_parameter_event(self, event: ParameterEvent) -> None:
+        if self._x_ref_fixed or event.node != self._manager:
+            return
+        for p in list(event.new_parameters) + list(event.changed_parameters):
+            if p.name == 'x_ref' and p.value.type == ParameterType.PARAMETER_DOUBLE:
+                self.view.set_x_ref(p.value.double_value)
+
+    def _query_x_ref(self) -> None:
+        """At start: read the manager's x_ref once (later changes come as parameter events)."""
+        future = self._x_ref_future
+        if future is not None and future.done():
+            result = future.result()
+            if result is not None and result.values and \
+                    result.values[0].type == ParameterType.PARAMETER_DOUBLE:
+                if not self._x_ref_fixed:
+                    self.view.set_x_ref(parameter_value_to_python(result.values[0]))
+                self._x_ref_timer.cancel()
+                return
+            self._x_ref_future = future = None
+        self._x_ref_attempts += 1
+        if self._x_ref_attempts > X_REF_QUERY_ATTEMPTS or self._x_ref_fixed:
+            self._x_ref_timer.cancel()
+            return
+        if future is None and self._x_ref_client.service_is_ready():
+            self._x_ref_future = self._x_ref_client.call_async(GetParameters.Request(
+                names=['x_ref']))
+
+    def destroy_node(self) -> None:
+        self.server.stop()
+        super().destroy_node()
+
+
+def _executor():
+    """rclpy's C++ EventsExecutor: a callback costs about a third of the SingleThreadedExecutor's
+    (the viewer takes about 1000 messages a second)."""
+    from rclpy.experimental import EventsExecutor
+    return EventsExecutor()
+
+
+def main(args=None) -> None:
+    """Serve until Ctrl-C / SIGTERM."""
+    run_node(ViewerNode, args, name=NODE_NAME, make_executor=_executor)
+
+
+if __name__ == '__main__':
+    main()
