@@ -75,7 +75,7 @@ _STAMP = {'type': 'object', 'properties': {'sec': {'type': 'integer'},
 STATE_FIELDS = ('t', 'x', 'theta', 'theta_w', 'theta_w_deg', 'x_dot', 'theta_dot', 'x_meas',
                 'theta_meas', 'x_true', 'theta_true', 'theta_w_true', 'theta_w_true_deg',
                 'x_dot_true', 'theta_dot_true', 'x_ref', 'x_err')
-CONTROL_NUMBERS = ('t', 'force', 'force_command', 'raw_force', 'feedforward', 'energy',
+CONTROL_NUMBERS = ('t', 'force', 'raw_force', 'feedforward', 'energy',
                    'energy_target', 'energy_error', 'mode_code', 'catch_count', 'fall_count')
 CONTROL_STRINGS = ('mode', 'active', 'swingup', 'stabilizer')
 STATE_SCHEMA = {'title': 'cartpole.view.State', 'type': 'object',
@@ -247,8 +247,9 @@ class LiveView:
 
     Feed it with :meth:`measurement` (``/joint_states``), :meth:`truth`
     (``/cartpole/true_state``), :meth:`estimate` (``/cartpole/state``: this
-    one draws the scene), :meth:`force` (``/cartpole/force_command``) and
-    :meth:`status` (``/cartpole/controller_status``); stamps in ns.
+    one draws the scene) and :meth:`status` (``/cartpole/controller_status``:
+    mode, energies and the force command the manager published with the same
+    stamp on ``/cartpole/force_command``); stamps in ns.
 
     Parameters
     ----------
@@ -263,7 +264,7 @@ class LiveView:
     """
 
     HISTORY = 16
-    """Samples kept per input to match a stamp (truth and force arrive around the estimate)."""
+    """Samples kept per input to match a stamp (the truth arrives around the estimate)."""
 
     def __init__(self, server: ViewerServer, geometry: RigGeometry, x_ref: float,
                  max_rate: float = MAX_RATE_HZ) -> None:
@@ -272,7 +273,6 @@ class LiveView:
         self.decimator = Decimator(max_rate)
         self._truth: dict[int, tuple[float, float, float, float]] = {}
         self._measured: dict[int, tuple[float, float]] = {}
-        self._forces: dict[int, float] = {}
         self._shown: collections.deque[int] = collections.deque(maxlen=self.HISTORY)
         self._start_ns: int | None = None
         self.control = ControlSample(mode='')
@@ -291,7 +291,7 @@ class LiveView:
     # -- inputs ----------------------------------------------------------------------------
     def wanted(self, stamp_ns: int) -> bool:
         """Whether the sample at ``stamp_ns`` will be drawn (when its estimate comes): a
-        feeder may skip decoding the measurement, truth and force of the other samples."""
+        feeder may skip decoding the measurement and truth of the other samples."""
         return self.decimator.wanted(stamp_ns)
 
     @staticmethod
@@ -301,7 +301,7 @@ class LiveView:
             del buffer[min(buffer)]
 
     def was_shown(self, stamp_ns: int) -> bool:
-        """Whether the sample at ``stamp_ns`` was drawn (its force and status are then plotted)."""
+        """Whether the sample at ``stamp_ns`` was drawn (its status is then plotted)."""
         return stamp_ns in self._shown
 
     def measurement(self, stamp_ns: int, x: float, theta: float) -> None:
@@ -309,9 +309,6 @@ class LiveView:
 
     def truth(self, stamp_ns: int, x: float, theta: float, x_dot: float, theta_dot: float) -> None:
         self._keep(self._truth, stamp_ns, (float(x), float(theta), float(x_dot), float(theta_dot)))
-
-    def force(self, stamp_ns: int, force: float) -> None:
-        self._keep(self._forces, stamp_ns, float(force))
 
     def _time(self, stamp_ns: int) -> float:
         if self._start_ns is None or stamp_ns < self._start_ns - 1_000_000_000:
@@ -341,13 +338,14 @@ class LiveView:
                          theta_w_true_deg=math.degrees(theta_w_true), x_dot_true=truth[2],
                          theta_dot_true=truth[3])
             plant = BodyState(truth[0], truth[1])
-        mode = self.control.mode or None
-        active = self.control.active
-        label = f't = {t:6.2f} s   {mode or "no controller status"}' + (
-            f' ({active})' if active else '')
-        update = self.scene.update(stamp_ns, plant=plant, estimate=BodyState(x, theta),
-                                   mode=mode, label=label)
-        self.server.scene.log(update, log_time=stamp_ns)
+        if self.server.scene.has_sinks():  # nobody watching: no scene to build
+            mode = self.control.mode or None
+            active = self.control.active
+            label = f't = {t:6.2f} s   {mode or "no controller status"}' + (
+                f' ({active})' if active else '')
+            update = self.scene.update(stamp_ns, plant=plant, estimate=BodyState(x, theta),
+                                       mode=mode, label=label)
+            self.server.scene.log(update, log_time=stamp_ns)
         self.server.state.log(_finite(state), log_time=stamp_ns)
         self.server.broadcast_time(stamp_ns)
         self.shown += 1
@@ -363,7 +361,7 @@ class LiveView:
         energy_target = control.energy + control.energy_error  # E* - E_p + E_p
         message = {
             'timestamp': _stamp_json(stamp_ns), 't': self._time(stamp_ns),
-            'force': control.force, 'force_command': self._forces.get(stamp_ns, math.nan),
+            'force': control.force,
             'raw_force': control.raw_force, 'feedforward': control.feedforward,
             'energy': control.energy, 'energy_target': energy_target,
             'energy_error': control.energy_error, 'mode': control.mode,

@@ -12,12 +12,18 @@ or ``cartpole run --sim --view``, which starts it in its own process. It
 never publishes on the graph and subscribes the 200 Hz topics best-effort:
 a viewer that falls behind drops samples, the loop never waits for it.
 
-Topics: ``/joint_states`` (the measurement, drawn as the plant on the rig),
-``/cartpole/true_state`` (the simulator's ground truth; drawn instead when
-present), ``/cartpole/state`` (the estimate: each one that is due draws the
-scene), ``/cartpole/force_command``, ``/cartpole/controller_status`` (mode,
-energies, forces, events; reliable), ``/parameter_events`` (x* follows
-``ros2 param set /controller_manager x_ref ...``).
+Topics: ``/cartpole/state`` (the estimate: each one that is due draws the
+scene), ``/cartpole/controller_status`` (mode, energies, the force command
+and its parts, events; reliable), the plant's own state drawn under the
+estimate -- ``/cartpole/true_state`` (the simulator's ground truth) while it
+has a publisher, else ``/joint_states`` (the encoders' measurement) -- and
+``/parameter_events`` (x* follows ``ros2 param set /controller_manager
+x_ref ...``). Every subscription a process adds costs the publishers a send
+per message, so the viewer takes only these: the force command is the
+status's ``force``, the value the manager publishes on
+``/cartpole/force_command`` with the same stamp, and only one of the
+measurement and the truth is subscribed at a time (chosen every
+:data:`PLANT_TOPIC_CHECK_PERIOD`).
 
 On start it prints one line to stderr, ``viewer: serving ws://HOST:PORT``
 (the real port when ``port`` is 0).
@@ -40,7 +46,7 @@ from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.node_main import run_node
 
-from .analyze import FORCE, JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
+from .analyze import JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
 from .bag import cdr_stamp_ns
 from .diagnostics_cdr import parse_diagnostic_array
 from .viewer import DEFAULT_HOST, DEFAULT_PORT, MAX_RATE_HZ, ControlSample, LiveView, ViewerServer
@@ -49,6 +55,8 @@ NODE_NAME = 'viewer'
 X_REF_QUERY_PERIOD = 1.0
 """Wall seconds between attempts to read the controller manager's x_ref at start."""
 X_REF_QUERY_ATTEMPTS = 30
+PLANT_TOPIC_CHECK_PERIOD = 1.0
+"""Wall seconds between checks whether /cartpole/true_state has a publisher."""
 
 
 class ViewerNode(Node):
@@ -90,10 +98,13 @@ class ViewerNode(Node):
                              max_rate=self.get_parameter('max_rate').value)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
-        for topic, callback in ((JOINTS, self._on_measurement), (TRUE_STATE, self._on_truth),
-                                (STATE, self._on_estimate), (FORCE, self._on_force)):
-            self.create_subscription(JointState, topic, callback, fast, raw=True)
+        self._fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.create_subscription(JointState, STATE, self._on_estimate, self._fast, raw=True)
+        self.plant_topic = ''
+        """The topic of the drawn plant state: TRUE_STATE or JOINTS."""
+        self._plant_subscription = None
+        self._choose_plant_topic()
+        self.create_timer(PLANT_TOPIC_CHECK_PERIOD, self._choose_plant_topic)
         self.create_subscription(DiagnosticArray, STATUS, self._on_status,
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
                                  raw=True)
@@ -111,9 +122,20 @@ class ViewerNode(Node):
         print(f'viewer: serving {self.server.url}', file=sys.stderr, flush=True)
 
     # -- topics ----------------------------------------------------------------------------
-    # The measurement, truth and force of a sample that is not drawn are not decoded (the
-    # stamp is the first field; cdr_stamp_ns reads it alone). The force command of a sample
-    # comes after its estimate, so after the decision to draw it.
+    def _choose_plant_topic(self) -> None:
+        """The truth while the simulator publishes it, else the measurement."""
+        topic = TRUE_STATE if self.count_publishers(TRUE_STATE) > 0 else JOINTS
+        if topic == self.plant_topic:
+            return
+        if self._plant_subscription is not None:
+            self.destroy_subscription(self._plant_subscription)
+        callback = self._on_truth if topic == TRUE_STATE else self._on_measurement
+        self._plant_subscription = self.create_subscription(JointState, topic, callback,
+                                                            self._fast, raw=True)
+        self.plant_topic = topic
+
+    # The measurement and truth of a sample that is not drawn are not decoded (the stamp
+    # is the first field; cdr_stamp_ns reads it alone).
     def _on_measurement(self, data: bytes) -> None:
         if not self.view.wanted(cdr_stamp_ns(data)):
             return
@@ -132,13 +154,6 @@ class ViewerNode(Node):
         stamp, _, position, velocity, _ = parse_joint_state(data)
         if len(position) >= 2 and len(velocity) >= 2:
             self.view.estimate(stamp, position[0], position[1], velocity[0], velocity[1])
-
-    def _on_force(self, data: bytes) -> None:
-        if not self.view.was_shown(cdr_stamp_ns(data)):
-            return
-        stamp, _, _, _, effort = parse_joint_state(data)
-        if len(effort) >= 1:
-            self.view.force(stamp, effort[0])
 
     def _on_status(self, data: bytes) -> None:
         try:

@@ -4,7 +4,7 @@ The very closed loop of :func:`cartpole_bringup.closed_loop.run_closed_loop`
 (plant, 5 ms sampling, EKF, controller manager) with an observer that, for
 every sample, feeds :class:`cartpole_bringup.viewer.LiveView` what the ROS
 graph would have published -- the measurement, the ground truth, the
-estimate, the force command, the controller status -- stamped with the
+estimate, the controller status (with the force command) -- stamped with the
 simulated time, and paces the loop to the wall clock: simulated time t is
 shown at wall time ``start + t / speed``. The Foxglove WebSocket server,
 channels and layout are the ``viewer`` node's, so the same Foxglove layout
@@ -66,5 +66,4 @@ class RealTimePlayer:
         view.measurement(stamp, meas.x, meas.theta)
         view.truth(stamp, truth[0], truth[1], truth[2], truth[3])
         view.estimate(stamp, est.x, est.theta, est.x_dot, est.theta_dot)
-        view.force(stamp, out.force)
         view.status(stamp, control_sample(out))
