@@ -21,10 +21,10 @@ from cartpole_bringup.viewer import TOPICS
 from cartpole_bringup.viewer_client import ViewerClient
 
 _spec = importlib.util.spec_from_file_location(
-    'protobuf_wire', Path(__file__).resolve().parents[1] / 'src' / 'cartpole_bringup' / 'test'
-    / 'protobuf_wire.py')
-protobuf_wire = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(protobuf_wire)
+    'foxglove_support', Path(__file__).resolve().parents[1] / 'src' / 'cartpole_bringup' / 'test'
+    / 'foxglove_support.py')
+foxglove_support = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(foxglove_support)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -60,11 +60,7 @@ def test_client_sees_the_running_rig(ros_context, spin_until):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     client = None
     try:
-        url = None
-        for line in proc.stderr:
-            if 'live view on ' in line:
-                url = line.split('live view on ')[1].split()[0]
-                break
+        url = foxglove_support.read_view_url(proc.stderr)
         assert url, 'cartpole run printed no viewer address'
         client = ViewerClient(url, TOPICS.values(), timeout=30.0)
         assert spin_until(executor, lambda: client.counts[TOPICS['scene']] >= SCENES, 60.0), \
@@ -98,7 +94,7 @@ def test_client_sees_the_running_rig(ros_context, spin_until):
     assert 30.0 <= rate <= 60.0, rate
     assert gaps.min() >= 1.0 / 60.0 - 1e-9, gaps.min()
 
-    schema = protobuf_wire.Schema.from_advertised(channels[TOPICS['scene']])
+    schema = foxglove_support.Schema.from_advertised(channels[TOPICS['scene']])
     matched, drawn = 0, []
     for message in scenes:
         entities = {e['id']: e for e in

@@ -61,7 +61,7 @@ class ViewerProcess:
         Where the server binds (port 0: any free port).
     parameters
         Further ROS parameters of the node (``plant_params_file``, ``x_ref``,
-        ``use_sim_time``, ``max_rate``).
+        ``max_rate``).
     log_level
         ROS log level of the node.
     """
@@ -134,13 +134,17 @@ class ViewerProcess:
             f'viewer exited with code {proc.returncode}'
 
 
-def start_viewer(address: str | None, *, plant_params: Path | None = None, lockstep: bool = False,
+def start_viewer(address: str | None, *, plant_params: Path | None = None,
                  log_level: str = 'warn') -> ViewerProcess:
-    """The viewer of ``cartpole run --view [HOST:PORT]``, started; RuntimeError if it cannot."""
+    """The viewer of ``cartpole run --view [HOST:PORT]``, started; RuntimeError if it cannot.
+
+    The viewer keeps wall time even in lockstep (no ``use_sim_time``): it orders
+    and decimates by the messages' stamps, its own timers only poll the graph.
+    """
     from .viewer import parse_address
 
     host, port = parse_address(address)
-    parameters: dict = {'use_sim_time': bool(lockstep)}
+    parameters: dict = {}
     if plant_params is not None:
         parameters['plant_params_file'] = str(Path(plant_params).resolve())
     viewer = ViewerProcess(host, port, parameters, log_level=log_level)

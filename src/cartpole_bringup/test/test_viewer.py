@@ -28,11 +28,11 @@ from cartpole_bringup.viewer_scene import MODE_COLOURS, NO_MODE_COLOUR
 from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
 
-_spec = importlib.util.spec_from_file_location('protobuf_wire',
-                                               Path(__file__).with_name('protobuf_wire.py'))
-protobuf_wire = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(protobuf_wire)
-Schema = protobuf_wire.Schema
+_spec = importlib.util.spec_from_file_location('foxglove_support',
+                                               Path(__file__).with_name('foxglove_support.py'))
+foxglove_support = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(foxglove_support)
+Schema = foxglove_support.Schema
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -216,11 +216,7 @@ def test_cartpole_offline_view_serves_a_client(tmp_path):
                              '127.0.0.1:0', '--duration', '2', '--speed', '4', '--json'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        url = None
-        for line in proc.stderr:
-            if 'live view on ' in line:
-                url = line.split('live view on ')[1].split()[0]
-                break
+        url = foxglove_support.read_view_url(proc.stderr)
         assert url, 'no address printed'
         client = ViewerClient(url, [TOPICS['scene'], TOPICS['state']])
         out, err = proc.communicate(timeout=60)

@@ -215,7 +215,7 @@ def main(args: argparse.Namespace) -> int:
         from ..viewer_process import start_viewer
         try:
             viewer = start_viewer(args.view, plant_params=args.plant_params,
-                                  lockstep=args.lockstep, log_level=args.log_level)
+                                  log_level=args.log_level)
         except RuntimeError as exc:
             print(f'cartpole run: --view: {exc}', file=sys.stderr)
             return 2

@@ -1,15 +1,31 @@
-"""A protobuf wire-format reader driven by the schema a Foxglove server advertises (tests only).
+"""Test helpers for the live viewer: the address it prints, and the protobuf it sends.
 
-The Foxglove WebSocket protocol advertises a protobuf channel with its
-schema as a base64 ``FileDescriptorSet``; this reads that set (itself
-protobuf, with the field numbers of google/protobuf/descriptor.proto) and
-then decodes messages into dicts by field name, so a test checks what a
-client would draw without the protobuf package.
+:func:`read_view_url` finds the ``live view on ws://...`` line of
+``cartpole run --view`` / ``cartpole offline --view``.
+
+:class:`Schema` is a protobuf wire-format reader driven by the schema a
+Foxglove server advertises: the Foxglove WebSocket protocol advertises a
+protobuf channel with its schema as a base64 ``FileDescriptorSet``; this
+reads that set (itself protobuf, with the field numbers of
+google/protobuf/descriptor.proto) and then decodes messages into dicts by
+field name, so a test checks what a client would draw without the protobuf
+package.
 """
 from __future__ import annotations
 
 import base64
 import struct
+
+MARKER = 'live view on '
+
+
+def read_view_url(stream) -> str | None:
+    """The viewer's address from a command's stderr lines (None if it ends without one)."""
+    for line in stream:
+        if MARKER in line:
+            return line.split(MARKER)[1].split()[0]
+    return None
+
 
 _DOUBLE, _FLOAT, _MESSAGE, _STRING, _BYTES, _ENUM, _BOOL = 1, 2, 11, 9, 12, 14, 8
 _FIXED64 = {1, 6, 16}
