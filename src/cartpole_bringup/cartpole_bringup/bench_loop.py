@@ -14,12 +14,13 @@ What is measured, the same way for the graph and for its floor:
   process or in three, measured by the same probe. The ratio of the two
   isolates what our nodes add to what rclpy and DDS cost on this machine.
 
-With ``view=True`` (``cartpole bench loop --view``) each mode also runs the
-graph with its live viewer (``cartpole run --sim --view``, the ``viewer``
-node in its own process) and a Foxglove WebSocket client subscribed to every
-viewer channel (:class:`cartpole_bringup.viewer_client.ViewerClient`), the
-load a user watching the run puts on it; the ratio of the two p99s is the
-viewer's cost to the loop.
+With ``view_rounds=N`` (``cartpole bench loop --view N``) each mode also
+runs N alternating pairs: the graph alone, then the graph with its live
+viewer (``cartpole run --sim --view``, the ``viewer`` node in its own
+process) and a Foxglove WebSocket client subscribed to every viewer channel
+(:class:`cartpole_bringup.viewer_client.ViewerClient`), the load a user
+watching the run puts on it. Pairs measured back to back see about the same
+machine; the median of their p99 ratios is the viewer's cost to the loop.
 
 Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
 the previous one, and samples for which no command arrived. CPU: user + system
@@ -211,10 +212,51 @@ def _bare_cmds(mode: str) -> list[list[str]]:
     return [me + ['--node', 'source', '--node', 'relay1', '--node', 'relay2']]
 
 
+def _view_rounds(mode: str, duration: float, rounds: int) -> list[dict[str, Any]]:
+    """Alternating pairs on the same machine state: the graph alone, then with its viewer
+    and a client attached (``cartpole run --sim --view``)."""
+    out = []
+    for _ in range(rounds):
+        alone = _measure(_graph_cmds(mode, duration), '/joint_states', '/cartpole/force_command',
+                         duration)
+        port = _free_port()
+        viewed = _measure(_graph_cmds(mode, duration, port), '/joint_states',
+                          '/cartpole/force_command', duration,
+                          viewer_url=f'ws://127.0.0.1:{port}')
+        out.append({'graph': alone, 'graph_view': viewed,
+                    'p99_ratio': (viewed['p99_ms'] / alone['p99_ms'])
+                    if viewed['p99_ms'] and alone['p99_ms'] else None})
+    return out
+
+
+def _view_markdown(results: dict[str, Any], modes, duration: float) -> list[str]:
+    md = [f'\nThe viewer\'s cost: alternating pairs of {duration:g} s runs, the graph alone, '
+          'then the graph with `--view` (the viewer node in its own process, `nice` +10) and a '
+          'Foxglove WebSocket client subscribed to every viewer channel.\n',
+          '| mode | round | p99 alone [ms] | p99 with viewer [ms] | ratio | p50 alone / with '
+          '[ms] | missed cycles alone / with | CPU of the graph alone / with [%] |',
+          '|' + '---|' * 8]
+    for mode in modes:
+        rounds = results[mode].get('view_rounds')
+        if not rounds:
+            continue
+        for k, r in enumerate(rounds, 1):
+            a, v = r['graph'], r['graph_view']
+            ratio = '-' if r['p99_ratio'] is None else f'{r["p99_ratio"]:.2f}'
+            md.append(f'| {mode} | {k} | {a["p99_ms"]:.3f} | {v["p99_ms"]:.3f} | {ratio} | '
+                      f'{a["p50_ms"]:.3f} / {v["p50_ms"]:.3f} | {a["missed_cycles"]} / '
+                      f'{v["missed_cycles"]} | {a["cpu_percent"][0]:.0f} / '
+                      f'{v["cpu_percent"][0]:.0f} |')
+        ratio = results[mode]['p99_ratio_view']
+        md.append(f'| {mode} | median ratio | | | {"-" if ratio is None else f"{ratio:.2f}"} '
+                  '| | | |')
+    return md
+
+
 def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
-                       view: bool = False) -> dict[str, Any]:
-    """Measure graph and floor in each mode (and the graph with its viewer); returns results
-    and a markdown table."""
+                       view_rounds: int = 0) -> dict[str, Any]:
+    """Measure graph and floor in each mode (and, with ``view_rounds``, the graph with and
+    without its viewer in alternating pairs); returns results and a markdown table."""
     env_note = os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     results: dict[str, Any] = {'discovery_range': env_note}
     for mode in modes:
@@ -223,14 +265,11 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
                               duration),
             'bare': _measure(_bare_cmds(mode), '/bench/source', '/bench/relay2', duration),
         }
-        if view:
-            port = _free_port()
-            results[mode]['graph_view'] = _measure(
-                _graph_cmds(mode, duration, port), '/joint_states', '/cartpole/force_command',
-                duration, viewer_url=f'ws://127.0.0.1:{port}')
-            gv, g = results[mode]['graph_view'], results[mode]['graph']
-            results[mode]['p99_ratio_view'] = (gv['p99_ms'] / g['p99_ms']) \
-                if gv['p99_ms'] and g['p99_ms'] else None
+        if view_rounds:
+            rounds = _view_rounds(mode, duration, view_rounds)
+            ratios = [r['p99_ratio'] for r in rounds if r['p99_ratio'] is not None]
+            results[mode]['view_rounds'] = rounds
+            results[mode]['p99_ratio_view'] = float(np.median(ratios)) if ratios else None
         g, b = results[mode]['graph'], results[mode]['bare']
         results[mode]['p99_ratio'] = (g['p99_ms'] / b['p99_ms']) if g['p99_ms'] and b['p99_ms'] else None
     md = [f'Real-time graph, {duration:g} s measured per row after 3 s warm-up; latency = receipt of '
@@ -238,22 +277,18 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
           'chain shape (source -> relay -> relay) with no computation.\n',
           '| mode | path | p50 [ms] | p99 [ms] | max [ms] | samples | missed cycles | late cycles '
           '| unanswered samples | CPU per process [%] |', '|' + '---|' * 10]
-    labels = {'graph': 'our graph', 'bare': 'bare rclpy floor',
-              'graph_view': 'our graph + viewer (client attached)'}
     for mode in modes:
-        for path in [p for p in ('graph', 'graph_view', 'bare') if p in results[mode]]:
+        for path in ('graph', 'bare'):
             r = results[mode][path]
             cpu = ', '.join('-' if c is None else f'{c:.0f}' for c in r['cpu_percent'])
-            md.append(f'| {mode} | {labels[path]} | '
+            md.append(f'| {mode} | {"our graph" if path == "graph" else "bare rclpy floor"} | '
                       f'{r["p50_ms"]:.3f} | {r["p99_ms"]:.3f} | {r["max_ms"]:.3f} | {r["samples"]} | '
                       f'{r["missed_cycles"]} | {r["late_cycles"]} | {r["unanswered_samples"]} | {cpu} |')
         ratio = results[mode]['p99_ratio']
         md.append(f'| {mode} | p99 ratio graph / floor | {ratio:.2f} | | | | | | | |' if ratio else
                   f'| {mode} | p99 ratio | - | | | | | | | |')
-        if 'p99_ratio_view' in results[mode]:
-            ratio = results[mode]['p99_ratio_view']
-            md.append(f'| {mode} | p99 ratio graph + viewer / graph | '
-                      f'{"-" if ratio is None else f"{ratio:.2f}"} | | | | | | | |')
+    if view_rounds:
+        md += _view_markdown(results, modes, duration)
     results_md = '\n'.join(md) + '\n'
     return {'results': results, 'markdown': results_md}
 

@@ -9,12 +9,13 @@ WebSocket protocol through the foxglove-sdk (channels, rates and contents:
     ros2 run cartpole_bringup viewer --ros-args -p host:=0.0.0.0 -p port:=8765
 
 or ``cartpole run --sim --view``, which starts it in its own process. It
-never publishes on the graph and subscribes the 200 Hz topics best-effort:
-a viewer that falls behind drops samples, the loop never waits for it.
+never publishes on the graph and subscribes best-effort (a reliable reader
+in another process costs the publishers acknowledgements and resends): a
+viewer that falls behind drops samples, the loop never waits for it.
 
 Topics: ``/cartpole/state`` (the estimate: each one that is due draws the
 scene), ``/cartpole/controller_status`` (mode, energies, the force command
-and its parts, events; reliable), the plant's own state drawn under the
+and its parts, events), the plant's own state drawn under the
 estimate -- ``/cartpole/true_state`` (the simulator's ground truth) while it
 has a publisher, else ``/joint_states`` (the encoders' measurement) -- and
 ``/parameter_events`` (x* follows ``ros2 param set /controller_manager
@@ -106,7 +107,7 @@ class ViewerNode(Node):
         self._choose_plant_topic()
         self.create_timer(PLANT_TOPIC_CHECK_PERIOD, self._choose_plant_topic)
         self.create_subscription(DiagnosticArray, STATUS, self._on_status,
-                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
                                  raw=True)
         self.bad_messages = 0
         """Controller status messages that could not be read (counted, dropped)."""

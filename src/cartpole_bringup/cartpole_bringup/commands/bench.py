@@ -43,9 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp.add_argument('--duration', type=float, default=60.0, metavar='S', help='wall seconds per mode')
     lp.add_argument('--modes', nargs='*', default=['single', 'processes'],
                     choices=['single', 'processes'])
-    lp.add_argument('--view', action='store_true',
-                    help='also measure each mode with the live viewer (cartpole run --view) '
-                         'and a Foxglove WebSocket client attached')
+    lp.add_argument('--view', type=int, nargs='?', const=3, default=0, metavar='ROUNDS',
+                    help='also measure the viewer\'s cost: ROUNDS (default 3) alternating pairs '
+                         'of runs without and with the live viewer (cartpole run --view) and a '
+                         'Foxglove WebSocket client attached')
 
     a = sub.add_parser('all', help='control, offline and loop with their defaults')
     _common(a)
@@ -149,8 +150,10 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     from ..bench_loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
+    if getattr(args, 'view', 0) < 0:
+        raise SystemExit('--view ROUNDS must be >= 0')
     result = run_loop_benchmark(duration=args.duration, modes=args.modes,
-                                view=getattr(args, 'view', False))
+                                view_rounds=getattr(args, 'view', 0))
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))
