@@ -18,8 +18,8 @@ With ``view_rounds=N`` (``cartpole bench loop --view N``) each mode also
 runs N alternating pairs: the graph alone, then the graph with its live
 viewer (``cartpole run --sim --view``, the ``viewer`` node in its own
 process) and a Foxglove WebSocket client subscribed to every viewer channel
-(:class:`cartpole_bringup.viewer_client.ViewerClient`), the load a user
-watching the run puts on it. Pairs measured back to back see about the same
+(``python -m cartpole_bringup.viewer_client``, its own process), the load a
+user watching the run puts on it. Pairs measured back to back see about the same
 machine; the median of their p99 ratios is the viewer's cost to the loop.
 
 Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
@@ -29,6 +29,7 @@ time of each process from /proc over the run.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -162,10 +163,15 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str, durat
         if not probe.wait_for_traffic(timeout=60.0):
             errors = b''.join(p.stderr.read() if p.poll() is not None else b'' for p in procs)
             raise RuntimeError(f'no traffic on {command_topic}: {errors.decode(errors="replace")[-2000:]}')
-        if viewer_url is not None:
-            from .viewer import TOPICS
-            from .viewer_client import ViewerClient
-            client = ViewerClient(viewer_url, TOPICS.values(), timeout=30.0, keep=False)
+        if viewer_url is not None:  # its own process: no GIL shared with the probe
+            client = subprocess.Popen(
+                [sys.executable, '-m', 'cartpole_bringup.viewer_client', viewer_url],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                start_new_session=True)
+            if 'subscribed' not in client.stderr.readline():
+                client.kill()
+                raise RuntimeError(f'the viewer client did not subscribe: '
+                                   f'{client.communicate()[1][-1000:]}')
         probe.record(warmup)
         probe.sample_stamps.clear()
         probe.latencies.clear()
@@ -178,11 +184,14 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str, durat
         stats['cpu_percent'] = [None if a is None or b is None else 100.0 * (b - a) / elapsed
                                 for a, b in zip(cpu0, cpu1)]
         if client is not None:
-            stats['viewer_messages'] = dict(client.counts)
+            client.send_signal(signal.SIGINT)
+            out, _ = client.communicate(timeout=30)
+            stats['viewer_messages'] = json.loads(out.strip().splitlines()[-1])
         return stats
     finally:
-        if client is not None:
-            client.close()
+        if client is not None and client.poll() is None:
+            client.kill()
+            client.communicate()
         _stop(procs)
         probe.close()
 

@@ -7,12 +7,17 @@ foxglove-sdk server, read ``serverInfo`` and the ``advertise`` messages,
 frames (opcode 1: uint32 subscription id, uint64 log time [ns], payload;
 little endian) in a background thread. ``cartpole bench loop --view``
 uses it to load the viewer as a real client would; the tests use it to
-check what the viewer serves.
+check what the viewer serves. ``python -m cartpole_bringup.viewer_client
+ws://HOST:PORT`` runs it as its own process (the benchmark's load, out of
+the measuring process) and prints what it received per channel on Ctrl-C.
 """
 from __future__ import annotations
 
+import argparse
 import json
+import signal
 import struct
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -149,3 +154,32 @@ class ViewerClient:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Subscribe to every channel of a viewer until SIGINT/SIGTERM; print the counts as JSON."""
+    parser = argparse.ArgumentParser(prog='python -m cartpole_bringup.viewer_client',
+                                     description='a Foxglove WebSocket client of the viewer')
+    parser.add_argument('url', help='ws://HOST:PORT')
+    parser.add_argument('--timeout', type=float, default=30.0,
+                        help='wall seconds to connect and see the channels (default 30)')
+    args = parser.parse_args(argv)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        client = ViewerClient(args.url, timeout=args.timeout, keep=False)
+    except (OSError, ValueError) as error:
+        print(f'viewer_client: {error}', file=sys.stderr)
+        return 2
+    print('viewer_client: subscribed to ' + ', '.join(sorted(client.counts)), file=sys.stderr,
+          flush=True)
+    while not stop.wait(0.5):
+        pass
+    client.close()
+    print(json.dumps(client.counts), flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

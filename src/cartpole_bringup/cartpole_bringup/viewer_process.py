@@ -6,9 +6,10 @@ serving ws://HOST:PORT`` line (so a port in use is an error before the graph
 starts, and port 0 reports the port chosen), then forwards whatever else the
 viewer prints. Its own process: the viewer's Python work (parsing 800
 messages a second, building scenes, the WebSocket server) never competes
-with the control loop for the interpreter, and it runs at a lower CPU
-priority (:data:`NICENESS`). It dies with its parent (``PR_SET_PDEATHSIG``)
-and stops on SIGINT like every node.
+with the control loop for the interpreter, and the viewer gives itself the
+lowest CPU priority (:func:`cartpole_bringup.viewer_node.lower_priority`).
+It dies with its parent (``PR_SET_PDEATHSIG``) and stops on SIGINT like
+every node.
 """
 from __future__ import annotations
 
@@ -35,16 +36,7 @@ def viewer_executable() -> Path:
     return path
 
 
-NICENESS = 10
-"""The viewer runs at a lower CPU priority than the graph (``nice`` +10): on a busy machine
-the control loop gets the processor first and the view drops frames instead."""
-
-
-def _child_setup() -> None:  # pragma: no cover - runs in the child
-    try:
-        os.nice(NICENESS)
-    except OSError:
-        pass
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child
     try:
         import ctypes
         ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -86,7 +78,7 @@ class ViewerProcess:
         self.process = subprocess.Popen(
             self.command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE, text=True, start_new_session=True,
-            preexec_fn=_child_setup if sys.platform.startswith('linux') else None)
+            preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None)
         threading.Thread(target=self._read, daemon=True).start()
         said: list[str] = []
         while True:
