@@ -26,6 +26,12 @@ status's ``force``, the value the manager publishes on
 measurement and the truth is subscribed at a time (chosen every
 :data:`PLANT_TOPIC_CHECK_PERIOD`).
 
+With ``feed:=PATH`` it subscribes none of these 200 Hz topics but takes the
+samples from a local Unix socket instead, sent by the ``viewer_tap``
+node inside the graph's process (:mod:`cartpole_bringup.viewer_feed`: no
+remote DDS reader on the loop's critical path); ``cartpole run --view``
+works this way.
+
 It runs at the lowest CPU priority (:func:`lower_priority`), so that it never
 takes the processor from the loop. On start it prints one line to stderr,
 ``viewer: serving ws://HOST:PORT`` (the real port when ``port`` is 0).
@@ -35,6 +41,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -53,6 +60,7 @@ from .analyze import JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
 from .bag import cdr_stamp_ns
 from .diagnostics_cdr import parse_diagnostic_array
 from .viewer import DEFAULT_HOST, DEFAULT_PORT, MAX_RATE_HZ, ControlSample, LiveView, ViewerServer
+from .viewer_feed import ESTIMATE, MEASUREMENT, STATUS as STATUS_KIND, TRUTH, FeedReceiver
 
 NODE_NAME = 'viewer'
 X_REF_QUERY_PERIOD = 1.0
@@ -85,6 +93,10 @@ class ViewerNode(Node):
                         'the middle of the travel. Follows the controller manager\'s x_ref.'))
         self.declare_parameter('controller_manager', '/controller_manager', ParameterDescriptor(
             description='The node whose x_ref parameter x* follows', read_only=True))
+        self.declare_parameter('feed', '', ParameterDescriptor(
+            description="'' = subscribe the graph's topics; else the path of a Unix "
+                        'socket to take the samples from instead (the viewer_tap node of '
+                        'cartpole run --view sends them)', read_only=True))
 
         path = self.get_parameter('plant_params_file').value
         params = CartPoleParameters.from_yaml(path) if path else CartPoleParameters()
@@ -101,18 +113,24 @@ class ViewerNode(Node):
                              max_rate=self.get_parameter('max_rate').value)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        self._fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.create_subscription(JointState, STATE, self._on_estimate, self._fast, raw=True)
+        self.bad_messages = 0
+        """Controller status messages that could not be read (counted, dropped)."""
         self.plant_topic = ''
         """The topic of the drawn plant state: TRUE_STATE or JOINTS."""
         self._plant_subscription = None
-        self._choose_plant_topic()
-        self.create_timer(PLANT_TOPIC_CHECK_PERIOD, self._choose_plant_topic)
-        self.create_subscription(DiagnosticArray, STATUS, self._on_status,
-                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
-                                 raw=True)
-        self.bad_messages = 0
-        """Controller status messages that could not be read (counted, dropped)."""
+        self._feed = None
+        feed = self.get_parameter('feed').value
+        if feed:
+            self._start_feed(feed)
+        else:
+            self._fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
+            self.create_subscription(JointState, STATE, self._on_estimate, self._fast, raw=True)
+            self._choose_plant_topic()
+            self.create_timer(PLANT_TOPIC_CHECK_PERIOD, self._choose_plant_topic)
+            self.create_subscription(DiagnosticArray, STATUS, self._on_status,
+                                     QoSProfile(depth=100,
+                                                reliability=ReliabilityPolicy.BEST_EFFORT),
+                                     raw=True)
         self._manager = self.get_parameter('controller_manager').value.rstrip('/') or '/'
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
                                  QoSProfile(depth=100))
@@ -123,6 +141,23 @@ class ViewerNode(Node):
         if not self._x_ref_fixed:
             self._x_ref_timer = self.create_timer(X_REF_QUERY_PERIOD, self._query_x_ref)
         print(f'viewer: serving {self.server.url}', file=sys.stderr, flush=True)
+
+    # -- the feed of cartpole run --view ------------------------------------------------------
+    def _start_feed(self, path: str) -> None:
+        """Take the samples from the feed socket, read by a thread (no DDS subscriptions)."""
+        self._feed = FeedReceiver(path)
+        self._feed_stop = threading.Event()
+        handlers = {TRUTH: self._on_truth, MEASUREMENT: self._on_measurement,
+                    ESTIMATE: self._on_estimate, STATUS_KIND: self._on_status}
+        self.plant_topic = 'feed'
+
+        def read() -> None:
+            while not self._feed_stop.is_set():
+                message = self._feed.receive(0.2)
+                if message is not None:
+                    handlers[message[0]](message[1])
+        self._feed_thread = threading.Thread(target=read, name='viewer_feed', daemon=True)
+        self._feed_thread.start()
 
     # -- topics ----------------------------------------------------------------------------
     def _choose_plant_topic(self) -> None:
@@ -207,6 +242,10 @@ class ViewerNode(Node):
                 names=['x_ref']))
 
     def destroy_node(self) -> None:
+        if self._feed is not None:
+            self._feed_stop.set()
+            self._feed_thread.join(timeout=2.0)
+            self._feed.close()
         self.server.stop()
         super().destroy_node()
 

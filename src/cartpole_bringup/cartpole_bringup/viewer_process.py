@@ -126,19 +126,73 @@ class ViewerProcess:
             f'viewer exited with code {proc.returncode}'
 
 
-def start_viewer(address: str | None, *, plant_params: Path | None = None,
-                 log_level: str = 'warn') -> ViewerProcess:
-    """The viewer of ``cartpole run --view [HOST:PORT]``, started; RuntimeError if it cannot.
+class GraphViewer:
+    """The view of ``cartpole run --view``: the viewer process and its tap in the graph.
+
+    :meth:`start` starts the viewer process reading a feed socket;
+    :meth:`attach` adds the ``viewer_tap`` node (:mod:`cartpole_bringup.viewer_tap`)
+    to the graph's executor; :meth:`close` removes the tap, stops the viewer and
+    the socket's directory goes.
 
     The viewer keeps wall time even in lockstep (no ``use_sim_time``): it orders
     and decimates by the messages' stamps, its own timers only poll the graph.
     """
-    from .viewer import parse_address
 
-    host, port = parse_address(address)
-    parameters: dict = {}
-    if plant_params is not None:
-        parameters['plant_params_file'] = str(Path(plant_params).resolve())
-    viewer = ViewerProcess(host, port, parameters, log_level=log_level)
-    viewer.start()
+    def __init__(self, address: str | None, *, plant_params: Path | None = None,
+                 log_level: str = 'warn') -> None:
+        import tempfile
+
+        from .viewer import parse_address
+
+        host, port = parse_address(address)
+        self._directory = tempfile.TemporaryDirectory(prefix='cartpole-view-')
+        self.feed = str(Path(self._directory.name) / 'feed.sock')
+        parameters: dict = {'feed': self.feed}
+        if plant_params is not None:
+            parameters['plant_params_file'] = str(Path(plant_params).resolve())
+        self.process = ViewerProcess(host, port, parameters, log_level=log_level)
+        self.tap = None
+        self._executor = None
+
+    @property
+    def url(self) -> str | None:
+        return self.process.url
+
+    def start(self) -> str:
+        return self.process.start()
+
+    def attach(self, executor, context, plant_topic: str) -> None:
+        """Tap the graph: the ``viewer_tap`` node on the graph's executor."""
+        from .viewer_tap import ViewerTapNode
+        self.tap = ViewerTapNode(self.feed, plant_topic=plant_topic, context=context)
+        self._executor = executor
+        executor.add_node(self.tap)
+
+    def close(self) -> list[str]:
+        """Remove the tap, stop the viewer; returns warnings."""
+        warnings = []
+        if self.tap is not None:
+            try:
+                self._executor.remove_node(self.tap)
+            except Exception:  # the executor may be shut down already
+                pass
+            self.tap.destroy_node()
+            self.tap = None
+        warning = self.process.stop()
+        if warning:
+            warnings.append(warning)
+        self._directory.cleanup()
+        return warnings
+
+
+def start_viewer(address: str | None, *, plant_params: Path | None = None,
+                 log_level: str = 'warn') -> GraphViewer:
+    """The view of ``cartpole run --view [HOST:PORT]``, its viewer process started;
+    RuntimeError if it cannot start."""
+    viewer = GraphViewer(address, plant_params=plant_params, log_level=log_level)
+    try:
+        viewer.start()
+    except RuntimeError:
+        viewer.close()
+        raise
     return viewer

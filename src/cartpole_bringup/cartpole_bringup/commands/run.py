@@ -190,7 +190,7 @@ def main(args: argparse.Namespace) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     from .. import metrics
-    from ..analyze import analyze_bag
+    from ..analyze import JOINTS, TRUE_STATE, analyze_bag
     from ..graph import Graph, GraphError, GraphSpec
 
     names = controller_names(args)
@@ -233,6 +233,8 @@ def main(args: argparse.Namespace) -> int:
     graph = None
     try:
         graph = Graph(spec, context, should_stop=lambda: stop.requested)
+        if viewer is not None:
+            viewer.attach(graph.executor, context, TRUE_STATE if args.sim else JOINTS)
         if not args.json:
             where = f' recording into {bag}' if bag else ''
             print(f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
@@ -256,7 +258,7 @@ def main(args: argparse.Namespace) -> int:
         if graph is not None:
             warnings += graph.close()
         if viewer is not None:
-            warnings += [w for w in [viewer.stop()] if w]
+            warnings += viewer.close()
         stop.restore()
         rclpy.try_shutdown(context=context)
     for w in warnings:
