@@ -13,6 +13,8 @@ What is taken from where:
 - time: the messages' ``header.stamp``; t = 0 is simulated time zero when the
   run was in lockstep (``/clock`` recorded, or ``lockstep=true`` in the bag's
   custom_data), else the first sample;
+- swing-up law (``swingup_law``): the status's ``swingup_law`` at the catch
+  (else the last one); None for bags recorded before the status carried it;
 - catch time: the first ``/cartpole/controller_status`` whose ``event`` has
   ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
@@ -83,6 +85,8 @@ class SeriesBuilder:
     catch_ns: int | None = None
     controllers: dict[str, str] = field(default_factory=dict)
     """swingup / stabilizer names from the last status."""
+    swingup_law: str | None = None
+    """The status's ``swingup_law`` at the first catch (until then the latest)."""
     limit_flag: bool = False
     truth_contact: bool = False
     """A ``/cartpole/true_state`` sample carried a non-zero end-stop force."""
@@ -109,6 +113,8 @@ class SeriesBuilder:
                 self.controllers[key] = values[key]
         if self.catch_ns is not None:
             return
+        if values.get('swingup_law'):
+            self.swingup_law = values['swingup_law']
         events = values.get('event', '').split(';')
         if CATCH_EVENT in events or is_stabilising(values.get('mode', '')):
             self.catch_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
@@ -308,7 +314,9 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
     series, contact = builder.build(params=params, x_ref=x_ref, lockstep=lockstep,
                                     label=label or run_label(path))
     summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
-                                catch_time=series.catch_time, end_stop_contact=contact)
+                                catch_time=series.catch_time, end_stop_contact=contact,
+                                swingup_law=builder.swingup_law,
+                                force=series.force, t_force=series.t_force)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
                        topics=topics, controllers=dict(builder.controllers),
                        t0_ns=builder.t0_ns)

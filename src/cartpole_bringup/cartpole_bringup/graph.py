@@ -45,6 +45,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from cartpole_sim import realtime
+
 from .analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
 
 NODES: dict[str, tuple[str, str, str, str]] = {
@@ -280,6 +282,7 @@ class Graph:
         self.closed = False
         self.warnings: list[str] = []
         """Things that went other than planned while starting (reported at the end)."""
+        self.realtime: realtime.LoopHygiene | None = None
 
     # -- start ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -291,6 +294,15 @@ class Graph:
             self._start_processes()
         else:
             self._start_in_process()
+            # The loop's real-time hygiene for this process (cartpole_sim.realtime), once
+            # the executor has spun (its threads exist then and take the priority too).
+            self.executor.spin_once(timeout_sec=0.0)
+            try:
+                self.realtime = realtime.enter_loop(
+                    0 if self.spec.lockstep else None, what='cartpole run',
+                    log=self.monitor.get_logger().info, warn=self.monitor.get_logger().warning)
+            except ValueError as error:
+                raise GraphError(str(error)) from None
         self.wall_start = time.monotonic()
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
             if self.should_stop():
@@ -539,6 +551,8 @@ class Graph:
                     proc.wait()
             self.monitor.destroy_node()
             self.executor.shutdown(timeout_sec=1.0)
+            if self.realtime is not None:
+                self.realtime.leave()
         return warnings
 
     def __enter__(self) -> 'Graph':

@@ -56,8 +56,12 @@ def trajectory(duration=DURATION, x_offset=0.0):
 
 
 def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset=0.0,
-              t_origin=0.0, clock=True, custom_data=None):
-    """Write the known trajectory as a bag; returns the arrays."""
+              t_origin=0.0, clock=True, custom_data=None, swingup_laws=None):
+    """Write the known trajectory as a bag; returns the arrays.
+
+    ``swingup_laws``: (before the catch, from the catch on) values of the status's
+    ``swingup_law``; None leaves the key out (a bag from before it existed).
+    """
     ts = _types()
     t, x, theta, x_dot, theta_dot, force = trajectory(x_offset=x_offset)
     with BagWriter(path, custom_data=custom_data) as bag:
@@ -80,6 +84,8 @@ def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset
             values = {'mode': mode, 'swingup': 'pendulum_energy', 'stabilizer': 'lqg',
                       'event': 'catch' if abs(t[k] - CATCH_TIME) < TS / 2 else '',
                       'state_stamp': repr(float(tk))}
+            if swingup_laws is not None:
+                values['swingup_law'] = swingup_laws[int(t[k] >= CATCH_TIME + TS / 2)]
             bag.write('/cartpole/controller_status',
                       diagnostic(ts, tk, 'controller_manager', values, mode), 0)
             if hw_limits is not None and k % 20 == 0:
