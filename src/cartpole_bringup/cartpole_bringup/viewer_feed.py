@@ -3,10 +3,11 @@
 A viewer that subscribes the graph's 200 Hz topics from another process is
 a remote DDS reader: every sample the loop publishes is then also sent to
 that process, inside the publisher's call, on the loop's critical path
-(measured on this machine: the loop's p99 latency rose by about a quarter).
-``cartpole run --view`` therefore taps the topics where they are delivered
-anyway, in the graph's own process (:class:`FeedTap`, hosted by the
-``viewer_tap`` node of :mod:`cartpole_bringup.viewer_tap`): the tap looks
+(measured on this machine: the loop's p99 latency about 1.9 times that with
+the tap; docs/benchmarks.md, "Live view"). ``cartpole run --view``
+therefore taps the topics where they are delivered anyway, in the graph's
+own process (:class:`FeedTap`, hosted by the ``viewer_tap`` node of
+:mod:`cartpole_bringup.viewer_tap`): the tap looks
 only at each message's stamp, keeps what the viewer will draw -- at most 60
 samples a second, by the viewer's own decimation rule -- and sends those
 messages, still serialized, over a local Unix socket to the viewer

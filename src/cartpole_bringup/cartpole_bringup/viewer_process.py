@@ -36,14 +36,6 @@ def viewer_executable() -> Path:
     return path
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child
-    try:
-        import ctypes
-        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
-
-
 class ViewerProcess:
     """The viewer executable, started by :meth:`start`, stopped by :meth:`stop`.
 
@@ -75,6 +67,8 @@ class ViewerProcess:
         Raises RuntimeError with the viewer's own words when it exits or
         stays silent.
         """
+        from .graph import _die_with_parent  # as the graph's node processes
+
         self.process = subprocess.Popen(
             self.command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE, text=True, start_new_session=True,
