@@ -35,8 +35,12 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 test: $(STAMP_BUILD)
 	source ./env.sh && python -m pytest -q
 
+# make run also animates the run it recorded (the newest runs/*/bag) into run.gif next to its plots.
 run: $(STAMP_BUILD)
-	source ./env.sh && cartpole run $(RUN_ARGS)
+	source ./env.sh && cartpole run $(RUN_ARGS) && \
+	bag=$$(ls -td runs/*/bag 2>/dev/null | head -1) && if [ -n "$$bag" ]; then \
+	    cartpole analyze "$$bag" --animate "$${bag%/bag}/run.gif" --json > /dev/null && \
+	    echo "animation: $${bag%/bag}/run.gif"; fi
 
 bench: $(STAMP_BUILD)
 	source ./env.sh && cartpole bench all

@@ -20,6 +20,7 @@ NODES = [
     ('cartpole_control', 'controller_manager', [], 'controller_manager'),
     ('cartpole_hw', 'hw_bridge', ['-p', 'port:=/dev/null/no-such-port'], 'hw_bridge'),
     ('cartpole_bringup', 'recorder', ['-p', 'output:={tmp}/bag'], 'recorder'),
+    ('cartpole_bringup', 'viewer', ['-p', 'port:=0'], 'viewer'),
 ]
 
 

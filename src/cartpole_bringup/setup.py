@@ -20,6 +20,7 @@ setup(
         'console_scripts': [
             'cartpole = cartpole_bringup.cli:main',
             'recorder = cartpole_bringup.record:main',
+            'viewer = cartpole_bringup.viewer_node:main',
         ],
     },
 )

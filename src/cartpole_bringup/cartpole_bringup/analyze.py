@@ -92,6 +92,8 @@ class SeriesBuilder:
     """A ``/cartpole/true_state`` sample carried a non-zero end-stop force."""
     hw_health_seen: bool = False
     status_count: int = 0
+    t0_ns: int = 0
+    """The stamp of t = 0 of the last :meth:`build` [ns] (0 in lockstep, else the first sample)."""
     _limit_open: dict[str, bool] = field(default_factory=dict)
 
     def joint_state(self, topic: str, stamp_ns: int, position: Sequence[float],
@@ -154,6 +156,7 @@ class SeriesBuilder:
         # A sample delivered twice (lockstep re-publishes sample 0 until the loop answers).
         rows = rows[np.concatenate(([True], np.diff(rows[:, 0]) > 0))]
         t0 = 0.0 if lockstep else rows[0, 0]
+        self.t0_ns = int(t0)
         t = (rows[:, 0] - t0) * 1e-9
         forces = np.array(sorted(self.forces), dtype=float).reshape(-1, 2)
         catch = None if self.catch_ns is None else (self.catch_ns - t0) * 1e-9
@@ -244,6 +247,8 @@ class BagAnalysis:
     topics: dict[str, int]
     """Messages per topic in the bag."""
     controllers: dict[str, str]
+    t0_ns: int = 0
+    """The stamp [ns] of the series' t = 0 (0 in lockstep, else the first state sample)."""
 
 
 def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
@@ -313,7 +318,8 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
                                 swingup_law=builder.swingup_law,
                                 force=series.force, t_force=series.t_force)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
-                       topics=topics, controllers=dict(builder.controllers))
+                       topics=topics, controllers=dict(builder.controllers),
+                       t0_ns=builder.t0_ns)
 
 
 def run_label(path: Path) -> str:

@@ -23,6 +23,12 @@ EventsExecutor by default (``cartpole run --executor events``) or on rclpy's
 SingleThreadedExecutor; both are measured, each against its own floor. With
 one process a node every node spins a SingleThreadedExecutor.
 
+With ``view_rounds=N`` (``cartpole bench loop --view N``) each run also
+gets N alternating pairs: the graph alone, then the graph with its live view
+(``cartpole run --sim --view``) and a Foxglove WebSocket client subscribed to
+every viewer channel, the load a user watching the run puts on it
+(:mod:`cartpole_bringup.bench_loop_view`).
+
 Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
 the previous one, and samples for which no command arrived. CPU: user +
 system time of each process from /proc over the run (``utime + stime``, not
@@ -32,6 +38,7 @@ children of ``cartpole run``, named by their executable).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -82,6 +89,7 @@ def _process_name(pid: int, default: str) -> str:
     except OSError:
         return default
     names = {exe: name for name, (_, exe, _, _) in NODES.items()}
+    names.setdefault('viewer', 'viewer')  # cartpole run --view's viewer process
     for arg in argv[:2]:
         base = os.path.basename(arg.decode(errors='replace'))
         if base in names:
@@ -209,13 +217,20 @@ def _cpu_by_process(procs: list[subprocess.Popen], labels: list[str]) -> dict[st
 
 
 def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
-             duration: float, labels: list[str], warmup: float = 3.0) -> dict[str, Any]:
+             duration: float, labels: list[str], warmup: float = 3.0,
+             viewer_url: str | None = None) -> dict[str, Any]:
+    """Latency and CPU of the started processes; with ``viewer_url`` a Foxglove WebSocket
+    client (its own process: no GIL shared with the probe) is subscribed to the viewer
+    throughout, and ``viewer_messages`` counts what it received per channel."""
     probe = _Probe(sample_topic, command_topic)
     procs = [_start(c) for c in cmds]
+    client = None
     try:
         if not probe.wait_for_traffic(timeout=60.0):
             errors = b''.join(p.stderr.read() if p.poll() is not None else b'' for p in procs)
             raise RuntimeError(f'no traffic on {command_topic}: {errors.decode(errors="replace")[-2000:]}')
+        if viewer_url is not None:
+            client = _start_viewer_client(viewer_url)
         probe.record(warmup)
         probe.sample_stamps.clear()
         probe.latencies.clear()
@@ -229,18 +244,43 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
         stats['cpu_percent'] = {
             name: None if cpu0[name] is None or cpu1[name] is None
             else 100.0 * (cpu1[name] - cpu0[name]) / elapsed for name in pids}
+        if client is not None:
+            client.send_signal(signal.SIGINT)
+            out, _ = client.communicate(timeout=30)
+            stats['viewer_messages'] = json.loads(out.strip().splitlines()[-1])
         return stats
     finally:
+        if client is not None and client.poll() is None:
+            client.kill()
+            client.communicate()
         _stop(procs)
         probe.close()
 
 
-def _graph_cmds(mode: str, duration: float, executor: str) -> list[list[str]]:
+def _start_viewer_client(url: str) -> subprocess.Popen:
+    """``python -m cartpole_bringup.viewer_client URL``, started and subscribed."""
+    client = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.viewer_client', url],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    if 'subscribed' not in client.stderr.readline():
+        client.kill()
+        raise RuntimeError(f'the viewer client did not subscribe: {client.communicate()[1][-1000:]}')
+    return client
+
+
+def _graph_cmds(mode: str, duration: float, executor: str,
+                view_port: int | None = None) -> list[list[str]]:
     cmd = [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration',
            str(duration + 60.0), '--executor', executor]
     if mode == 'processes':
         cmd.append('--processes')
+    if view_port is not None:
+        cmd += ['--view', f'127.0.0.1:{view_port}']
     return [cmd]
+
+
+def _graph_labels(mode: str) -> list[str]:
+    return ['cartpole run (monitor)' if mode == 'processes' else 'cartpole run']
 
 
 def _bare_cmds(mode: str, executor: str) -> list[list[str]]:
@@ -256,27 +296,37 @@ def _ratio(graph: dict[str, Any], bare: dict[str, Any], key: str) -> float | Non
 
 
 def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
-                       executors=('events', 'single')) -> dict[str, Any]:
+                       executors=('events', 'single'), view_rounds: int = 0) -> dict[str, Any]:
     """Measure graph and floor for each mode and executor; results and a markdown table.
 
     ``results[mode][executor]`` holds ``graph``, ``bare`` (the floor) and the
     ``p50_ratio`` / ``p99_ratio`` graph / floor; ``executors`` filters
-    :data:`EXECUTORS` (one process a node always runs ``single``).
+    :data:`EXECUTORS` (one process a node always runs ``single``). With
+    ``view_rounds``, each mode's first executor (``events`` by default, what
+    ``cartpole run`` spins) also holds ``view_rounds`` (the pairs without and
+    with the viewer) and their median ``p99_ratio_view``
+    (:func:`cartpole_bringup.bench_loop_view.view_rounds`).
     """
+    from . import bench_loop_view
+
     env_note = os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     results: dict[str, Any] = {'discovery_range': env_note}
     runs = [(mode, ex) for mode in modes for ex in EXECUTORS[mode]
             if ex in executors or mode == 'processes']
     for mode, ex in runs:
         graph = _measure(_graph_cmds(mode, duration, ex), '/joint_states',
-                         '/cartpole/force_command', duration,
-                         ['cartpole run (monitor)' if mode == 'processes' else 'cartpole run'])
+                         '/cartpole/force_command', duration, _graph_labels(mode))
         bare = _measure(_bare_cmds(mode, ex), '/bench/source', '/bench/relay2', duration,
                         list(BARE_ROLES) if mode == 'processes' else ['floor'])
         results.setdefault(mode, {})[ex] = {
             'graph': graph, 'bare': bare, 'p50_ratio': _ratio(graph, bare, 'p50_ms'),
             'p99_ratio': _ratio(graph, bare, 'p99_ms')}
-    return {'results': results, 'markdown': _markdown(results, runs, duration)}
+        if view_rounds and ex == next(e for m, e in runs if m == mode):
+            results[mode][ex].update(bench_loop_view.view_rounds(mode, ex, duration, view_rounds))
+    markdown = _markdown(results, runs, duration)
+    if view_rounds:
+        markdown += bench_loop_view.markdown(results, runs, duration)
+    return {'results': results, 'markdown': markdown}
 
 
 def _markdown(results: dict[str, Any], runs: list[tuple[str, str]], duration: float) -> str:

@@ -14,10 +14,10 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from cartpole_control.controller import ControllerState
-from cartpole_control.manager import FAULT, ControllerManager
-from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
+from cartpole_control.manager import FAULT, ControllerManager, ManagerOutput
+from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter, StateEstimate
 from cartpole_sim.model import CartPoleParameters, pendulum_energy
-from cartpole_sim.plant import Plant, Scenario
+from cartpole_sim.plant import Measurement, Plant, Scenario
 
 from . import metrics
 
@@ -64,7 +64,9 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     integration_step: float = 0.001,
                     profile: dict[str, float] | None = None,
                     stop_on_failure: bool = False, prepare: bool = True,
-                    progress: Callable[[str], None] | None = None) -> RunResult:
+                    progress: Callable[[str], None] | None = None,
+                    observer: Callable[[Measurement, StateEstimate, ManagerOutput, list[float]],
+                                       None] | None = None) -> RunResult:
     """Run the closed loop for ``duration`` simulated seconds and summarise it (SPEC 5).
 
     ``nominal`` are the parameters the EKF and the controllers use; the plant
@@ -91,6 +93,11 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     first (:meth:`ControllerManager.prepare`: ``time_optimal`` solves a missing
     plan, blocking, and says so to ``progress``), so the run is the same
     whether the cache was warm or cold.
+
+    ``observer(measurement, estimate, output, true_state)`` is called for
+    each sample that arrives (not for a lost one), after the controller and
+    before the plant steps (``cartpole offline --view`` shows the run with
+    it); ``true_state`` is ``[x, theta, x_dot, theta_dot]`` of the plant.
     """
     nominal = nominal or CartPoleParameters()
     scenario = scenario or Scenario()
@@ -151,6 +158,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         force = out.force
         mode = out.mode
         s = plant.state
+        if observer is not None:
+            observer(meas, est, out, s)
         add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
         add_mode(mode)
         if out.event:

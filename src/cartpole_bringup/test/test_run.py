@@ -86,6 +86,7 @@ def test_run_directory_is_named_by_time_and_controllers(tmp_path):
     (['--sim', '--x0', '0.9'], 'outside the travel'),
     (['--sim', '--tip-mass', '-1'], '--tip-mass must be > 0'),
     (['--sim', '--domain-id', '300'], '--domain-id must be in'),
+    (['--sim', '--view', 'localhost:70000'], '--view: port must be in'),
 ])
 def test_bad_options_are_refused_before_anything_starts(argv, reason, capsys, tmp_path):
     try:

@@ -20,7 +20,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cart reference x* [m] (default: the bag's x_ref, else mid-travel)")
     parser.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
                         help='nominal plant parameters (travel, l, g, E*); default: thesis values')
+    a = parser.add_argument_group('animation (one bag)')
+    a.add_argument('--animate', type=Path, default=None, metavar='FILE',
+                   help='write the run as an animation: FILE.gif (Pillow) or FILE.mp4 (needs '
+                        'ffmpeg); rail, cart, pendulum, tip trace, time, mode, catch')
+    a.add_argument('--speed', type=float, default=1.0, metavar='F',
+                   help='with --animate: run seconds per second of animation (default 1: real '
+                        'speed)')
+    a.add_argument('--fps', type=float, default=25.0, metavar='N',
+                   help='with --animate: frames per second of the animation (default 25)')
+    a.add_argument('--width', type=int, default=480, metavar='PX',
+                   help='with --animate: frame width in pixels (default 480)')
     add_output_arguments(parser)
+
+
+def write_animation(analysis, args: argparse.Namespace) -> dict:
+    """``--animate``: the animation of one analysed bag; returns what was written."""
+    from cartpole_sim.geometry import RigGeometry
+
+    from ..animation import series_from_analysis
+    from ..animation import write_animation as render
+
+    info = render(series_from_analysis(analysis), args.animate,
+                  RigGeometry.from_parameters(nominal_parameters(args)), fps=args.fps,
+                  speed=args.speed, width=args.width)
+    return {'path': str(info.path), 'frames': info.frames, 'duration_s': info.duration_s,
+            'render_s': info.render_s, 'size_bytes': info.size_bytes,
+            'size_px': [info.width, info.height]}
 
 
 def write_figures(analyses, directory: Path) -> list[Path]:
@@ -44,6 +70,13 @@ def main(args: argparse.Namespace) -> int:
     from ..analyze import analyze_bag, comparison_table
 
     params = nominal_parameters(args)
+    if args.animate is not None and len(args.bags) != 1:
+        print('cartpole analyze: --animate takes one bag', file=sys.stderr)
+        return 2
+    if not (args.speed > 0 and args.fps > 0):
+        print(f'cartpole analyze: --speed and --fps must be > 0, got {args.speed:g}, '
+              f'{args.fps:g}', file=sys.stderr)
+        return 2
     analyses = []
     for bag in args.bags:
         try:
@@ -52,11 +85,20 @@ def main(args: argparse.Namespace) -> int:
             print(f'cartpole analyze: {bag}: {error}', file=sys.stderr)
             return 2
     plots = write_figures(analyses, args.plots) if args.plots else []
+    animation = None
+    if args.animate is not None:
+        try:
+            animation = write_animation(analyses[0], args)
+        except (ValueError, RuntimeError, OSError) as error:
+            print(f'cartpole analyze: --animate: {error}', file=sys.stderr)
+            return 2
     if args.json:
         runs = [dict(a.summary, bag=str(a.path), source=a.source, **a.controllers)
                 for a in analyses]
         out = dict(runs[0]) if len(runs) == 1 else {'runs': runs}
         out['plots'] = [str(p) for p in plots]
+        if animation is not None:
+            out['animation'] = animation
         print(json.dumps(out))
         return 0
     for a in analyses:
@@ -70,4 +112,8 @@ def main(args: argparse.Namespace) -> int:
         print()
     for p in plots:
         print(f'plot: {p}')
+    if animation is not None:
+        print(f"animation: {animation['path']} ({animation['frames']} frames, "
+              f"{animation['duration_s']:.2f} s, {animation['size_bytes'] / 1e6:.2f} MB, "
+              f"rendered in {animation['render_s']:.1f} s)")
     return 0

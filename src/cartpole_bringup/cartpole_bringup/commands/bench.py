@@ -69,6 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     choices=['events', 'single'],
                     help='executors of the one-process graph and its floor (default both; one '
                          'process a node always spins the SingleThreadedExecutor)')
+    lp.add_argument('--view', type=int, nargs='?', const=3, default=0, metavar='ROUNDS',
+                    help='also measure the viewer\'s cost: ROUNDS (default 3) alternating pairs '
+                         'of runs without and with the live viewer (cartpole run --view) and a '
+                         'Foxglove WebSocket client attached, on the first of --executors')
 
     a = sub.add_parser('all', help='control, robustness, offline and loop with their defaults')
     _common(a)
@@ -258,8 +262,10 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     from ..bench_loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
+    if getattr(args, 'view', 0) < 0:
+        raise SystemExit('--view ROUNDS must be >= 0')
     result = run_loop_benchmark(duration=args.duration, modes=args.modes,
-                                executors=args.executors)
+                                executors=args.executors, view_rounds=getattr(args, 'view', 0))
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))

@@ -2,8 +2,15 @@
 from __future__ import annotations
 
 import argparse
+import math
+import sys
+import time
 
 from .. import options
+
+LINGER_S = 1.0
+"""With --view: wall seconds the server stays up after the run, so that its last messages
+reach the clients before the connection closes."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -11,6 +18,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='simulated seconds (default 30)')
     parser.add_argument('--plot', default=None, metavar='FILE.png',
                         help='draw cart position, angle, force and energy (Figure 10.1 layout)')
+    v = parser.add_argument_group('live view (Foxglove WebSocket, no ROS)')
+    v.add_argument('--view', nargs='?', const='', default=None, metavar='HOST:PORT',
+                   help='play the run in real time to a Foxglove / Lichtblick client (the '
+                        "viewer's channels and layout; default 127.0.0.1:8765, port 0: any "
+                        'free port)')
+    v.add_argument('--speed', type=float, default=1.0, metavar='F',
+                   help='with --view: simulated seconds per wall second (default 1)')
+    v.add_argument('--no-wait', action='store_true',
+                   help='with --view: start at once instead of waiting for a client to '
+                        'subscribe to the scene')
     options.add_controller_arguments(parser)
     options.add_scenario_arguments(parser)
     options.add_output_arguments(parser)
@@ -37,14 +54,27 @@ def main(args: argparse.Namespace) -> int:
 
     if not args.duration > 0:
         raise SystemExit('--duration must be > 0')
+    if not (args.speed > 0 and math.isfinite(args.speed)):
+        raise SystemExit(f'--speed must be > 0, got {args.speed}')
+    nominal = options.nominal_parameters(args)
+    server = observer = None
+    if args.view is not None:
+        server, observer = _start_view(args, nominal)
     try:
-        run = run_closed_loop(options.nominal_parameters(args), options.scenario_from_args(args),
+        run = run_closed_loop(nominal, options.scenario_from_args(args),
                               duration=args.duration,
                               manager_parameters=manager_parameters_from_args(args),
                               ekf_config=ekf_config_from_args(args),
-                              progress=options.progress_printer('cartpole offline'))
+                              progress=options.progress_printer('cartpole offline'),
+                              observer=observer)
     except ValueError as exc:
         raise SystemExit(f'cartpole offline: {exc}') from None
+    except KeyboardInterrupt:
+        raise SystemExit(130) from None
+    finally:
+        if server is not None:
+            time.sleep(LINGER_S)  # let the last messages reach the clients
+            server.stop()
     options.print_summary(run.summary, args.json)
     if args.plot:
         from ..plots import plot_offline_run
@@ -52,3 +82,32 @@ def main(args: argparse.Namespace) -> int:
         if not args.json:
             print(f'plot: {args.plot}')
     return 0
+
+
+def _start_view(args: argparse.Namespace, nominal):
+    """The viewer's server and the loop's real-time observer (waits for a client unless told)."""
+    from cartpole_sim.geometry import RigGeometry
+
+    from ..viewer import LiveView, ViewerServer, parse_address
+    from ..viewer_offline import RealTimePlayer
+
+    try:
+        host, port = parse_address(args.view)
+        server = ViewerServer(host, port)
+    except (ValueError, RuntimeError) as exc:
+        raise SystemExit(f'cartpole offline: --view: {exc}') from None
+    x_ref = options.load_ros_parameters(args.params, 'controller_manager').get('x_ref')
+    view = LiveView(server, RigGeometry.from_parameters(nominal),
+                    float(x_ref) if x_ref is not None else nominal.x_middle)
+    print(f'cartpole offline: live view on {server.url} (Foxglove WebSocket)', file=sys.stderr,
+          flush=True)
+    if not args.no_wait:
+        print('cartpole offline: waiting for a client to subscribe (Foxglove: Open connection, '
+              f'Foxglove WebSocket, {server.url}); Ctrl-C stops', file=sys.stderr, flush=True)
+        try:
+            while not server.wait_for_client(0.2):
+                pass
+        except KeyboardInterrupt:
+            server.stop()
+            raise SystemExit(130) from None
+    return server, RealTimePlayer(view, speed=args.speed)

@@ -53,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='executor of the one-process graph: the C++ EventsExecutor of '
                         'rclpy.experimental (default; about 3x less overhead) or rclpy\'s '
                         'SingleThreadedExecutor')
+    g.add_argument('--view', nargs='?', const='', default=None, metavar='HOST:PORT',
+                   help='serve a live view for Foxglove / Lichtblick (the viewer node in its '
+                        'own process; default 127.0.0.1:8765; port 0: any free port)')
     g.add_argument('--log-level', default='warn',
                    choices=('debug', 'info', 'warn', 'error', 'fatal'),
                    help='ROS log level of the nodes (default warn)')
@@ -142,6 +145,12 @@ def _validate(args: argparse.Namespace) -> str | None:
         return f'--params {args.params}: no such file'
     if args.plant_params is not None and not args.plant_params.is_file():
         return f'--plant-params {args.plant_params}: no such file'
+    if args.view is not None:
+        from ..viewer import parse_address
+        try:
+            parse_address(args.view)
+        except ValueError as error:
+            return f'--view: {error}'
     if args.sim:
         try:
             scenario = options.scenario_from_args(args)
@@ -190,7 +199,7 @@ def main(args: argparse.Namespace) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     from .. import metrics
-    from ..analyze import analyze_bag
+    from ..analyze import JOINTS, TRUE_STATE, analyze_bag
     from ..graph import Graph, GraphError, GraphSpec
 
     names = controller_names(args)
@@ -218,6 +227,17 @@ def main(args: argparse.Namespace) -> int:
                      lockstep=args.lockstep, processes=args.processes, record=bag,
                      custom_data=custom, log_level=args.log_level, executor=args.executor)
 
+    viewer = None
+    if args.view is not None:
+        from ..viewer_process import start_viewer
+        try:
+            viewer = start_viewer(args.view, plant_params=args.plant_params,
+                                  log_level=args.log_level)
+        except RuntimeError as exc:
+            print(f'cartpole run: --view: {exc}', file=sys.stderr)
+            return 2
+        print(f'cartpole run: live view on {viewer.url} (Foxglove WebSocket)', file=sys.stderr,
+              flush=True)
     ros_args = ['--ros-args', '--log-level', args.log_level]
     if spec.params_file:
         ros_args += ['--params-file', str(spec.params_file)]
@@ -230,6 +250,8 @@ def main(args: argparse.Namespace) -> int:
     graph = None
     try:
         graph = Graph(spec, context, should_stop=lambda: stop.requested)
+        if viewer is not None:
+            viewer.attach(graph.executor, context, TRUE_STATE if args.sim else JOINTS)
         if not args.json:
             where = f' recording into {bag}' if bag else ''
             print(f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
@@ -252,6 +274,8 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if graph is not None:
             warnings += graph.close()
+        if viewer is not None:
+            warnings += viewer.close()
         stop.restore()
         rclpy.try_shutdown(context=context)
     for w in warnings:
