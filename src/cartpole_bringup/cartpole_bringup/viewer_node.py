@@ -54,7 +54,7 @@ from sensor_msgs.msg import JointState
 
 from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.node_main import run_node
+from cartpole_sim.node_runner import run_node
 
 from .analyze import JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
 from .bag import cdr_stamp_ns
