@@ -169,15 +169,19 @@ class Controller(ABC):
 
     Subclasses set :attr:`kind` and :attr:`name`, list their tunables in
     :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
-    ``configure`` (any time, between updates), ``activate`` (bumpless, from
-    the current state), ``update`` once per cycle, each followed by the
-    manager's :meth:`command_applied`, ``deactivate``.
+    ``configure`` (on a new instance, outside the control cycle; the manager
+    swaps configured instances in between cycles), ``activate`` (bumpless,
+    from the current state) or :meth:`take_over` (new gains while running),
+    ``update`` once per cycle, each followed by the manager's
+    :meth:`command_applied`, ``deactivate``.
     """
 
     api_version: ClassVar[int] = API_VERSION
     kind: ClassVar[str] = ''
     name: ClassVar[str] = ''
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+    running_state: ClassVar[tuple[str, ...]] = ()
+    """Attributes that carry a run (integrators, step clocks), handed on by :meth:`take_over`."""
 
     def __init__(self) -> None:
         self.gains: dict[str, Any] = {spec.name: spec.default for spec in self.parameters}
@@ -246,6 +250,20 @@ class Controller(ABC):
     def activate(self, state: ControllerState) -> None:
         """Start from ``state`` without a bump (reset integrators, filters)."""
         self.active = True
+
+    def take_over(self, previous: 'Controller', state: ControllerState) -> None:
+        """Go on with the run of ``previous`` (this plugin, other gains) from ``state``.
+
+        The manager calls it between two cycles when new gains of the running
+        plugin are applied: this instance was built and configured with them
+        outside the cycle, ``previous`` is deactivated. The run goes on as a
+        reconfiguration in place would let it: activated, then the
+        :attr:`running_state` attributes of ``previous`` taken over (the
+        integrators keep their values). Must be cheap (it runs in the cycle).
+        """
+        self.activate(state)
+        for attribute in self.running_state:
+            setattr(self, attribute, getattr(previous, attribute))
 
     @abstractmethod
     def update(self, state: ControllerState) -> float:

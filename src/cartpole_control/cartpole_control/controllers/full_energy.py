@@ -55,6 +55,7 @@ class FullEnergySwingUp(Controller):
 
     kind = SWINGUP
     name = 'full_energy'
+    running_state = ('integral', '_clock')
     parameters = (
         ParameterSpec('k_x', 12.0, 'cart position weight k_x of (7.14)/(7.27) [N^2] '
                       '(k_e dimensionless, V_2 in J^2); thesis 12', low=0.0, high=1000.0),

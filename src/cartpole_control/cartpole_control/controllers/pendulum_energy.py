@@ -30,6 +30,7 @@ class PendulumEnergySwingUp(Controller):
 
     kind = SWINGUP
     name = 'pendulum_energy'
+    running_state = ('integral', '_clock')
     parameters = (
         ParameterSpec('k_e', 0.5, 'energy gain k_e of (7.32) [m/s^2 per (J rad/s)]; thesis 0.5',
                       low=0.0, high=100.0),

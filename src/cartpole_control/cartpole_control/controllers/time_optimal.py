@@ -386,6 +386,18 @@ class TimeOptimalSwingUp(Controller):
             self.mode, self.fallback_reason = PLAN, ''
             self._law = f'{self.name}:{PLAN}'
 
+    running_state = ('mode', 'fallback_reason', '_law', '_plan', '_gains_k', '_t0',
+                     '_theta_offset', '_why')
+
+    def take_over(self, previous: Controller, state: ControllerState) -> None:
+        """Go on with ``previous``'s swing-up (new gains while it runs): the plan it tracks
+        (with its gains) or its fall-back; nothing is looked up or logged."""
+        self.active = True
+        for attribute in self.running_state:
+            setattr(self, attribute, getattr(previous, attribute))
+        if self.mode == FALLBACK:
+            self.fallback.take_over(previous.fallback, state)
+
     def _fall_back(self, state: ControllerState, why: str, detail: str = '') -> None:
         self.mode = FALLBACK
         self.fallback_reason = f'{why}: {detail}' if detail else why
