@@ -104,12 +104,15 @@ def graph(duration):
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.srv import SetParameters
     from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     run = subprocess.Popen(['cartpole', 'run', '--sim', '--duration', str(duration)],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node('swap_bench', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
     statuses = []
     node.create_subscription(DiagnosticArray, '/cartpole/controller_status',
                              lambda msg: statuses.append(
@@ -119,26 +122,27 @@ def graph(duration):
     try:
         deadline = time.monotonic() + 60.0
         while not statuses and time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
         if not statuses:
             raise SystemExit('no controller status within 60 s')
         for change in CHANGES:
             until = time.monotonic() + PERIOD
             while time.monotonic() < until:
-                rclpy.spin_once(node, timeout_sec=0.05)
+                executor.spin_once(timeout_sec=0.05)
             request = SetParameters.Request(parameters=[
                 Parameter(k, value=v).to_parameter_msg() for k, v in change.items()])
             marks.append(len(statuses))
             future = client.call_async(request)
-            rclpy.spin_until_future_complete(node, future, timeout_sec=10.0)
+            executor.spin_until_future_complete(future, timeout_sec=10.0)
             answer = future.result()
             if answer is None or not all(r.successful for r in answer.results):
                 refused.append({'change': change, 'reason': answer and [
                     r.reason for r in answer.results]})
         until = time.monotonic() + 1.0
         while time.monotonic() < until:
-            rclpy.spin_once(node, timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.05)
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         run.send_signal(2)
@@ -150,6 +154,7 @@ def graph(duration):
             change_cycles.append(max(float(s['cycle_compute_s']) for s in window))
     last = statuses[-1]
     return {'mode': 'graph', 'max_cycle_compute_s': float(last['max_cycle_compute_s']),
+            'longest_cycle_gap_s': float(last['longest_cycle_gap_s']),
             'max_change_cycle_s': max(change_cycles), 'change_cycles_s': change_cycles,
             'statuses': len(statuses), 'refused': refused,
             'switch_events': [s['event'] for s in statuses if 'switch' in s['event']],
