@@ -153,8 +153,19 @@ def graph(duration):
         if window:
             change_cycles.append(max(float(s['cycle_compute_s']) for s in window))
     last = statuses[-1]
+    top = sorted(range(len(statuses)), key=lambda i: -float(statuses[i]['cycle_compute_s']))[:5]
+    longest_cycles = [{'cycle_s': float(statuses[i]['cycle_compute_s']),
+                       'state_stamp': float(statuses[i]['state_stamp']),
+                       'mode': statuses[i]['mode'], 'event': statuses[i]['event'],
+                       'after_change': next((k for k, m in reversed(list(enumerate(marks)))
+                                             if m <= i), None)} for i in top]
     return {'mode': 'graph', 'max_cycle_compute_s': float(last['max_cycle_compute_s']),
             'longest_cycle_gap_s': float(last['longest_cycle_gap_s']),
+            'longest_cycle_gap_before_changes_s': float(
+                statuses[marks[0] - 1]['longest_cycle_gap_s']),
+            'max_cycle_compute_before_changes_s': float(
+                statuses[marks[0] - 1]['max_cycle_compute_s']),
+            'longest_cycles': longest_cycles,
             'max_change_cycle_s': max(change_cycles), 'change_cycles_s': change_cycles,
             'statuses': len(statuses), 'refused': refused,
             'switch_events': [s['event'] for s in statuses if 'switch' in s['event']],
