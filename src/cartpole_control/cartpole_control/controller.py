@@ -127,6 +127,11 @@ class ControlContext:
     feedforward: FrictionFeedforward = FrictionFeedforward()
     """The cart friction feedforward (6.12) the manager adds to every raw
     output; a law whose plan already pays for friction subtracts it."""
+    real_time: bool = True
+    """The loop runs in real time and never waits: slow work a plugin finds missing
+    (a plan) is started in the background. False for batch and lockstep runs,
+    which call :meth:`Controller.prepare` before their first cycle: nothing is
+    started in the background then."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting

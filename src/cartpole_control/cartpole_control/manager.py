@@ -157,6 +157,8 @@ class ControllerManager:
     registry
         ``{kind: {name: Controller subclass}}``; None discovers the installed
         plugins through their entry points (:mod:`cartpole_control.registry`).
+    real_time
+        :attr:`ControlContext.real_time`; False for batch runs (they :meth:`prepare`).
     **initial_parameters
         Initial values by parameter name (see :meth:`parameter_specs`), e.g.
         ``stabilizer='smc'`` or ``**{'lqg.r': 0.02}``. A bad value raises
@@ -165,7 +167,7 @@ class ControllerManager:
 
     def __init__(self, plant: CartPoleParameters, sample_time: float = 0.005,
                  registry: Mapping[str, Mapping[str, type[Controller]]] | None = None,
-                 **initial_parameters: Any) -> None:
+                 real_time: bool = True, **initial_parameters: Any) -> None:
         if not (math.isfinite(sample_time) and sample_time > 0.0):
             raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
         self.plant = plant
@@ -178,12 +180,10 @@ class ControllerManager:
         self._upright_energy = plant.upright_energy
         self._registry = self._checked_registry(registry)
         self._specs = self._build_specs()
-        self._stager = Stager(plant, self.sample_time, self._registry, self._specs)
+        self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
-        self._lock = threading.Lock()
-        """Guards the values, the pending change and the restart request (short holds only)."""
-        self._staging = threading.RLock()
-        """Serialises staging: each change is built on top of the one before."""
+        self._lock = threading.Lock()  # values, pending change, restart request: short holds
+        self._staging = threading.RLock()  # serialises staging: each change on the one before
         staged = self._stager.stage(initial_parameters, self._values)
         self._values.update(staged.changes)
         self._trigger, self._feedforward, self._guard = staged.blocks
@@ -195,7 +195,7 @@ class ControllerManager:
         self._enabled = bool(self._values['enabled'])
         self._pending: StagedChange | None = None
         self._version = 0
-        """Count of changes taken; a checked change is reused only if none came since."""
+        """Changes taken; a checked change is reused only if none came since."""
         self._offer: tuple[dict[str, Any], int, StagedChange] | None = None
         """The change :meth:`check_parameters` staged last, for :meth:`set_parameters` to take."""
         self._restart_requested = False

@@ -87,12 +87,15 @@ class Stager:
         ``{kind: {name: Controller subclass}}``.
     specs
         Every parameter of the manager and the plugins, by full name.
+    real_time
+        :attr:`ControlContext.real_time` of the contexts built.
     """
 
     def __init__(self, plant: CartPoleParameters, sample_time: float,
                  registry: Mapping[str, Mapping[str, type[Controller]]],
-                 specs: Mapping[str, ParameterSpec]) -> None:
+                 specs: Mapping[str, ParameterSpec], real_time: bool = True) -> None:
         self.plant = plant
+        self.real_time = real_time
         self.sample_time = sample_time
         self.registry = registry
         self.specs = specs
@@ -102,7 +105,7 @@ class Stager:
     def context(self, values: Mapping[str, Any]) -> ControlContext:
         return ControlContext(plant=self.plant, x_ref=float(values['x_ref']),
                               sample_time=self.sample_time,
-                              feedforward=friction_feedforward(values))
+                              feedforward=friction_feedforward(values), real_time=self.real_time)
 
     def blocks(self, v: Mapping[str, Any]) -> tuple[CatchTrigger, FrictionFeedforward, RailGuard]:
         """Catch trigger (6.4), feedforward (6.12), rail guard; ValueError on a bad combination."""

@@ -282,7 +282,7 @@ class TimeOptimalSwingUp(Controller):
         self._prepared = {x0: p for x0, p in self._prepared.items()
                           if p.ident == self._ident(x0, self.gains, c)}
         if self.gains['precompute']:
-            self.load_plan(self.gains['plan_x0'], solve_missing=True)
+            self.load_plan(self.gains['plan_x0'], solve_missing=c.real_time)
         if self.gains['plan_on_activation'] and self._requests is None:
             # Started here, outside the control cycle: an activation only queues a request.
             self._requests = queue.SimpleQueue()
