@@ -127,7 +127,7 @@ def prepare(swingups: Sequence[str], progress=None) -> None:
     p = CartPoleParameters()
     start = ControllerState(0.0, *Scenario().initial_state())
     for name in swingups:
-        manager = ControllerManager(p, sample_time=p.sample_time)
+        manager = ControllerManager(p, sample_time=p.sample_time, real_time=False)
         if manager.set_parameters({'swingup': name}).successful:
             manager.prepare(start, progress)
 

@@ -103,7 +103,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     scenario = scenario or Scenario()
     plant = Plant(nominal, scenario, integration_step=integration_step)
     ekf = ExtendedKalmanFilter(nominal, ekf_config or EkfConfig())
-    manager = ControllerManager(nominal, sample_time=nominal.sample_time)
+    manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
     if manager_parameters:
         result = manager.set_parameters(dict(manager_parameters))
         if not result.successful:

@@ -137,6 +137,11 @@ class ControlContext:
     feedforward: FrictionFeedforward = FrictionFeedforward()
     """The cart friction feedforward (6.12) the manager adds to every raw
     output; a law whose plan already pays for friction subtracts it."""
+    real_time: bool = True
+    """The loop runs in real time and never waits: slow work a plugin finds missing
+    (a plan) is started in the background. False for batch and lockstep runs,
+    which call :meth:`Controller.prepare` before their first cycle: nothing is
+    started in the background then."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting
@@ -179,16 +184,20 @@ class Controller(ABC):
 
     Subclasses set :attr:`kind` and :attr:`name`, list their tunables in
     :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
-    ``configure`` (any time, between updates), ``activate`` (bumpless, from
-    the current state), ``update`` once per cycle, each followed by the
-    manager's :meth:`command_applied`, ``deactivate``. Subclasses put their
-    start and stop work into :meth:`on_activate` / :meth:`on_deactivate`.
+    ``configure`` (on a new instance, outside the control cycle; the manager
+    swaps configured instances in between cycles), ``activate`` (bumpless,
+    from the current state) or :meth:`take_over` (new gains while running),
+    ``update`` once per cycle, each followed by the manager's
+    :meth:`command_applied`, ``deactivate``. Subclasses put their start and
+    stop work into :meth:`on_activate` / :meth:`on_deactivate`.
     """
 
     api_version: ClassVar[int] = API_VERSION
     kind: ClassVar[str] = ''
     name: ClassVar[str] = ''
     parameters: ClassVar[tuple[ParameterSpec, ...]] = ()
+    running_state: ClassVar[tuple[str, ...]] = ()
+    """Attributes that carry a run (integrators, step clocks), handed on by :meth:`take_over`."""
 
     _TEMPLATE_METHODS: ClassVar[dict[str, str]] = {'activate': 'on_activate',
                                                    'deactivate': 'on_deactivate'}
@@ -279,6 +288,20 @@ class Controller(ABC):
 
     def on_activate(self, state: ControllerState) -> None:
         """Start from ``state`` without a bump (reset integrators, filters). Default: nothing."""
+
+    def take_over(self, previous: 'Controller', state: ControllerState) -> None:
+        """Go on with the run of ``previous`` (this plugin, other gains) from ``state``.
+
+        The manager calls it between two cycles when new gains of the running
+        plugin are applied: this instance was built and configured with them
+        outside the cycle, ``previous`` is deactivated. The run goes on as a
+        reconfiguration in place would let it: activated, then the
+        :attr:`running_state` attributes of ``previous`` taken over (the
+        integrators keep their values). Must be cheap (it runs in the cycle).
+        """
+        self.activate(state)
+        for attribute in self.running_state:
+            setattr(self, attribute, getattr(previous, attribute))
 
     @abstractmethod
     def update(self, state: ControllerState) -> float:

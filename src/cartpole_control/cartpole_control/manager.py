@@ -4,8 +4,10 @@ One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
 
 1. apply the parameter changes and requests queued since the last cycle
    (between two cycles, never in the middle of one, like ros2_control's
-   ``do_switch``); a switch is bumpless: the new plugin is activated from the
-   current state, the old one deactivated;
+   ``do_switch``): only a swap of objects built and configured when the
+   change was set (:mod:`cartpole_control.staging`); a switch is bumpless:
+   the new plugin is activated from the current state, the old one
+   deactivated; new gains of the running plugin take over its integrators;
 2. complete the state with the model accelerations under the last applied
    force (4.18), which (7.10) needs;
 3. catch trigger (6.4) in swing-up, fall detector in stabilisation
@@ -36,12 +38,11 @@ from typing import Any, Callable, Mapping
 
 from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
 
-from .catch import CatchTrigger
-from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, ControlContext, Controller, \
+from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec
-from .feedforward import FrictionFeedforward
-from .rail_guard import BRAKING, STOPPED, RailGuard
+from .rail_guard import BRAKING, STOPPED
 from .registry import load_controllers
+from .staging import StagedChange, Stager, plugin_gains
 
 logger = logging.getLogger(__name__)
 
@@ -58,19 +59,6 @@ _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 
 MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
-CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
-                'feedforward.velocity_band')
-"""Manager parameters that the plugins see through their ControlContext."""
-
-
-def _friction_feedforward(values: Mapping[str, Any]) -> FrictionFeedforward:
-    return FrictionFeedforward(values['feedforward.right'], values['feedforward.left'],
-                               values['feedforward.steepness'],
-                               values['feedforward.velocity_band'])
-
-
-def _changes_context(changes: Mapping[str, Any], current: Mapping[str, Any]) -> bool:
-    return any(key in CONTEXT_KEYS and changes[key] != current[key] for key in changes)
 """Parameter groups of the manager itself; a plugin cannot take these names."""
 
 
@@ -169,6 +157,8 @@ class ControllerManager:
     registry
         ``{kind: {name: Controller subclass}}``; None discovers the installed
         plugins through their entry points (:mod:`cartpole_control.registry`).
+    real_time
+        :attr:`ControlContext.real_time`; False for batch runs (they :meth:`prepare`).
     **initial_parameters
         Initial values by parameter name (see :meth:`parameter_specs`), e.g.
         ``stabilizer='smc'`` or ``**{'lqg.r': 0.02}``. A bad value raises
@@ -177,7 +167,7 @@ class ControllerManager:
 
     def __init__(self, plant: CartPoleParameters, sample_time: float = 0.005,
                  registry: Mapping[str, Mapping[str, type[Controller]]] | None = None,
-                 **initial_parameters: Any) -> None:
+                 real_time: bool = True, **initial_parameters: Any) -> None:
         if not (math.isfinite(sample_time) and sample_time > 0.0):
             raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
         self.plant = plant
@@ -190,17 +180,24 @@ class ControllerManager:
         self._upright_energy = plant.upright_energy
         self._registry = self._checked_registry(registry)
         self._specs = self._build_specs()
+        self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
-        self._lock = threading.Lock()
-        self._values.update(self._validate(initial_parameters))
-        self._trigger, self._feedforward, self._guard = self._build_blocks(self._values)
-        self._context = self._make_context(self._values)
+        self._lock = threading.Lock()  # values, pending change, restart request: short holds
+        self._staging = threading.RLock()  # serialises staging: each change on the one before
+        staged = self._stager.stage(initial_parameters, self._values)
+        self._values.update(staged.changes)
+        self._trigger, self._feedforward, self._guard = staged.blocks
+        context = self._stager.context(self._values)
         self._names = {kind: self._values[kind] for kind in KINDS}
         self._plugins: dict[str, Controller] = {
-            kind: self._make_plugin(kind, self._names[kind], self._values, self._context)
-            for kind in KINDS}
+            kind: staged.plugins.get(kind) or self._stager.checked_plugin(
+                kind, self._names[kind], self._values, context) for kind in KINDS}
         self._enabled = bool(self._values['enabled'])
-        self._pending: dict[str, Any] = {}
+        self._pending: StagedChange | None = None
+        self._version = 0
+        """Changes taken; a checked change is reused only if none came since."""
+        self._offer: tuple[dict[str, Any], int, StagedChange] | None = None
+        """The change :meth:`check_parameters` staged last, for :meth:`set_parameters` to take."""
         self._restart_requested = False
         self.reset()
 
@@ -277,32 +274,6 @@ class ControllerManager:
                     out[full] = dataclasses.replace(spec, name=full)
         return out
 
-    def _make_context(self, values: Mapping[str, Any]) -> ControlContext:
-        return ControlContext(plant=self.plant, x_ref=float(values['x_ref']),
-                              sample_time=self.sample_time,
-                              feedforward=_friction_feedforward(values))
-
-    def _gains(self, name: str, values: Mapping[str, Any]) -> dict[str, Any]:
-        prefix = name + '.'
-        return {key[len(prefix):]: value for key, value in values.items()
-                if key.startswith(prefix)}
-
-    def _make_plugin(self, kind: str, name: str, values: Mapping[str, Any],
-                     context: ControlContext) -> Controller:
-        plugin = self._registry[kind][name]()
-        plugin.configure(self._gains(name, values), context)
-        return plugin
-
-    def _build_blocks(self, v: Mapping[str, Any]):
-        trigger = CatchTrigger(energy_tolerance=v['catch.energy_tolerance'],
-                               angle=math.radians(v['catch.angle_deg']),
-                               fall_angle=math.radians(v['fall.angle_deg']))
-        feedforward = _friction_feedforward(v)
-        guard = RailGuard(self.plant, margin=v['rail.margin'],
-                          max_brake_force=v['rail.max_brake_force'],
-                          latency=v['rail.latency'], rest_speed=v['rail.rest_speed'])
-        return trigger, feedforward, guard
-
     # -- parameters -------------------------------------------------------------------
     def parameter_specs(self) -> dict[str, ParameterSpec]:
         """The manager's parameters and every registered plugin's as ``<plugin>.<param>``."""
@@ -317,42 +288,33 @@ class ControllerManager:
         with self._lock:
             return dict(self._values)
 
-    def _validate(self, changes: Mapping[str, Any]) -> dict[str, Any]:
-        """Validated copy of ``changes``; ValueError with the reason if any is wrong."""
-        out: dict[str, Any] = {}
-        for name, value in changes.items():
-            spec = self._specs.get(name)
-            if spec is None:
-                raise ValueError(f'unknown parameter {name!r}')
-            if name in KINDS and isinstance(value, str) and value not in self._registry[name]:
-                raise ValueError(f'unknown {name} controller {value!r}; registered: '
-                                 f'{list(self._registry[name])}')
-            out[name] = spec.validate(value)
-        candidate = dict(self._values)
-        candidate.update(out)
-        self._build_blocks(candidate)  # cross-checks, e.g. the fall angle above the catch angle
-        context = dataclasses.replace(self._make_context(candidate), validation_only=True)
-        context_changed = _changes_context(out, self._values)
-        for kind in KINDS:
-            for name in self._registry[kind]:
-                prefix = name + '.'
-                if context_changed or any(key.startswith(prefix) for key in out):
-                    try:
-                        self._make_plugin(kind, name, candidate, context)
-                    except ValueError as error:
-                        raise ValueError(f'{name}: {error}') from None
-                    except Exception as error:  # a plugin bug must not take the manager down
-                        raise ValueError(f'{name} refused its configuration: '
-                                         f'{type(error).__name__}: {error}') from None
-        return out
+    @property
+    def plugin_constructions(self) -> int:
+        """Plugin instances built since start (staged ones and validation scratch ones)."""
+        return self._stager.constructions
+
+    def _stage(self, changes: Mapping[str, Any]) -> StagedChange:
+        """Stage ``changes`` (caller holds ``_staging``), reusing the last check's if it matches."""
+        offer, self._offer = self._offer, None
+        changes = dict(changes)
+        if offer is not None and offer[0] == changes and offer[1] == self._version:
+            return offer[2]
+        with self._lock:
+            values = dict(self._values)
+        return self._stager.stage(changes, values)
 
     def check_parameters(self, changes: Mapping[str, Any]) -> SetResult:
-        """Validate ``changes`` as :meth:`set_parameters` would, without taking them."""
-        with self._lock:
+        """Validate ``changes`` as :meth:`set_parameters` would, without taking them.
+
+        What it builds is kept: a :meth:`set_parameters` of the same changes
+        next (the node's post-set callback) takes it without building again.
+        """
+        with self._staging:
             try:
-                self._validate(changes)
+                staged = self._stage(changes)
             except ValueError as error:
                 return SetResult(False, str(error))
+            self._offer = (dict(changes), self._version, staged)
         return SetResult(True)
 
     def set_parameters(self, changes: Mapping[str, Any]) -> SetResult:
@@ -361,15 +323,19 @@ class ControllerManager:
         Refused: an unknown name, a wrong type, a value out of range, an
         unregistered controller name (the reason lists the registered ones), a
         gain combination a plugin's ``on_configure`` refuses. The reason says
-        which and why; nothing changes then.
+        which and why; nothing changes then. Everything the change needs is
+        built here, in the caller's thread (:mod:`cartpole_control.staging`);
+        the next cycle only swaps it in.
         """
-        with self._lock:
+        with self._staging:
             try:
-                accepted = self._validate(changes)
+                staged = self._stage(changes)
             except ValueError as error:
                 return SetResult(False, str(error))
-            self._values.update(accepted)
-            self._pending.update(accepted)
+            with self._lock:
+                self._values.update(staged.changes)
+                self._pending = staged if self._pending is None else self._pending.then(staged)
+                self._version += 1
         return SetResult(True)
 
     def prepare(self, start: ControllerState,
@@ -383,11 +349,11 @@ class ControllerManager:
         """
         with self._lock:
             values = dict(self._values)
-        context = self._make_context(values)
+        context = self._stager.context(values)
         changes: dict[str, Any] = {}
         for kind in KINDS:
             name = values[kind]
-            asked = self._registry[kind][name].prepare(self._gains(name, values), context, start,
+            asked = self._registry[kind][name].prepare(plugin_gains(name, values), context, start,
                                                        progress)
             changes.update({f'{name}.{key}': value for key, value in asked.items()})
         if changes:
@@ -473,38 +439,29 @@ class ControllerManager:
 
     def _apply_pending(self, state: ControllerState, events: list[str]) -> None:
         """Apply the queued changes and requests: the ``do_switch`` between two cycles."""
-        if not self._pending and not self._restart_requested:
-            # Nothing queued (the usual cycle): skip the lock and the copy of
-            # the values. A change queued by another thread right now is taken
-            # at the next cycle, as it would be had it come just after the swap.
-            return
+        if self._pending is None and not self._restart_requested:
+            return  # the usual cycle; a change queued right now is taken at the next one
         with self._lock:
-            pending, self._pending = self._pending, {}
-            restart, values = self._restart_requested, dict(self._values)
-            self._restart_requested = False
-        if pending:
+            staged, restart, self._pending, self._restart_requested = \
+                self._pending, self._restart_requested, None, False
+        if staged is not None:
+            pending = staged.changes
             guard_status = self._guard.status
-            self._trigger, self._feedforward, self._guard = self._build_blocks(values)
+            self._trigger, self._feedforward, self._guard = staged.blocks
             self._guard.status = guard_status
-            context_changed = any(key in CONTEXT_KEYS for key in pending)
-            if context_changed:
-                self._context = self._make_context(values)
-            for kind in KINDS:
+            for kind, new in staged.plugins.items():
                 live = self._plugins[kind]
-                name = values[kind]
-                if self._names[kind] != name:
-                    new = self._make_plugin(kind, name, values, self._context)
-                    self._names[kind] = name
-                    running = self._active is live
-                    if running:
-                        live.deactivate()
+                if self._active is live:
+                    live.deactivate()
+                    if new.name == live.name:
+                        new.take_over(live, state)  # new gains: the run goes on
+                    else:
                         new.activate(state)
-                        self._active = new
-                    self._plugins[kind] = new
-                    events.append(f'switch:{kind}={name}')
-                elif context_changed or any(key.startswith(name + '.') for key in pending):
-                    # Validated on a scratch instance already, so this cannot refuse.
-                    live.configure(self._gains(name, values), self._context)
+                    self._active = new
+                self._plugins[kind] = new
+                if self._names[kind] != new.name:
+                    self._names[kind] = new.name
+                    events.append(f'switch:{kind}={new.name}')
             if 'enabled' in pending and bool(pending['enabled']) != self._enabled:
                 self._enabled = bool(pending['enabled'])
                 if self._enabled:

@@ -31,6 +31,12 @@ Wiring only; every decision is the manager's.
   seeing the jump;
 - ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between
   two control cycles since start (a stall figure, :mod:`cartpole_sim.realtime`);
+  ``cycle_compute_s`` / ``max_cycle_compute_s``: the compute time of the
+  control cycle (:meth:`ControllerManager.update`, the swap of a staged
+  parameter change included), the last one and the longest since start;
+- a parameter change is staged in the on-set callback (validated, and the
+  new plugin instance built and configured there, :mod:`cartpole_control.staging`);
+  the post-set callback queues that same instance, the cycle swaps it in;
 - zero force on shutdown (:meth:`publish_zero`, also called by
   :meth:`destroy_node`).
 """
@@ -38,6 +44,7 @@ from __future__ import annotations
 
 import array
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +71,7 @@ STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
 STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
                'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
-               'swingup_law', 'longest_cycle_gap_s')
+               'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s')
 """The KeyValues of the controller status, in this order (docs/architecture.md)."""
 
 
@@ -170,6 +177,10 @@ class ControllerManagerNode(Node):
         """Stamp [s] of a plant reset not yet handed over (see _on_plant_reset)."""
         self._last_check_ns: int | None = None
         self.cycle_gaps = CycleGapMeter()
+        self.cycle_compute = 0.0
+        """Compute time of the last control cycle (the manager's update) [s]."""
+        self.max_cycle_compute = 0.0
+        """The longest control cycle since start [s]."""
         self._last_state_ns: int | None = None
         self._last_stamp = None
         self._stale = False
@@ -186,7 +197,10 @@ class ControllerManagerNode(Node):
         return {p.name: manager_value(p.value) for p in parameters if p.name in self._specs}
 
     def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Refuse a change the manager would refuse (reason included); nothing changes then."""
+        """Refuse a change the manager would refuse (reason included); nothing changes then.
+
+        The check builds and configures what the change needs (outside the
+        control cycle); :meth:`_apply_parameters` queues that very instance."""
         result = self.manager.check_parameters(self._changes(parameters))
         return SetParametersResult(successful=result.successful, reason=result.reason)
 
@@ -216,7 +230,11 @@ class ControllerManagerNode(Node):
         if reset:
             self._reset_from = None
             self.manager.reset()
+        started = time.perf_counter()
         out = self.manager.update(state)
+        self.cycle_compute = compute = time.perf_counter() - started
+        if compute > self.max_cycle_compute:
+            self.max_cycle_compute = compute
         force = JointState()
         force.header.stamp = msg.header.stamp
         force.name = [CART_JOINT]
@@ -235,7 +253,8 @@ class ControllerManagerNode(Node):
 
     def _publish_status(self, out: ManagerOutput, stamp, extra_event: str = '') -> None:
         self._pub_status.publish(status_message(out, stamp, self.cycle_gaps.longest,
-                                                extra_event))
+                                                extra_event, self.cycle_compute,
+                                                self.max_cycle_compute))
         if out.event.startswith('fault') or ';fault' in out.event:
             self.get_logger().error(f'fault: {out.fault_reason}; zero force until '
                                     '~/restart_swingup')
@@ -290,7 +309,8 @@ class ControllerManagerNode(Node):
 
 
 def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
-                   extra_event: str = '') -> DiagnosticArray:
+                   extra_event: str = '', cycle_compute: float = 0.0,
+                   max_cycle_compute: float = 0.0) -> DiagnosticArray:
     """The ``/cartpole/controller_status`` message of one cycle (numbers as repr(float)).
 
     ``extra_event`` (the node's own, e.g. ``plant_reset``) goes before the
@@ -319,6 +339,8 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
         'state_stamp': repr(_stamp_seconds(stamp)),
         'swingup_law': out.swingup_law,
         'longest_cycle_gap_s': repr(float(longest_cycle_gap)),
+        'cycle_compute_s': repr(float(cycle_compute)),
+        'max_cycle_compute_s': repr(float(max_cycle_compute)),
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',

@@ -23,16 +23,27 @@ class Recording(Controller):
     parameters = (ParameterSpec('force', 0.0, 'constant force [N]', low=-100.0, high=100.0),
                   ParameterSpec('limit', 100.0, 'refuse |force| above this', low=0.0, high=100.0))
 
+    running_state = ('steps',)
+    built = 0
+    """Instances of any test plugin constructed (class-wide)."""
+    configured = 0
+    """on_configure calls of any test plugin (class-wide)."""
+
     def __init__(self):
         super().__init__()
+        Recording.built += 1
         self.calls = []
         self.hook = None
+        self.steps = 0
+        """Updates since activation: the running state a take-over hands on."""
 
     def on_configure(self):
+        Recording.configured += 1
         if abs(self.gains['force']) > self.gains['limit']:
             raise ValueError(f"force {self.gains['force']} exceeds limit {self.gains['limit']}")
 
     def on_activate(self, state):
+        self.steps = 0
         self.calls.append(('activate', state.t))
 
     def on_deactivate(self):
@@ -40,6 +51,7 @@ class Recording(Controller):
 
     def update(self, state):
         self.calls.append(('update', state.t))
+        self.steps += 1
         if self.hook is not None:
             self.hook(state)
         return self.gains['force']
@@ -240,14 +252,61 @@ def test_switching_the_inactive_kind_does_not_activate_it():
     assert not plugin(m, STABILIZER).active and plugin(m, SWINGUP).active
 
 
-def test_gain_change_reconfigures_the_running_plugin_without_reactivation():
+def built_and_configured():
+    return Recording.built, Recording.configured
+
+
+def test_gain_change_and_switch_are_built_when_set_and_only_swapped_in_the_cycle():
+    """The cycle only swaps: the instance is constructed and configured by the parameter
+    check (once: the set takes the checked one), none in update; the run goes on."""
     m = make(swingup='push_a')
     m.update(state(0.0))
+    m.update(state(TS))
     live = plugin(m, SWINGUP)
+    before = built_and_configured()
+    assert m.check_parameters({'push_a.force': 3.0}).successful
+    checked = built_and_configured()
+    assert checked == (before[0] + 1, before[1] + 1)
     assert m.set_parameters({'push_a.force': 3.0}).successful
-    assert m.update(state(TS)).raw_force == 3.0
-    assert plugin(m, SWINGUP) is live and [c for c in live.calls if c[0] == 'activate'] == [
-        ('activate', 0.0)]
+    assert built_and_configured() == checked          # no second copy for the set
+    out = m.update(state(2 * TS))
+    assert built_and_configured() == checked          # nothing built in the cycle
+    new = plugin(m, SWINGUP)
+    assert out.raw_force == 3.0 and new is not live and new.active and not live.active
+    assert new.steps == 3                             # took over the run (2 updates + this one)
+    assert live.calls[-1] == ('deactivate',)
+
+    assert m.set_parameters({'swingup': 'push_b', 'push_b.force': -2.0}).successful
+    switched = built_and_configured()
+    assert switched == (checked[0] + 1, checked[1] + 1)
+    out = m.update(state(3 * TS))
+    assert built_and_configured() == switched
+    assert out.event == 'switch:swingup=push_b' and out.raw_force == -2.0
+    assert plugin(m, SWINGUP).calls[:2] == [('activate', 3 * TS), ('update', 3 * TS)]
+
+
+def test_a_check_of_other_changes_is_not_taken_for_the_set():
+    m = make(swingup='push_a')
+    assert m.check_parameters({'push_a.force': 3.0}).successful
+    assert m.set_parameters({'push_a.force': 4.0}).successful
+    assert m.update(state(0.0)).raw_force == 4.0
+    assert m.check_parameters({'push_a.force': 5.0}).successful
+    assert m.set_parameters({'push_a.limit': 50.0}).successful   # another change came between
+    assert m.set_parameters({'push_a.force': 5.0}).successful
+    m.update(state(TS))
+    assert plugin(m, SWINGUP).gains == {'force': 5.0, 'limit': 50.0}
+
+
+def test_changes_queued_before_one_cycle_are_applied_together():
+    m = make(swingup='push_a')
+    m.update(state(0.0))
+    assert m.set_parameters({'stabilizer': 'hold_b'}).successful
+    assert m.set_parameters({'push_a.force': 2.0}).successful
+    assert m.set_parameters({'hold_b.force': 1.5}).successful
+    out = m.update(state(TS))
+    assert out.stabilizer == 'hold_b' and out.raw_force == 2.0 and out.event == \
+        'switch:stabilizer=hold_b'
+    assert plugin(m, STABILIZER).gains['force'] == 1.5 and not plugin(m, STABILIZER).active
 
 
 # -- feedforward (6.12) and saturation ---------------------------------------------------------

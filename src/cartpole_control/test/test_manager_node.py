@@ -160,6 +160,30 @@ def test_set_parameters_service_switches_the_stabiliser_within_one_cycle(graph):
     assert h.get('stabilizer') == ['smc']
 
 
+def test_the_parameter_service_builds_the_new_instance_once_and_the_cycle_only_swaps(graph):
+    """`ros2 param set`: the on-set check builds and configures the instance, the post-set
+    queues that one (no second copy), the cycle builds nothing; its compute time is reported."""
+    node, h = graph
+    h.send_state(1.0)
+    built = node.manager.plugin_constructions
+    (result,) = h.set(lqg__r=0.02)                 # a gain of the running stabiliser
+    assert result.successful, result.reason
+    assert node.manager.plugin_constructions == built + 1
+    old = node.manager.active_plugins()['stabilizer']
+    assert old.gains['r'] == 0.01 and old.active     # the new one waits for the cycle
+    h.send_state(1.005)
+    assert node.manager.plugin_constructions == built + 1
+    new = node.manager.active_plugins()['stabilizer']
+    assert new.gains['r'] == 0.02 and new.active and not old.active
+    (result,) = h.set(stabilizer='pid')
+    assert result.successful and node.manager.plugin_constructions == built + 2
+    _, status_array = h.send_state(1.010)
+    _, kv = values_of(status_array)
+    assert kv['event'] == 'switch:stabilizer=pid' and node.manager.plugin_constructions == built + 2
+    last, longest = float(kv['cycle_compute_s']), float(kv['max_cycle_compute_s'])
+    assert 0.0 < last <= longest
+
+
 def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
     node, h = graph
     (result,) = h.set(stabilizer='mpc')

@@ -94,11 +94,31 @@ def test_activation_only_looks_the_prepared_plan_up(cache_dir, monkeypatch):
 def test_a_start_without_a_loaded_plan_loads_it_off_the_cycle_for_the_next_swingup(cache_dir):
     c = configured(cache_dir, precompute=False, plan_on_activation=True)
     start = ControllerState(0.0, 0.0, math.pi, 0.0, 0.0)
+    started_by, load = [], c._start_load
+
+    def recorded(x0):
+        started_by.append(threading.current_thread().name)
+        load(x0)
+
+    c._start_load = recorded
     c.activate(start)
     assert c.law == 'time_optimal:fallback(no plan)'  # this swing-up: the fall-back
+    done = threading.Event()
+
+    def loaded():
+        while c._loading and not done.wait(0.01):
+            pass
+        done.set()
+
+    watcher = threading.Thread(target=loaded)
+    watcher.start()
+    assert done.wait(60.0)
+    watcher.join()
     for thread in threading.enumerate():
         if thread.name.startswith('time_optimal-load-'):
             thread.join(timeout=60.0)
+    # The activation (in the cycle) only queued the load; the dispatcher started it.
+    assert started_by == ['time_optimal-loads']
     c.deactivate()
     c.activate(start)
     assert c.law == 'time_optimal:plan'  # the next one from there: the plan

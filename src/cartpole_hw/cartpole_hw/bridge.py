@@ -53,6 +53,13 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
   wherever the cart happens to be. A device that restarted (sequence jumps
   back) has lost its reference: ``homed`` drops and arming is refused until
   an explicit home.
+
+Stamps: each sample carries the host time at which the device took it,
+from its ``t_us`` through :class:`~cartpole_hw.device_clock.DeviceClock`
+(offset and drift from the least-delayed samples; USB latency spikes do not
+move it), not the time the line happened to arrive. A ``seq`` gap (samples
+lost on the way) is counted (``seq_gaps``, ``lost_samples``); the next
+sample's stamp is as many periods later, which is how the EKF sees it.
 """
 from __future__ import annotations
 
@@ -63,6 +70,7 @@ from dataclasses import dataclass, field
 from cartpole_sim.realtime import CycleGapMeter
 
 from . import protocol as jp
+from .device_clock import DeviceClock
 
 
 @dataclass(frozen=True)
@@ -105,6 +113,9 @@ class JointSample:
 
     receipt: float
     """Host time the line was read [s] (the clock given to the core)."""
+    stamp: float
+    """Host time [s] (same clock) at which the device took the sample: its ``t_us``
+    mapped by the :class:`~cartpole_hw.device_clock.DeviceClock`."""
     seq: int
     t_us: int
     x: float
@@ -112,6 +123,8 @@ class JointSample:
     theta: float
     """Pendulum angle [rad], pi hanging after reset (2.3)."""
     flags: int
+    missed: int = 0
+    """Samples lost just before this one (the ``seq`` gap)."""
 
 
 @dataclass
@@ -151,6 +164,9 @@ class BridgeCore:
         self.armed_at = -math.inf
         self.flags = 0
         self.tracker = jp.SequenceTracker()
+        self.device_clock = DeviceClock()
+        self.seq_gaps = 0
+        """Gaps in the sequence numbers (each one or more lost samples)."""
         self._unwrap_cart = jp.CounterUnwrapper(self.config.calibration.counter_bits)
         self._unwrap_pend = jp.CounterUnwrapper(self.config.calibration.counter_bits)
         self._since_resync = 0
@@ -400,7 +416,10 @@ class BridgeCore:
             self.homed = False
             self._unwrap_cart.reset()
             self._unwrap_pend.reset()
+            self.device_clock.reset()   # its micros() started again too
             out += self._fault('sample sequence jumped back (device restarted?): re-home')
+        elif jump > 0:
+            self.seq_gaps += 1
         if self.homing:
             return Output(out)  # counts before the reset took effect
         self.samples += 1
@@ -428,7 +447,9 @@ class BridgeCore:
         elif s.enabled and self.connected and self._since_resync >= 10:
             self._since_resync = 0
             out += [U_ZERO, E_OFF]      # E,0 was lost
-        return Output(out, JointSample(now, s.seq, s.t_us, x, theta, s.flags))
+        stamp = self.device_clock.stamp(s.t_us, now)
+        return Output(out, JointSample(now, stamp, s.seq, s.t_us, x, theta, s.flags,
+                                       max(jump, 0)))
 
     # -- health ---------------------------------------------------------------------------------------
     def latency_stats(self) -> tuple[float, float]:
@@ -452,6 +473,11 @@ class BridgeCore:
             'warm_commands': str(self.warm_run),
             'samples': str(self.samples),
             'lost_samples': str(self.tracker.lost),
+            'seq_gaps': str(self.seq_gaps),
+            'sample_latency_s': repr(self.device_clock.latency),
+            'device_clock_drift_ppm': repr(self.device_clock.drift * 1e6),
+            'device_clock_slew_s': repr(self.device_clock.offset_error),
+            'device_clock_resets': str(self.device_clock.resets),
             'bad_lines': str(sum(self.bad_lines.values())),
         }
         for reason in jp.DECODE_REASONS:

@@ -31,6 +31,9 @@ Faults of the link (for testing the bridge):
 
 - ``drop`` (``--drop-lines``): each outgoing line is lost with this probability;
 - ``corrupt``: each outgoing line gets one random byte replaced (never by ``\\n``);
+- ``usb_jitter`` (``--usb-jitter S``): each outgoing line leaves up to S
+  seconds late (uniform, seeded), in order, as a USB-serial link's latency
+  varies; the line's ``t_us`` stays the device's time of the sample;
 - stall: the USB link freezes for N ms: nothing is read (host bytes wait in
   the pty and arrive late) and the lines produced meanwhile are lost; the
   device itself keeps running (its watchdog zeroes the current);
@@ -52,6 +55,7 @@ import sys
 import threading
 import time
 import tty
+from collections import deque
 from dataclasses import dataclass, field
 
 from cartpole_sim import realtime
@@ -70,12 +74,16 @@ class FaultConfig:
 
     drop: float = 0.0
     corrupt: float = 0.0
+    usb_jitter: float = 0.0
+    """Largest extra latency of an outgoing line [s] (uniform in [0, usb_jitter])."""
     stalls: list[tuple[float, float]] = field(default_factory=list)
     """(device time [s], duration [ms]) of link stalls."""
     disconnects: list[tuple[float, float]] = field(default_factory=list)
     """(device time [s], duration [s]) of disconnects."""
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.usb_jitter) and 0.0 <= self.usb_jitter <= 1.0):
+            raise ValueError(f'usb_jitter must be in [0, 1] s, got {self.usb_jitter!r}')
         for name in ('drop', 'corrupt'):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
@@ -100,6 +108,9 @@ class Emulator:
         self.faults = faults or FaultConfig()
         self.limit_margin = float(limit_margin)
         self._rng = random.Random(seed)
+        self._usb_rng = random.Random(f'{seed}:usb')   # jitter does not change the faults' draws
+        self._outbox: deque[tuple[float, bytes]] = deque()
+        """Lines held back by the USB jitter: (release time, line), in order."""
         self._splitter = jp.LineSplitter()
         self._master: int | None = None
         self._slave: int | None = None
@@ -151,6 +162,7 @@ class Emulator:
                 except OSError:
                     pass
         self._master = self._slave = None
+        self._outbox.clear()   # lines still in flight are lost with the cable
         if self.link and os.path.islink(self.link):
             try:
                 os.unlink(self.link)
@@ -194,6 +206,25 @@ class Emulator:
             choices = [b for b in range(256) if b not in (0x0A, data[i])]
             data[i] = self._rng.choice(choices)
             line = bytes(data)
+        jitter = self.faults.usb_jitter
+        if jitter > 0.0:
+            release = time.monotonic() + self._usb_rng.uniform(0.0, jitter)
+            if self._outbox:
+                release = max(release, self._outbox[-1][0])  # USB keeps the order
+            self._outbox.append((release, line))
+            return
+        self._write(line)
+
+    def _flush_outbox(self, now: float) -> float | None:
+        """Write the held-back lines that are due; the next release time, if any."""
+        while self._outbox and self._outbox[0][0] <= now:
+            self._write(self._outbox.popleft()[1])
+        return self._outbox[0][0] if self._outbox else None
+
+    def _write(self, line: bytes) -> None:
+        if self._master is None:
+            self.tx_dropped += 1
+            return
         try:
             os.write(self._master, line)
             self.lines_out += 1
@@ -292,6 +323,7 @@ class Emulator:
                 self._reconnect_at = None
                 self.open()
             deadline = t0 + k * ts
+            release = self._flush_outbox(now)
             if now >= deadline:
                 self._receive()
                 self._scheduled_faults(k * ts)
@@ -302,7 +334,8 @@ class Emulator:
                     self.overruns += 1
                     k = int((now - t0) / ts) + 1
                 continue
-            timeout = min(deadline - now, 0.05)
+            timeout = min(deadline - now, 0.05,
+                          max(release - now, 0.0) if release is not None else 0.05)
             if self._master is not None:
                 try:
                     ready, _, _ = select.select([self._master], [], [], timeout)
@@ -375,6 +408,9 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
                    help='probability of losing any line sent (a link fault; --drop loses samples)')
     p.add_argument('--corrupt', type=_probability, default=0.0,
                    help='probability of corrupting one byte of a line')
+    p.add_argument('--usb-jitter', type=float, default=0.0, metavar='S',
+                   help='USB latency jitter: each line leaves up to S seconds late (uniform, '
+                        'seeded by --seed, order kept; t_us stays the sample time)')
     p.add_argument('--stall', type=_pair, action='append', default=[], metavar='AT:MS',
                    help='freeze the link for MS milliseconds at device time AT seconds (repeatable)')
     p.add_argument('--disconnect', type=_pair, action='append', default=[], metavar='AT:S',
@@ -389,7 +425,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         params = CartPoleParameters.from_yaml(args.params) if args.params else CartPoleParameters()
         scenario = scenario_from_args(args)
-        faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt, stalls=list(args.stall),
+        faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt,
+                             usb_jitter=args.usb_jitter, stalls=list(args.stall),
                              disconnects=list(args.disconnect))
         emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
                             limit_margin=args.limit_margin, seed=args.seed)

@@ -7,7 +7,10 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 
 - publishes ``/joint_states`` (``cart``, ``pendulum``; x from the unwrapped
   cart count (2.4), theta = pi + pendulum count (2.3); ``header.stamp`` =
-  receipt time) from the reader thread, for every valid ``S`` line;
+  the device's time of the sample, its ``t_us`` mapped to the host clock
+  (:mod:`cartpole_hw.device_clock`: USB latency jitter does not reach the
+  stamps) and read on the node clock) from the reader thread, for every valid
+  ``S`` line;
 - subscribes ``/cartpole/force_command`` (``name=['cart']``, ``effort=[F]``)
   and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed;
 - ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
@@ -23,6 +26,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
+
+from builtin_interfaces.msg import Time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -146,7 +151,7 @@ class HwBridgeNode(Node):
     # -- samples and commands ------------------------------------------------------------------
     def _publish_sample(self, sample: JointSample) -> None:
         msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = self._node_time(sample.stamp)
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
@@ -159,6 +164,19 @@ class HwBridgeNode(Node):
             self._home_pending = False
             ok, reason = self.link.call(lambda core, now: core.home(now))
             self.get_logger().info(f'home_on_start: {reason}')
+
+    def _node_time(self, link_time: float) -> Time:
+        """``link_time`` (the link's clock, monotonic) on the node clock: the two read
+        back to back, again if something came between the reads."""
+        clock, read = self.get_clock(), self.link.clock
+        for _ in range(3):
+            before = read()
+            now_ns = clock.now().nanoseconds
+            after = read()
+            if after - before < 5e-5:
+                break
+        ns = now_ns - int(round((0.5 * (before + after) - link_time) * 1e9))
+        return Time(sec=ns // 10**9, nanosec=ns % 10**9)
 
     def _on_force_command(self, msg: JointState) -> None:
         try:

@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _manager(nominal, parameters: dict[str, Any]):
     from cartpole_control.manager import ControllerManager
-    manager = ControllerManager(nominal, sample_time=nominal.sample_time)
+    manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
     result = manager.set_parameters(parameters)
     if not result.successful:
         raise ValueError(result.reason)

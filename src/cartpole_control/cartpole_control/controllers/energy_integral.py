@@ -31,6 +31,7 @@ class EnergyIntegralSwingUp(Controller):
     """
 
     kind = SWINGUP
+    running_state = ('integral', '_clock')
 
     def __init__(self) -> None:
         super().__init__()

@@ -127,6 +127,7 @@ class LqgStabilizer(Controller):
 
     kind = STABILIZER
     name = 'lqg'
+    running_state = ('_integral', '_clock')
     parameters = (
         ParameterSpec('q', (10.0, 10000.0, 10.0, 1.0, 400.0),
                       'diagonal of the state weight Q of (8.15) for [x, theta, x_dot, theta_dot] '

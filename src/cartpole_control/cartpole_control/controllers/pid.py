@@ -55,6 +55,7 @@ class PidStabilizer(Controller):
 
     kind = STABILIZER
     name = 'pid'
+    running_state = ('_integral_x', '_integral_theta', 'theta_ref', '_clock')
     parameters = (
         ParameterSpec('cart_gains', (0.4, 0.1, 0.25),
                       '[K_p, K_i, K_d] of the cart position PID C_c (8.8), from x* - x [m] to the '

@@ -157,6 +157,7 @@ class SlidingModeStabilizer(Controller):
 
     kind = STABILIZER
     name = 'smc'
+    running_state = ('_integral', '_clock', 's')
     parameters = (
         ParameterSpec('poles', (-1.0, 0.0, -4.0, 2.4, -4.0, -2.4, -1.0, 0.0),
                       'poles of the sliding motion (8.36) as [re1, im1, re2, im2, ...] [1/s], '

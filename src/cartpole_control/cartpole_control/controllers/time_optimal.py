@@ -60,8 +60,10 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import subprocess
 import threading
+import weakref
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -207,6 +209,8 @@ class TimeOptimalSwingUp(Controller):
         """Problem keys this instance has started a background solve for (once each)."""
         self._workers: list[subprocess.Popen] = []
         self._loading: set[float] = set()
+        self._requests: queue.SimpleQueue | None = None
+        """Loads asked for by activations, for the dispatcher thread (see _load_later)."""
         """Starts a worker thread is loading a plan for."""
         self._why: tuple[str, str] = ('', '')
         self._plan: Trajectory | None = None
@@ -281,7 +285,12 @@ class TimeOptimalSwingUp(Controller):
         self._prepared = {x0: p for x0, p in self._prepared.items()
                           if p.ident == self._ident(x0, self.gains, c)}
         if self.gains['precompute']:
-            self.load_plan(self.gains['plan_x0'], solve_missing=True)
+            self.load_plan(self.gains['plan_x0'], solve_missing=c.real_time)
+        if self.gains['plan_on_activation'] and self._requests is None:
+            # Started here, outside the control cycle: an activation only queues a request.
+            self._requests = queue.SimpleQueue()
+            threading.Thread(target=_dispatch_loads, args=(weakref.ref(self), self._requests),
+                             name='time_optimal-loads', daemon=True).start()
 
     @staticmethod
     def _ident(x0: float, gains: Mapping[str, Any], context: ControlContext) -> tuple:
@@ -345,11 +354,22 @@ class TimeOptimalSwingUp(Controller):
                        if previous else '')
 
     def _load_later(self, x0: float) -> None:
-        """After an activation without a plan: load it (or solve it) off the cycle."""
+        """After an activation without a plan: load it (or solve it) off the cycle.
+
+        The cycle only queues the request (microseconds); the dispatcher
+        thread started at configure starts the worker. Starting a thread in
+        the cycle cost up to the interpreter's 5 ms switch interval: the new
+        thread ran first, holding the GIL.
+        """
         if x0 in self._loading:
             return
         self._loading.add(x0)
+        if self._requests is not None:
+            self._requests.put(x0)
+        else:
+            self._start_load(x0)
 
+    def _start_load(self, x0: float) -> None:
         def work() -> None:
             try:
                 self.load_plan(x0, solve_missing=True)
@@ -387,6 +407,18 @@ class TimeOptimalSwingUp(Controller):
                                                               2.0 * math.pi) - math.pi
             self.mode, self.fallback_reason = PLAN, ''
             self._law = f'{self.name}:{PLAN}'
+
+    running_state = ('mode', 'fallback_reason', '_law', '_plan', '_gains_k', '_t0',
+                     '_theta_offset', '_why')
+
+    def take_over(self, previous: Controller, state: ControllerState) -> None:
+        """Go on with ``previous``'s swing-up (new gains while it runs): the plan it tracks
+        (with its gains) or its fall-back; nothing is looked up or logged."""
+        self.active = True
+        for attribute in self.running_state:
+            setattr(self, attribute, getattr(previous, attribute))
+        if self.mode == FALLBACK:
+            self.fallback.take_over(previous.fallback, state)
 
     def _fall_back(self, state: ControllerState, why: str, detail: str = '') -> None:
         self.mode = FALLBACK
@@ -427,3 +459,23 @@ class TimeOptimalSwingUp(Controller):
                 return force - self.context.feedforward(state.x_dot, force)
             self._fall_back(state, *self._why)
         return self.fallback.update(state)
+
+
+def _dispatch_loads(owner: 'weakref.ref[TimeOptimalSwingUp]', requests: queue.SimpleQueue) -> None:
+    """Start the plan loads that ``owner``'s activations queued; end with the plugin.
+
+    A daemon: it only waits and starts the (non-daemon) load workers, so
+    nothing is cut short when the interpreter exits.
+    """
+    while True:
+        try:
+            x0 = requests.get(timeout=1.0)
+        except queue.Empty:
+            if owner() is None:
+                return
+            continue
+        plugin = owner()
+        if plugin is None:
+            return
+        plugin._start_load(x0)
+        del plugin

@@ -1,0 +1,180 @@
+"""Device time on the host's clock: the stamp of each sample from the device's ``t_us``.
+
+The device samples its encoders every 5 ms on its own crystal and sends the
+sample with ``t_us``, its ``micros()`` at that moment (uint32, wraps every
+2**32 us = 71.6 min, SPEC section 4). The line reaches the host after a
+latency ``d`` (UART, the USB-serial chip's buffering, the USB frame, the
+kernel, this process being scheduled) that is never below some ``d_min`` and
+sometimes milliseconds above it. With device time ``tau`` (unwrapped, [s])
+and the host's receipt time ``r`` of the line,
+
+    r = c + (1 + e) tau + d,    d >= d_min,
+
+with ``c`` the clock offset and ``e`` the relative drift of the two clocks
+(tens of ppm for a crystal). The host time of the sample is
+``c + (1 + e) tau``: this module estimates it, the way NTP and PTP filter
+their offset samples (take the least-delayed ones):
+
+- **lower envelope.** The observations ``y = r - tau`` scatter above the line
+  ``c + e tau`` (plus ``d_min``, which no host measurement can separate from
+  ``c``: the stamps are the sample times plus the smallest latency seen, a
+  constant). Per ``block`` seconds of device time the least-delayed
+  observation is kept; latency spikes lie above it and never move it.
+- **drift by a slow fit.** ``e`` is the Theil-Sen slope (median of the
+  pairwise slopes) of the block minima over the last ``window`` seconds: a
+  block that was all spikes (a USB stall) is outvoted. The offset is then the
+  lowest point of the window relative to that slope.
+- **slewed, not stepped.** The offset applied to the stamps moves towards the
+  estimate by at most ``max_slew`` seconds per sample (20 us: the stamps'
+  intervals stay within Ts +/- 0.02 ms while the estimate converges), so
+  the EKF, which integrates over stamp differences, sees the device's even
+  5 ms steps and not the host's jitter. An error beyond ``step_limit`` (the
+  first sample, a restarted device, a host clock jump) is stepped at once.
+
+``t_us`` is unwrapped (a step of ``(t_us - last) mod 2**32`` below 2**31 is
+time going forward; anything else means the device restarted: the mapping
+starts again). Lost samples (``seq`` gaps) need nothing here: the next
+sample's ``t_us`` is that many periods later, so its stamp is too, and the
+EKF predicts across the gap and counts the missed samples from the stamps.
+
+Pure code, no ROS; times in seconds of the clock given as ``receipt``.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+UINT32 = 2 ** 32
+
+
+@dataclass(frozen=True)
+class DeviceClockConfig:
+    """Tuning of :class:`DeviceClock` (module docstring)."""
+
+    block: float = 0.5
+    """Device seconds per block; the least-delayed observation of each is kept."""
+    window: float = 20.0
+    """Device seconds of blocks the drift and offset are estimated from."""
+    max_slew: float = 2e-5
+    """Largest change of the applied offset per sample [s]."""
+    step_limit: float = 0.05
+    """An offset error beyond this is stepped, not slewed [s]."""
+    max_drift: float = 1e-3
+    """Drift estimates are clamped to +/- this (1000 ppm: no crystal is worse)."""
+
+    def __post_init__(self) -> None:
+        for name in ('block', 'window', 'max_slew', 'step_limit', 'max_drift'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be > 0, got {value!r}')
+        if self.window < 2.0 * self.block:
+            raise ValueError(f'window {self.window:g} s must hold at least two blocks of '
+                             f'{self.block:g} s')
+
+
+class DeviceClock:
+    """Maps the device's ``t_us`` to host time (module docstring)."""
+
+    def __init__(self, config: DeviceClockConfig | None = None) -> None:
+        self.config = config or DeviceClockConfig()
+        self.resets = 0
+        """Restarts of the mapping after the first (a device restart, a host clock jump)."""
+        self.steps = 0
+        """Offset steps (the first sample's included)."""
+        self.reset()
+        self.resets = 0
+
+    def reset(self) -> None:
+        """Forget the mapping: the next sample starts it again."""
+        self.resets += 1
+        self._last_raw: int | None = None
+        self._device_us = 0
+        """Unwrapped device time since the first sample [us] (an int: exact)."""
+        self._blocks: deque[tuple[float, float]] = deque()
+        """(tau, y) of the least-delayed observation of each finished block."""
+        self._block_start = 0.0
+        self._block_min: tuple[float, float] | None = None
+        self.drift = 0.0
+        """Estimated relative drift e of the device clock against the host's."""
+        self._offset_applied: float | None = None
+        self._tau_last = 0.0
+        self.offset_error = 0.0
+        """Estimate minus applied offset at the last sample [s] (what is still being slewed)."""
+        self.latency = math.nan
+        """Receipt minus stamp of the last sample [s]: its latency above the smallest seen."""
+
+    def device_time(self, t_us: int) -> float | None:
+        """Unwrapped device seconds since the mapping started; None (and a reset) if ``t_us``
+        went backwards."""
+        t_us = int(t_us) % UINT32
+        if self._last_raw is not None:
+            delta = (t_us - self._last_raw) % UINT32
+            if delta >= UINT32 // 2:
+                return None
+            self._device_us += delta
+        self._last_raw = t_us
+        return self._device_us * 1e-6
+
+    def stamp(self, t_us: int, receipt: float) -> float:
+        """The host time [s] at which the device took the sample stamped ``t_us``, received at
+        ``receipt`` (host seconds)."""
+        tau = self.device_time(t_us)
+        if tau is None:
+            self.reset()
+            tau = self.device_time(t_us)
+        y = receipt - tau
+        self._observe(tau, y)
+        target = self._estimate(tau)
+        if self._offset_applied is None:
+            applied = target
+            self.steps += 1
+        else:
+            predicted = self._offset_applied + self.drift * (tau - self._tau_last)
+            error = target - predicted
+            if abs(error) > self.config.step_limit:
+                # A host clock jump or a device restart: start the mapping again here.
+                self.reset()
+                return self.stamp(t_us, receipt)
+            else:
+                slew = self.config.max_slew
+                applied = predicted + max(-slew, min(slew, error))
+        self._offset_applied, self._tau_last = applied, tau
+        self.offset_error = target - applied
+        stamp = tau + applied
+        self.latency = receipt - stamp
+        return stamp
+
+    # -- the estimate -------------------------------------------------------------------------
+    def _observe(self, tau: float, y: float) -> None:
+        cfg = self.config
+        if self._block_min is None:
+            self._block_start, self._block_min = tau, (tau, y)
+            return
+        if tau - self._block_start >= cfg.block:
+            self._blocks.append(self._block_min)
+            while self._blocks and tau - self._blocks[0][0] > cfg.window:
+                self._blocks.popleft()
+            self._block_start, self._block_min = tau, (tau, y)
+            self.drift = self._slope()
+        elif y < self._block_min[1]:
+            self._block_min = (tau, y)
+
+    def _slope(self) -> float:
+        """Theil-Sen slope of the finished blocks' minima (0 with fewer than three)."""
+        points = list(self._blocks)
+        if len(points) < 3:
+            return 0.0
+        slopes = sorted((y2 - y1) / (t2 - t1) for i, (t1, y1) in enumerate(points)
+                        for t2, y2 in points[i + 1:] if t2 > t1)
+        middle = len(slopes) // 2
+        slope = slopes[middle] if len(slopes) % 2 else 0.5 * (slopes[middle - 1] + slopes[middle])
+        bound = self.config.max_drift
+        return max(-bound, min(bound, slope))
+
+    def _estimate(self, tau: float) -> float:
+        """The lower envelope at ``tau``: the lowest observation kept, carried along the drift."""
+        e = self.drift
+        lowest = min((y + e * (tau - t) for t, y in self._blocks), default=math.inf)
+        t, y = self._block_min
+        return min(lowest, y + e * (tau - t))
