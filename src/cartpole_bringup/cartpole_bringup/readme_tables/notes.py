@@ -69,7 +69,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         '`catch_count`, `fall_count`, `event`, `state_stamp`, `swingup_law` (the swing-up '
         "plugin's `law`: its name, or for `time_optimal` `time_optimal:plan` / "
         '`time_optimal:fallback(<why>)`; while stabilising, the law that swung up), '
-        '`longest_cycle_gap_s` (the longest wall-clock gap between two cycles since start). '
+        '`longest_cycle_gap_s` (the longest wall-clock gap between two cycles since start), '
+        '`cycle_compute_s` / `max_cycle_compute_s` (the compute time of this cycle / the '
+        'longest since start [s]). '
         'Numbers are `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
         '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
         'joined by `;`',
