@@ -116,7 +116,10 @@ def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_
                           manager_parameters={'lqg.q': [100.0, 400.0, 100.0, 400.0]},
                           ekf_config=ekf)
     assert run.catch_time is not None and not run.summary['success']
-    assert 'fault:rail guard' in [e for _, e in run.events]
+    # The pendulum is lost: the rail guard's limiter bends the drifting cart back and the
+    # pendulum falls (the guard without its limiter trips instead).
+    events = [e for _, e in run.events]
+    assert 'fall' in events or 'fault:rail guard' in events
     assert not run.end_stop_contact
     assert run.x.min() >= 0.0 and run.x.max() <= NOMINAL.travel
 

@@ -57,10 +57,13 @@ def test_cartpole_offline_takes_the_disturbance_options():
 
 
 def test_stop_on_failure_ends_a_failed_run_early_with_the_same_trajectory():
-    # A cart half as heavy as the model: the swing-up drives it into the rail guard's fault.
+    # A cart half as heavy as the model: the swing-up drives it into the rail guard's fault
+    # (the guard without its limiter, which would bend the cart back instead).
     scenario = Scenario(noise=True, cart_mass=2.0)
-    full = run_closed_loop(scenario=scenario, duration=20.0)
-    short = run_closed_loop(scenario=scenario, duration=20.0, stop_on_failure=True)
+    trip = {'rail.limit': False}
+    full = run_closed_loop(scenario=scenario, duration=20.0, manager_parameters=trip)
+    short = run_closed_loop(scenario=scenario, duration=20.0, stop_on_failure=True,
+                            manager_parameters=trip)
     assert not full.summary['success']
     faults = [e for _, e in full.events if e.startswith('fault:')]
     assert faults == ['fault:rail guard'], faults      # that fault, once, and no other

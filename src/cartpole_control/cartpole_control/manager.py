@@ -41,6 +41,7 @@ from cartpole_sim.model import CartPoleParameters, acceleration_function, pendul
 from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec
 from .rail_guard import BRAKING, STOPPED
+from .prediction import predict_state
 from .registry import load_controllers
 from .staging import StagedChange, Stager, plugin_gains
 
@@ -58,7 +59,7 @@ DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
 _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 
-MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
+MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'predict', 'rail')
 """Parameter groups of the manager itself; a plugin cannot take these names."""
 
 
@@ -263,6 +264,18 @@ class ControllerManager:
                           low=0.0, high=0.1),
             ParameterSpec('rail.rest_speed', 0.02, 'Rail guard: |x_dot| below which the cart is at '
                           'rest [m/s]', low=0.001, high=0.5),
+            ParameterSpec('rail.creep_speed', 0.1, 'Rail guard: inside a margin a cart slower '
+                          'than this counts as at rest [m/s] (the noisy velocity of a cart '
+                          'resting at a stop)', low=0.0, high=0.5),
+            ParameterSpec('rail.limit', True, 'Rail guard: limit the command of a moving cart to '
+                          'the braking envelope before tripping (false: trip at once)'),
+            ParameterSpec('rail.limit_reserve', 0.05, 'Rail guard: the limiter keeps the '
+                          'stopping position this much further from the stops than the trip '
+                          'test [m]', low=0.0, high=0.3),
+            ParameterSpec('predict.horizon', 0.0, 'Delay compensation: the controllers and the '
+                          'catch trigger see the estimate predicted this far ahead under the '
+                          'last command (cartpole_control.prediction) [s]; 0 = off; about the '
+                          "rig's loop latency", low=0.0, high=0.05),
             ParameterSpec('state_timeout', 0.05, 'No state for this long: zero force, fault '
                           "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),
         ]
@@ -498,6 +511,11 @@ class ControllerManager:
             self._last_force = 0.0
             self._energy = math.nan
             return self._output(t, 0.0, 0.0, 0.0, events)
+        guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
+        horizon = self._values['predict.horizon']
+        if horizon > 0.0:
+            x, theta, x_dot, theta_dot = predict_state(self._acc, x, theta, x_dot, theta_dot,
+                                                       self._last_force, horizon)
         x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
         state = _controller_state(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
         p = self.plant
@@ -543,7 +561,7 @@ class ControllerManager:
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
-            force, tripped = guard.command(x, x_dot, theta_dot, force)
+            force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force)
             if tripped:
                 self._fault('rail guard', events)
         if active is not None and active is self._active \

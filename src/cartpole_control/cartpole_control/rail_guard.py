@@ -24,16 +24,39 @@ plus gravity). If ``x_1 +- d`` would leave ``[margin, travel - margin]`` while
 the cart moves towards that side:
 
 - a cart at rest (``|x_dot| <= rest_speed``, e.g. sitting at the left stop
-  after reset), or moving away from that stop (only the commanded force would
-  carry it there), is not braked; only the force pushing it towards that stop
-  is withheld (set to zero). Inside a margin, a push further in is withheld
-  whatever the velocity estimate says. Pushing away from a stop is always
-  allowed.
-- a moving cart trips the guard: it brakes with the full opposing force
-  (the last step proportional, ``(m_c + m_p) |v| / Ts``, so it does not
-  reverse the cart) until ``|x_dot| <= rest_speed``, then holds zero force.
-  The guard stays tripped until :meth:`reset`; the manager reports the fault
-  ``rail guard``.
+  after reset) is not braked; only the force pushing it towards that stop is
+  withheld (set to zero). Pushing away from a stop is always allowed. Inside
+  a margin a push towards that stop is withheld whatever the velocity
+  estimate says (a noisy estimate of a resting cart may show it moving
+  away), and a cart slower than ``creep_speed`` (0.1 m/s) counts as at
+  rest there: a hysteresis band for the noisy velocity of a cart resting at
+  a stop, which the trip would otherwise kick with the full brake and drop
+  the pendulum for. It is safe because the braking envelope admits a cart
+  into the margin only slowly (its stop was kept outside the margin), and
+  the cart's own Coulomb friction (2.45-3.4 N) stops 0.1 m/s within 1 cm
+  with no push towards the stop.
+- before that test, a moving cart (``limit`` on, the default) whose stop
+  would leave ``[margin + r, travel - margin - r]`` (``r`` =
+  ``limit_reserve``, 5 cm) gets its command **limited**: the force becomes
+  the one nearest the command whose stopping position stays on that inner
+  boundary, found by bisection on ``[-F_b, F]`` (the stopping position
+  grows monotonically with F); if even the full brake F_b does not keep it
+  there, the full brake (a cart at rest there only has a push further in
+  withheld). This is the braking-distance envelope used as a
+  control barrier (the safe set ``{stop(x, F) inside}`` is kept invariant
+  by the least intervention on the command, Ames et al., "Control barrier
+  functions: theory and applications", ECC 2019, section III): a swing-up or
+  a catch transient that would reach the envelope is bent back by it
+  instead of losing the pendulum to a trip. The limited force then goes
+  through the trip test below, so the guard brakes at least as early as
+  without the limiter; the reserve ``r`` is what an unmodelled delay or a
+  mismatched plant may use up before the trip test fails.
+- a moving cart whose (limited) command still leaves
+  ``[margin, travel - margin]`` trips the guard:
+  it brakes with the full opposing force (the last step proportional,
+  ``(m_c + m_p) |v| / Ts``, so it does not reverse the cart) until
+  ``|x_dot| <= rest_speed``, then holds zero force. The guard stays tripped
+  until :meth:`reset`; the manager reports the fault ``rail guard``.
 
 No ROS import.
 """
@@ -48,6 +71,8 @@ ARMED = 'armed'
 LIMITED = 'limited'
 BRAKING = 'braking'
 STOPPED = 'stopped'
+LIMIT_ITERATIONS = 24
+"""Bisection steps of the limited force (resolution ``(F + F_b) / 2**24``, micro-newtons)."""
 HOLD_SPEED = 0.002
 """[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
 
@@ -80,16 +105,32 @@ class RailGuard:
         Loop latency before a command acts [s] (one sample period by default).
     rest_speed
         |x_dot| [m/s] below which the cart counts as at rest.
+    creep_speed
+        Inside a margin a cart slower than this [m/s] counts as at rest
+        (module docstring); at most ``rest_speed`` turns it off.
+    limit
+        Limit the command of a moving cart to the braking envelope before
+        tripping (module docstring); False trips at once.
+    limit_reserve
+        The limiter keeps the stopping position this much [m] further from
+        the stops than the trip test does.
     """
 
     def __init__(self, params: CartPoleParameters, margin: float = 0.02,
                  max_brake_force: float = 30.0, latency: float | None = None,
-                 rest_speed: float = 0.02) -> None:
+                 rest_speed: float = 0.02, creep_speed: float = 0.1,
+                 limit: bool = True, limit_reserve: float = 0.05) -> None:
         self.params = params
         self.margin = float(margin)
         self.max_brake_force = float(max_brake_force)
         self.latency = params.sample_time if latency is None else float(latency)
         self.rest_speed = float(rest_speed)
+        self.limit = bool(limit)
+        self.creep_speed = float(creep_speed)
+        self.limit_reserve = float(limit_reserve)
+        if not (math.isfinite(self.limit_reserve) and
+                0.0 <= self.limit_reserve < 0.5 * params.travel - self.margin):
+            raise ValueError(f'limit_reserve must be in [0, travel/2 - margin), got {limit_reserve!r}')
         if not 0.0 <= self.margin < 0.5 * params.travel:
             raise ValueError(f'margin must be in [0, travel/2), got {margin!r}')
         if not self.max_brake_force > 0.0:
@@ -98,6 +139,8 @@ class RailGuard:
             raise ValueError(f'latency must be >= 0, got {latency!r}')
         if not self.rest_speed > 0.0:
             raise ValueError(f'rest_speed must be > 0, got {rest_speed!r}')
+        if not (math.isfinite(self.creep_speed) and self.creep_speed >= 0.0):
+            raise ValueError(f'creep_speed must be >= 0, got {creep_speed!r}')
         self.status = ARMED
         # Constants of the per-cycle arithmetic, computed once (the guard's
         # settings are fixed after construction; the manager builds a new guard
@@ -168,22 +211,82 @@ class RailGuard:
             return self._hold(x, x_dot), False
         if status == BRAKING:
             return self._brake(x_dot), False
+        speed = abs(x_dot)
+        at_rest = speed <= self.rest_speed or speed <= self.creep_speed and self._in_margin(x)
+        limited = False
         stop = self.stopping_position(x, x_dot, theta_dot, force)
-        # Inside a margin a push further in is never passed, whatever x_dot reads.
-        towards_right = (stop > self._high and stop > x) or (x > self._high and force > 0.0)
-        towards_left = (stop < self.margin and stop < x) or (x < self.margin and force < 0.0)
+        if self.limit:
+            low, high = self.margin + self.limit_reserve, self._high - self.limit_reserve
+            right = stop > high and stop > x
+            if right or stop < low and stop < x:
+                if at_rest:  # no push further in (a full one would start a brake chatter)
+                    force = min(force, 0.0) if right else max(force, 0.0)
+                else:
+                    force = self._limited_force(x, x_dot, theta_dot, force, right,
+                                                high if right else low)
+                stop = self.stopping_position(x, x_dot, theta_dot, force)
+                limited = True
+        towards_right = stop > self._high and stop > x
+        towards_left = stop < self.margin and stop < x
         if not (towards_right or towards_left):
-            self.status = ARMED
+            force, _ = self._margin_zone(x, force)
+            if limited:
+                self.status = LIMITED
             return force, False
-        if abs(x_dot) <= self.rest_speed or (x_dot < 0.0 if towards_right else x_dot > 0.0):
-            # At rest, or moving away from that stop (only the command would carry
-            # the cart there): never push further in, but allow pushing out. Braking
-            # against x_dot here would push towards the very stop (a cart at the left
-            # stop whose noisy velocity estimate reads +3 cm/s).
+        if at_rest:
+            # At rest near a stop: never push further in, but allow pushing out.
             self.status = LIMITED
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
         return self._brake(x_dot), True
+
+    def _in_margin(self, x: float) -> bool:
+        """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""
+        return x < self.margin or x > self._high
+
+    def _margin_zone(self, x: float, force: float) -> tuple[float, bool]:
+        """Inside a margin, never push towards that stop (whatever the velocity estimate says).
+
+        A cart resting at the left stop after reset, with a noisy velocity
+        estimate, may look as moving away from the stop; a push towards it is
+        then no braking and would press the cart into it. Inside
+        ``[0, margin)`` (or ``(travel - margin, travel]``) such a push is
+        withheld, status ``limited``; pushing out is always allowed.
+        """
+        if force < 0.0 and x < self.margin or force > 0.0 and x > self._high:
+            self.status = LIMITED
+            return 0.0, False
+        self.status = ARMED
+        return force, False
+
+    def _limited_force(self, x: float, x_dot: float, theta_dot: float, force: float,
+                       towards_right: bool, boundary: float) -> float:
+        """The force nearest ``force`` whose stopping position stays inside ``boundary``.
+
+        Towards the right stop the admissible forces are those with
+        ``stop(F) <= boundary``: the largest is sought in ``[-F_b, F]``;
+        towards the left the smallest with ``stop(F) >= boundary`` in
+        ``[F, F_b]``. If even the full brake F_b does not keep the stop inside,
+        the full brake (or a stronger command against the motion).
+        """
+        if towards_right:
+            safe = -self._brake_pos
+            if safe >= force or self.stopping_position(x, x_dot, theta_dot, safe) > boundary:
+                return min(force, safe)
+            inside = lambda f: self.stopping_position(x, x_dot, theta_dot, f) <= boundary  # noqa: E731
+        else:
+            safe = self._brake_neg
+            if safe <= force or self.stopping_position(x, x_dot, theta_dot, safe) < boundary:
+                return max(force, safe)
+            inside = lambda f: self.stopping_position(x, x_dot, theta_dot, f) >= boundary  # noqa: E731
+        unsafe = force
+        for _ in range(LIMIT_ITERATIONS):
+            middle = 0.5 * (safe + unsafe)
+            if inside(middle):
+                safe = middle
+            else:
+                unsafe = middle
+        return safe
 
     def _hold(self, x: float, x_dot: float) -> float:
         """After a trip, at rest: zero force, unless the cart creeps towards the nearer stop.

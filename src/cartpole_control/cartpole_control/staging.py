@@ -114,7 +114,9 @@ class Stager:
                                fall_angle=math.radians(v['fall.angle_deg']))
         guard = RailGuard(self.plant, margin=v['rail.margin'],
                           max_brake_force=v['rail.max_brake_force'],
-                          latency=v['rail.latency'], rest_speed=v['rail.rest_speed'])
+                          latency=v['rail.latency'], rest_speed=v['rail.rest_speed'],
+                          creep_speed=v['rail.creep_speed'], limit=v['rail.limit'],
+                          limit_reserve=v['rail.limit_reserve'])
         return trigger, friction_feedforward(v), guard
 
     def plugin(self, kind: str, name: str, values: Mapping[str, Any],

@@ -9,6 +9,7 @@ from cartpole_control.controller import (STABILIZER, SWINGUP, Controller, Contro
 from cartpole_control.feedforward import FrictionFeedforward
 from cartpole_control.manager import (FAULT, IDLE, STABILIZING, SWINGUP_MODE, ControllerManager,
                                       ManagerOutput)
+from cartpole_control.rail_guard import LIMITED
 from cartpole_sim.model import CartPoleParameters, accelerations, wrap_angle
 from cartpole_sim.plant import Plant, Scenario
 
@@ -610,8 +611,19 @@ def run(manager, plant, seconds, on_step=None):
     return outs
 
 
-def test_rail_guard_overrides_a_controller_pushing_into_the_stop():
+def test_rail_guard_limiter_holds_a_controller_pushing_into_the_stop_without_a_fault():
     m = make(swingup='push_a', **{'push_a.force': 100.0})
+    plant = Plant(P, Scenario(x0=P.x_middle))
+    outs = run(m, plant, 1.5)
+    assert not plant.end_stop_contact
+    assert all(o.mode == SWINGUP_MODE and not o.event for o in outs)
+    assert m.guard_status == LIMITED
+    assert plant.true_state()[0] < P.travel - 0.02
+
+
+def test_rail_guard_overrides_a_controller_pushing_into_the_stop():
+    # The trip path: with the limiter off the guard trips at once.
+    m = make(swingup='push_a', **{'push_a.force': 100.0, 'rail.limit': False})
     plant = Plant(P, Scenario(x0=P.x_middle))
     outs = run(m, plant, 1.5)
     assert not plant.end_stop_contact

@@ -117,7 +117,7 @@ def test_zero_force_alone_does_not_stop_a_cart_at_2_m_per_s():
 def test_the_guard_stops_a_fast_cart_before_the_stop(x0, v0):
     # The controller keeps pushing along the motion at full force.
     push = P.force_max if v0 > 0 else P.force_min
-    plant, guard, log = run_guarded(Scenario(x0=x0, x_dot0=v0), lambda s: push)
+    plant, guard, log = run_guarded(Scenario(x0=x0, x_dot0=v0), lambda s: push, limit=False)
     assert not plant.end_stop_contact
     assert guard.status == STOPPED
     x_min = min(row[1] for row in log)
@@ -134,16 +134,71 @@ def test_the_guard_allows_for_a_swinging_pendulum():
         push = P.force_max if v0 > 0 else P.force_min
         plant, guard, _ = run_guarded(
             Scenario(x0=P.x_middle, x_dot0=v0, theta0=math.pi, theta_dot0=theta_dot),
-            lambda s: push)
+            lambda s: push, limit=False)
         assert not plant.end_stop_contact
         assert guard.status == STOPPED
 
 
 def test_a_controller_creeping_into_the_stop_is_stopped_at_the_margin():
-    plant, guard, log = run_guarded(Scenario(x0=0.3), lambda s: -6.0, seconds=2.0, margin=0.02)
+    plant, guard, log = run_guarded(Scenario(x0=0.3), lambda s: -6.0, seconds=2.0, margin=0.02,
+                                    limit=False)
     assert not plant.end_stop_contact
     assert guard.status == STOPPED
     assert plant.true_state()[0] > 0.0
+
+
+@pytest.mark.parametrize('x0, v0', [(P.x_middle, 1.0), (P.x_middle, -1.0), (0.2, 0.5),
+                                    (0.6, -1.2)])
+def test_the_limiter_bends_a_pushing_controller_back_without_a_trip(x0, v0):
+    # The controller keeps pushing along the motion (12 N); the limiter keeps the stop
+    # inside [margin + reserve, travel - margin - reserve]: no trip, no contact, and the
+    # cart held short of the margin while the push goes on.
+    push = 12.0 if v0 > 0 else -12.0
+    plant, guard, log = run_guarded(Scenario(x0=x0, x_dot0=v0), lambda s: push)
+    assert not plant.end_stop_contact
+    assert not guard.tripped
+    assert all(row[4] in (ARMED, LIMITED) for row in log)
+    assert any(row[4] == LIMITED for row in log)
+    x_end = plant.true_state()[0]
+    assert guard.margin < x_end < P.travel - guard.margin
+
+
+@pytest.mark.parametrize('x0, v0', [(P.x_middle, 2.0), (P.x_middle, -2.0), (0.6, -2.5)])
+def test_with_the_limiter_a_fast_cart_still_stops_before_the_stop(x0, v0):
+    push = P.force_max if v0 > 0 else P.force_min
+    plant, guard, log = run_guarded(Scenario(x0=x0, x_dot0=v0), lambda s: push)
+    assert not plant.end_stop_contact
+    assert 0.0 < min(row[1] for row in log) and max(row[1] for row in log) < P.travel
+    assert abs(plant.true_state()[2]) < 0.05
+
+
+def test_the_limited_force_puts_the_stop_on_the_inner_boundary():
+    guard = RailGuard(P, margin=0.02, limit_reserve=0.05)
+    v = 1.2
+    boundary = P.travel - 0.02 - 0.05
+    # The stopping position is x plus a distance: put the boundary between the full
+    # brake's stop and the command's.
+    with_brake = guard.stopping_position(0.0, v, 0.0, -guard.brake_force(1.0))
+    with_command = guard.stopping_position(0.0, v, 0.0, 10.0)
+    assert with_brake < with_command
+    x = boundary - 0.5 * (with_brake + with_command)
+    force, tripped = guard.command(x, v, 0.0, 10.0)
+    assert not tripped and guard.status == LIMITED
+    assert -guard.brake_force(1.0) < force < 10.0
+    assert guard.stopping_position(x, v, 0.0, force) == pytest.approx(boundary, abs=1e-5)
+
+
+def test_a_noisy_velocity_of_a_cart_resting_at_the_stop_neither_trips_nor_pushes_in():
+    # At the left stop the estimate says 6 cm/s towards the stop (noise): withheld, no trip;
+    # pushing out stays allowed. Outside the margin the same speed is a moving cart.
+    guard = RailGuard(P)
+    assert guard.command(0.0004, -0.06, 0.0, -4.0) == (0.0, False)
+    assert guard.status == LIMITED
+    assert guard.command(0.0004, -0.06, 0.0, 5.0) == (5.0, False)
+    assert guard.command(0.0004, 0.03, 0.0, -4.0) == (0.0, False)  # looks moving out: still withheld
+    assert not guard.tripped
+    guard = RailGuard(P, creep_speed=0.0)
+    assert guard.command(0.0004, -0.06, 0.0, -4.0)[1]  # the band off: a trip
 
 
 def test_invalid_settings_are_refused():
@@ -153,6 +208,10 @@ def test_invalid_settings_are_refused():
         RailGuard(P, max_brake_force=0.0)
     with pytest.raises(ValueError):
         RailGuard(P, rest_speed=0.0)
+    with pytest.raises(ValueError):
+        RailGuard(P, creep_speed=-0.1)
+    with pytest.raises(ValueError):
+        RailGuard(P, limit_reserve=0.4)
 
 
 def test_cached_constants_give_the_formulas_bit_for_bit():
