@@ -247,7 +247,8 @@ def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
 
     path = Path(path)
     if not (path / 'metadata.yaml').is_file() and not path.is_file():
-        raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml)')
+        raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml); if its '
+                                f'recording was cut short, run `cartpole bag repair {path}`')
     builder = SeriesBuilder()
     wanted = {TRUE_STATE, STATE, FORCE, STATUS, HW_HEALTH}
     last_status = None

@@ -11,21 +11,25 @@ Run alone next to a graph started otherwise::
     ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag
 
 The bag is closed (``metadata.yaml`` written) when the node is destroyed,
-on Ctrl-C and on SIGTERM alike.
+on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
+chunks at most ``flush_period`` old (also while no message arrives: a wall
+timer writes an idle chunk), so a recorder killed with SIGKILL loses at most
+that much; ``cartpole bag repair BAG`` makes the rest readable.
 """
 from __future__ import annotations
 
 import datetime as _dt
 from pathlib import Path
 
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from cartpole_sim.node_main import run_node
 
-from .bag import TOPICS, BagWriter
+from .bag import FLUSH_PERIOD, TOPICS, BagWriter
 
 
 def _import_type(name: str):
@@ -69,6 +73,10 @@ class RecorderNode(Node):
             description="Log time of each message: 'stamp' (its header stamp; simulated time "
                         "in lockstep) or 'receive' (the node clock when it arrived).",
             read_only=True))
+        self.declare_parameter('flush_period', FLUSH_PERIOD, ParameterDescriptor(
+            description='Longest time [s] a received message waits in memory before it is '
+                        'written to the file (what a SIGKILL can lose).', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
         self.declare_parameter('queue_depth', 200, ParameterDescriptor(
             description='Subscription queue depth (reliable QoS).', read_only=True,
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
@@ -79,14 +87,23 @@ class RecorderNode(Node):
             raise ValueError(f'cannot record {unknown}: known topics are {sorted(TOPICS)}')
         custom = parse_custom_data(c for c in self.get_parameter('custom_data').value if c)
         output = self.get_parameter('output').value or default_output()
+        flush_period = float(self.get_parameter('flush_period').value)
         self._bag = BagWriter(Path(output), {t: TOPICS[t] for t in topics}, custom,
-                              log_time=str(self.get_parameter('log_time').value))
+                              log_time=str(self.get_parameter('log_time').value),
+                              flush_period=flush_period)
         qos = QoSProfile(depth=int(self.get_parameter('queue_depth').value),
                          reliability=ReliabilityPolicy.RELIABLE)
         for topic in topics:
             self.create_subscription(_import_type(TOPICS[topic]), topic,
                                      self._writer_for(topic), qos, raw=True)
+        # Wall clock: an idle chunk is written even when /clock (sim time) stands still.
+        self.create_timer(min(0.1, flush_period / 2), self._flush_if_due,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
+
+    def _flush_if_due(self) -> None:
+        if not self._bag.closed:
+            self._bag.flush_if_due()
 
     def _writer_for(self, topic: str):
         def write(data: bytes) -> None:
