@@ -19,6 +19,7 @@ from cartpole_sim.model import CartPoleParameters, pendulum_energy
 from cartpole_sim.plant import Plant, Scenario
 
 from . import metrics
+from .timeline import spans_from_modes
 
 
 @dataclass
@@ -70,6 +71,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     plant = Plant(nominal, scenario, integration_step=integration_step)
     ekf = ExtendedKalmanFilter(nominal, ekf_config or EkfConfig())
     manager = ControllerManager(nominal, sample_time=nominal.sample_time)
+    started_with = manager.get_parameters()  # the plugins before any switch
     if manager_parameters:
         result = manager.set_parameters(dict(manager_parameters))
         if not result.successful:
@@ -130,6 +132,18 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     energy=energy, mode=modes, events=events, catch_time=catch_time,
                     end_stop_contact=plant.end_stop_contact, x_ref=x_ref,
                     upright_energy=true_params.upright_energy)
-    run.summary = metrics.summarize(run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
-                                    end_stop_contact=plant.end_stop_contact)
+    run.summary = metrics.summarize(
+        run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
+        end_stop_contact=plant.end_stop_contact, fault=first_fault(events),
+        controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
+                                     started_with['stabilizer']))
     return run
+
+
+def first_fault(events: list[tuple[float, str]]) -> str | None:
+    """The reason of the manager's first ``fault:<reason>`` event, None if it never faulted."""
+    for _, text in events:
+        for event in text.split(';'):
+            if event.startswith('fault:'):
+                return event[len('fault:'):]
+    return None

@@ -12,17 +12,19 @@ Run alone next to a graph started otherwise::
 
 The bag is closed (``metadata.yaml`` written) when the node is destroyed,
 on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
-chunks at most ``flush_period`` old (also while no message arrives: a wall
-timer writes an idle chunk), so a recorder killed with SIGKILL loses at most
+chunks at most ``flush_period`` old (also while no message arrives: a
+thread writes an idle chunk on the wall clock), so a recorder killed with SIGKILL loses at most
 that much; ``cartpole bag repair BAG`` makes the rest readable.
 """
 from __future__ import annotations
 
+import collections
 import datetime as _dt
+import threading
+import time
 from pathlib import Path
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -30,6 +32,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from cartpole_sim.node_main import run_node
 
 from .bag import FLUSH_PERIOD, TOPICS, BagWriter
+
+
+WRITE_PERIOD = 0.01
+"""Wall seconds between two looks of the writer thread at the queue."""
 
 
 def _import_type(name: str):
@@ -96,20 +102,34 @@ class RecorderNode(Node):
         for topic in topics:
             self.create_subscription(_import_type(TOPICS[topic]), topic,
                                      self._writer_for(topic), qos, raw=True)
-        # Wall clock: an idle chunk is written even when /clock (sim time) stands still.
-        self.create_timer(min(0.1, flush_period / 2), self._flush_if_due,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # The callbacks only queue what arrives; a thread writes it into the bag and
+        # finishes the chunks on time (also while nothing arrives). The signal that stops
+        # the recorder (a KeyboardInterrupt, cartpole_sim.node_main) can land anywhere in
+        # this thread's callbacks, but never in the middle of writing a record, which
+        # would make its chunk unreadable.
+        self._queue: collections.deque = collections.deque()
+        self._stop_writer = threading.Event()
+        self._writer = threading.Thread(target=self._write_loop, name='recorder_writer',
+                                        daemon=True)
+        self._writer.start()
         self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
 
-    def _flush_if_due(self) -> None:
-        if not self._bag.closed:
-            self._bag.flush_if_due()
-
     def _writer_for(self, topic: str):
-        def write(data: bytes) -> None:
-            if not self._bag.closed:
-                self._bag.write(topic, data, self.get_clock().now().nanoseconds)
-        return write
+        def queue(data: bytes) -> None:
+            self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+        return queue
+
+    def _write_queued(self) -> None:
+        queue, bag = self._queue, self._bag
+        while queue:
+            topic, data, received = queue.popleft()
+            bag.write(topic, data, received)
+
+    def _write_loop(self) -> None:
+        while not self._stop_writer.wait(WRITE_PERIOD):
+            self._write_queued()
+            self._bag.flush_if_due()
+        self._write_queued()
 
     @property
     def bag_path(self) -> Path:
@@ -118,11 +138,16 @@ class RecorderNode(Node):
 
     @property
     def counts(self) -> dict[str, int]:
-        """Messages written so far, per topic."""
+        """Messages written so far, per topic (the queue is written every 10 ms)."""
         return dict(self._bag.counts)
 
     def close(self) -> None:
-        """Close the bag now (``metadata.yaml`` written); later messages are dropped."""
+        """Write what was queued, close the bag (``metadata.yaml``); later messages are dropped."""
+        if self._bag.closed:
+            return
+        self._stop_writer.set()
+        self._writer.join()
+        self._write_queued()
         self._bag.close()
 
     def destroy_node(self) -> None:
@@ -143,13 +168,26 @@ def _executor():
     return EventsExecutor()
 
 
-def drain(node: RecorderNode, executor, quiet_spins: int = 3) -> None:
-    """Write what has already arrived: spin until ``quiet_spins`` spins in a row bring nothing."""
+def drain(node: RecorderNode, executor, quiet_rounds: int = 3, pause: float = 0.01) -> None:
+    """Write what has already arrived, then return (the bag is closed after it).
+
+    The signal that ends the recorder interrupts the executor, possibly in the
+    middle of a callback, so the queues are not left to the executor's
+    bookkeeping: every subscription's queue is emptied directly
+    (``take_message``), in rounds ``pause`` apart, until ``quiet_rounds``
+    rounds in a row bring nothing. The writer thread then writes them.
+    """
     quiet = 0
-    while quiet < quiet_spins:
-        before = sum(node.counts.values())
-        executor.spin_once(timeout_sec=0.01)
-        quiet = quiet + 1 if sum(node.counts.values()) == before else 0
+    while quiet < quiet_rounds:
+        taken = 0
+        for sub in node.subscriptions:
+            with sub.handle:
+                while (info := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                    sub.callback(info[0])
+                    taken += 1
+        quiet = 0 if taken else quiet + 1
+        if not taken:
+            time.sleep(pause)
 
 
 def main(args=None) -> None:

@@ -6,7 +6,8 @@ RCLError instead of a clean exit, and ``destroy_node`` can no longer publish
 (the controller manager's last zero force, the bridge's disarm). Here SIGINT
 and SIGTERM raise KeyboardInterrupt in the spinning thread, the executor wakes
 at least every 0.1 s to let it in, and the context is still alive while the
-node shuts down. Bad start-up parameters are reported on one line, exit 2.
+node shuts down. Bad start-up parameters are reported on one line, exit 2, and
+so is a node whose name is taken on the domain already (:mod:`cartpole_sim.domain_guard`).
 """
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from .domain_guard import refuse_duplicate_node
 
 
 def _raise_keyboard_interrupt(signum, frame):
@@ -39,6 +42,7 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     node = None
     executor = make_executor()
     try:
+        refuse_duplicate_node(make_node)  # one graph per domain (cartpole_sim.domain_guard)
         node = make_node()
         executor.add_node(node)
         try:
