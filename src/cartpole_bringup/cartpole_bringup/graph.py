@@ -73,8 +73,13 @@ ZERO_FORCE_TIMEOUT = 2.0
 """Wall seconds to wait for the zero force command after disabling the controllers."""
 FAULT_ZERO_FORCE_TIMEOUT = 0.2
 """After a fault: wall seconds for the manager's zero force before the run sends its own."""
-LOOP_START_TIMEOUT = 3.0
-"""Lockstep: wall seconds for the loop to answer its first sample before the remedy."""
+LOOP_START_TIMEOUT = 10.0
+"""Lockstep: wall seconds for the loop to answer its first sample before the remedy.
+
+Longer than the discovery of one process by another (up to about 3 s: Fast DDS's
+participant announcement period): until then the EKF's re-published estimate and the
+manager's answer to it reach the simulator without a reset, and a reset (which starts
+the run one period later) would make the run differ from the same run without one."""
 LOOP_START_ATTEMPTS = 3
 EXIT_TIMEOUT = 5.0
 """Wall seconds a child process gets after SIGINT (then SIGTERM, then SIGKILL)."""

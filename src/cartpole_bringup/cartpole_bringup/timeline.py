@@ -19,7 +19,7 @@ SWINGUP_MODE = 'swingup'
 
 def active_controller(mode: str, swingup: str, stabilizer: str) -> tuple[str, str] | None:
     """(kind, name) of the controller that runs in ``mode``; None when none does."""
-    mode = mode.strip().lower()
+    mode = mode.strip().lower().replace('-', '').replace('_', '')
     if mode == SWINGUP_MODE:
         return ('swingup', swingup)
     if mode.startswith('stabili'):  # stabilizing / stabilising
