@@ -41,8 +41,8 @@ def _children(pid: int) -> dict[str, int]:
     return out
 
 
-def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float = 2.0):
-    """Start a lockstep --processes run, SIGKILL ``victim`` after ``after_s`` simulated s."""
+def _truth_probe(ros_context):
+    """(node, stamps of /cartpole/true_state seen, executor): how far the run has come."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
@@ -53,6 +53,12 @@ def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float
         m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(probe)
+    return probe, seen, executor
+
+
+def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float = 2.0):
+    """Start a lockstep --processes run, SIGKILL ``victim`` after ``after_s`` simulated s."""
+    probe, seen, executor = _truth_probe(ros_context)
     proc = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim',
                              '--processes', '--lockstep', '--duration', '60',
                              '--record', str(tmp_path), '--json'],
@@ -113,9 +119,12 @@ def test_sigkill_of_the_controller_manager_is_a_reported_fault(tmp_path, ros_con
     # Every sample the manager answered before it died has its command in the bag ...
     answered = {s for s, _ in commands}
     assert all(s in answered for s in truth if s <= nonzero[-1])
-    # ... and after its last one the run itself commanded zero force, within 50 ms.
+    # ... and after its last one the run itself commanded zero force, which the plant
+    # applied within 50 ms (stamps: the first sample whose actuator force is zero).
     last_stamp, last_force = commands[-1]
     assert last_force == 0.0 and last_stamp - nonzero[-1] <= 50_000_000
+    applied = [s for s, f in msgs[TRUTH] if s > nonzero[-1] and abs(f) < 1e-3]
+    assert applied and applied[0] - nonzero[-1] <= 50_000_000
     assert result['controllers'][0]['name'] == 'pendulum_energy'
     analysed = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'analyze', str(bag),
                                '--json'], capture_output=True, text=True, timeout=120)
@@ -160,16 +169,7 @@ def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, ro
                                                                     spin_until):
     """The whole `cartpole run` killed: only bag.mcap is left; `cartpole bag repair` makes it
     readable by rosbags and `cartpole analyze`, missing less than a second."""
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    probe = Node('_kill_probe', context=ros_context)
-    seen: list[int] = []
-    probe.create_subscription(JointState, TRUTH, lambda m: seen.append(
-        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
-    executor = SingleThreadedExecutor(context=ros_context)
-    executor.add_node(probe)
+    probe, seen, executor = _truth_probe(ros_context)
     proc = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim',
                              '--lockstep', '--duration', '60', '--record', str(tmp_path)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

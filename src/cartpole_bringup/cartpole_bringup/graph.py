@@ -22,10 +22,11 @@ callback that raises) is noticed within one spin of the monitor: the run
 records the fault (``controller_manager died (SIGKILL)``) and stops.
 
 **Stopping** (:meth:`Graph.stop`), orderly or after a fault: zero force
-first, through whoever is still alive: the controller manager's
-``enabled:=false`` (and the zero force it then publishes), or the monitor's
-own zero force command when the manager is gone (or silent after a fault);
-on the rig also the bridge's ``armed:=false`` (``U,0``, ``E,0``). Then the
+first, through whoever is still alive: after a fault the monitor's own zero
+force command at once, then the controller manager's ``enabled:=false``
+(and the zero force it then publishes); on the rig also the bridge's
+``armed:=false`` (``U,0``, ``E,0``); on the simulator until a sample shows
+the zero force applied. Then the
 nodes stop one by one, the controller manager first (so that nothing it
 watches goes stale while it still runs: no ``stale state`` fault for an
 orderly stop), the plant, the EKF, and the recorder last, so that the bag
@@ -41,7 +42,6 @@ options (scenario, controllers, ``lockstep``, ``use_sim_time``) override it.
 from __future__ import annotations
 
 import importlib
-import signal
 import subprocess
 import sys
 import time
@@ -58,12 +58,11 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from std_srvs.srv import Trigger
 
 from cartpole_sim.domain_guard import (ALLOW_PARAMETER, DuplicateNodeError, NodeClaim,
-                                       claim_node_names, domain_id, graph_duplicates, probe_node,
-                                       refusal)
+                                       claim_unique_names, domain_id, probe_node)
 
 from .analyze import FORCE, STATE, TRUE_STATE
 from .node_processes import (NODES, NodeStartError, describe_exit, executable,  # noqa: F401
-                             node_command, ros_value_text, start_node_process)
+                             node_command, ros_value_text, start_node_process, stop_node_process)
 from .run_monitor import NODE_NAME as MONITOR_NAME
 from .run_monitor import RunMonitor
 
@@ -71,8 +70,6 @@ STARTUP_TIMEOUT = 30.0
 """Wall seconds for the graph to come up (processes import rclpy and numpy first)."""
 ZERO_FORCE_TIMEOUT = 2.0
 """Wall seconds to wait for the zero force command after disabling the controllers."""
-FAULT_ZERO_FORCE_TIMEOUT = 0.2
-"""After a fault: wall seconds for the manager's zero force before the run sends its own."""
 LOOP_START_TIMEOUT = 10.0
 """Lockstep: wall seconds for the loop to answer its first sample before the remedy.
 
@@ -82,7 +79,7 @@ manager's answer to it reach the simulator without a reset, and a reset (which s
 the run one period later) would make the run differ from the same run without one."""
 LOOP_START_ATTEMPTS = 3
 EXIT_TIMEOUT = 5.0
-"""Wall seconds a child process gets after SIGINT (then SIGTERM, then SIGKILL)."""
+"""Wall seconds a child process gets after SIGINT (then SIGTERM, and SIGKILL 2 s later)."""
 RECORDER_EXIT_TIMEOUT = 15.0
 """The recorder's SIGINT grace: it writes what it had received and closes the bag."""
 CHECK_PERIOD = 0.01
@@ -256,23 +253,12 @@ class Graph:
         this one holds ``cartpole_run`` and each child claims its own name.
         """
         names = [MONITOR_NAME] + self.spec.nodes
-        claim = claim_node_names(names if not self.spec.processes else [MONITOR_NAME])
+        probe = probe_node(self.context)
         try:
-            if self.spec.processes:
-                claim_node_names(self.spec.nodes, hold=False)
-            probe = probe_node(self.context)
-            try:
-                found = graph_duplicates(probe, names)
-            finally:
-                probe.destroy_node()
-            if found:
-                raise refusal(claim.domain, f'node{"s" if len(found) > 1 else ""} '
-                                            f'{", ".join("/" + n for n in found)} on the graph '
-                                            f'already', '--allow-duplicates')
-        except BaseException:
-            claim.release()
-            raise
-        return claim
+            return claim_unique_names(probe, names,
+                                      held=[MONITOR_NAME] if self.spec.processes else names)
+        finally:
+            probe.destroy_node()
 
     def _release_claim(self) -> None:
         if self._claim is not None:
@@ -525,31 +511,33 @@ class Graph:
         return warnings
 
     def _command_zero_force(self) -> list[str]:
-        """Zero force through whoever is alive; returns warnings."""
+        """Zero force through whoever is alive; returns warnings.
+
+        After a fault the monitor commands zero at once too (the manager may be
+        dead, or alive without states to run its next cycle on). On the
+        simulator the stop waits until a sample shows the zero force applied.
+        """
         warnings: list[str] = []
         m = self.monitor
-        zeros_before = m.zero_forces
+        zeros_before, applied_before = m.zero_forces, m.zero_force_samples
         plant_alive = self._alive(self.spec.plant)
+        if plant_alive and (self.fault is not None or not self._alive('controller_manager')):
+            m.publish_zero_force(sample_stamp=self.spec.lockstep)
         if self._alive('controller_manager'):
             for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
                 if not ok:
                     warnings.append(f'controller_manager enabled:=false refused: {reason}')
-        elif plant_alive:
-            m.publish_zero_force(sample_stamp=self.spec.lockstep)
         if self.spec.plant == 'hw_bridge' and plant_alive:
             for ok, reason in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
                 if not ok:
                     warnings.append(f'hw_bridge armed:=false refused: {reason}')
         if not plant_alive:
             return warnings
-        zero_seen = lambda: m.zero_forces > zeros_before  # noqa: E731
-        if self.fault is not None:
-            if not self._wait(zero_seen, FAULT_ZERO_FORCE_TIMEOUT):
-                m.publish_zero_force(sample_stamp=self.spec.lockstep)
-                self._wait(zero_seen, FAULT_ZERO_FORCE_TIMEOUT)
-        elif not self._wait(zero_seen, ZERO_FORCE_TIMEOUT):
+        if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
             warnings.append('no zero force command seen after disabling the controller '
                             '(the plant watchdog zeroes the force)')
+        elif self.spec.plant == 'sim':
+            self._wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
         return warnings
 
     def _destroy_in_order(self, order: list[str]) -> None:
@@ -574,24 +562,12 @@ class Graph:
         return True
 
     def _stop_process(self, name: str) -> list[str]:
-        proc = self.processes[name]
         self._asked_to_stop.add(name)
-        if proc.poll() is not None:
+        if self.processes[name].poll() is not None:
             return []  # it had died: that is the fault, reported already
-        grace = RECORDER_EXIT_TIMEOUT if name == 'recorder' else EXIT_TIMEOUT
-        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
-            proc.send_signal(sig)
-            try:
-                # Keep the monitor spinning while a node shuts down (it may still publish).
-                self._wait(lambda: proc.poll() is not None, wait)
-                proc.wait(timeout=0.1)
-            except subprocess.TimeoutExpired:
-                continue
-            if sig == signal.SIGINT:
-                return [] if proc.returncode in (0, -signal.SIGINT) else \
-                    [f'{name} {describe_exit(proc.returncode)} on SIGINT']
-            return [f'{name} did not stop on SIGINT; sent {sig.name}']
-        return [f'{name} could not be stopped']
+        # Keep the monitor spinning while a node shuts down (it may still publish).
+        return stop_node_process(self.processes[name], name, self._wait,
+                                 RECORDER_EXIT_TIMEOUT if name == 'recorder' else EXIT_TIMEOUT)
 
     def close(self) -> list[str]:
         """Stop (if not yet), destroy the monitor, make sure no child is left; all warnings."""

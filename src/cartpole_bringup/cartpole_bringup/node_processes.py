@@ -14,7 +14,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 NODES: dict[str, tuple[str, str, str, str]] = {
     'sim': ('cartpole_sim', 'sim_node', 'cartpole_sim.sim_node', 'SimNode'),
@@ -79,6 +79,27 @@ def start_node_process(cmd: Sequence[str]) -> subprocess.Popen:
     return subprocess.Popen(
         list(cmd), env=dict(os.environ), stdin=subprocess.DEVNULL, start_new_session=True,
         preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None)
+
+
+def stop_node_process(proc: subprocess.Popen, name: str,
+                      wait: Callable[[Callable[[], bool], float], bool], grace: float) -> list[str]:
+    """SIGINT and ``grace`` seconds to shut down properly, then SIGTERM, and SIGKILL 2 s later.
+
+    ``wait(predicate, timeout)`` waits while doing the caller's work (spinning
+    its executor). Returns warnings (empty when the node stopped on SIGINT).
+    """
+    for sig, timeout in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+        proc.send_signal(sig)
+        try:
+            wait(lambda: proc.poll() is not None, timeout)
+            proc.wait(timeout=0.1)
+        except subprocess.TimeoutExpired:
+            continue
+        if sig == signal.SIGINT:
+            return [] if proc.returncode in (0, -signal.SIGINT) else \
+                [f'{name} {describe_exit(proc.returncode)} on SIGINT']
+        return [f'{name} did not stop on SIGINT; sent {sig.name}']
+    return [f'{name} could not be stopped']
 
 
 def describe_exit(returncode: int) -> str:

@@ -21,6 +21,8 @@ from sensor_msgs.msg import JointState
 from .analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
 
 NODE_NAME = 'cartpole_run'
+ZERO_FORCE_N = 1e-3
+"""An actuator force below this [N] is zero (the current loop's lag leaves ~1e-20 N after Ts)."""
 
 
 def _stamp_ns(stamp) -> int:
@@ -50,6 +52,8 @@ class RunMonitor(Node):
         self.zero_forces = 0
         self.own_zero_forces = 0
         """Zero force commands this node published itself."""
+        self.zero_force_samples = 0
+        """Simulator samples whose actuator force (``effort[0]`` of the truth) is zero."""
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
         self.create_subscription(JointState, FORCE, self._on_force, qos)
@@ -63,6 +67,8 @@ class RunMonitor(Node):
         def callback(msg: JointState) -> None:
             stamp = _stamp_ns(msg.header.stamp)
             self.builder.joint_state(topic, stamp, msg.position, msg.velocity, msg.effort)
+            if topic == TRUE_STATE and len(msg.effort) and abs(msg.effort[0]) < ZERO_FORCE_N:
+                self.zero_force_samples += 1
             if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
                 self.last_stamp_ns = stamp
         return callback

@@ -227,6 +227,32 @@ def probe_node(context=None):
                 automatically_declare_parameters_from_overrides=True)
 
 
+def claim_unique_names(probe, names: list[str], *, held: Iterable[str] | None = None,
+                       namespace: str = '/', own: str | None = None,
+                       allow: str = '--allow-duplicates') -> NodeClaim:
+    """Both checks of the module docstring for ``names``, looking through ``probe``.
+
+    The locks of ``held`` (default: all of ``names``) are kept in the returned
+    claim; the others are only tried (their processes take them). Raises
+    :class:`DuplicateNodeError`, holding nothing then.
+    """
+    held = list(names) if held is None else list(held)
+    claim = claim_node_names(held, namespace=namespace, allow=allow)
+    try:
+        others = [n for n in names if n not in held]
+        if others:
+            claim_node_names(others, namespace=namespace, hold=False, allow=allow)
+        found = graph_duplicates(probe, names, namespace=namespace, own=own)
+        if found:
+            what = ', '.join(_full_name(namespace, n) for n in found)
+            raise refusal(claim.domain, f'node{"s" if len(found) > 1 else ""} {what} on the '
+                                        f'graph already', allow)
+    except BaseException:
+        claim.release()
+        raise
+    return claim
+
+
 def refuse_duplicate_node(make_node, context=None) -> NodeClaim | None:
     """The check of a node executable, before its node exists (see the module docstring).
 
@@ -243,20 +269,11 @@ def refuse_duplicate_node(make_node, context=None) -> NodeClaim | None:
         allow = probe.get_parameter_or(ALLOW_PARAMETER, None).value
         if allow is True or str(allow).lower() == 'true':
             return None
-        namespace = probe.get_namespace()
         own = None
         if not probe.get_name().startswith('_cartpole_probe_'):
             name = own = probe.get_name()  # a global __node remapping renames every node
-        hint = f'-p {ALLOW_PARAMETER}:=true'
-        claim = claim_node_names([name], namespace=namespace, allow=hint)
-        try:
-            found = graph_duplicates(probe, [name], namespace=namespace, own=own)
-            if found:
-                raise refusal(claim.domain, f'node {_full_name(namespace, name)} is on the '
-                                             f'graph already', hint)
-        except BaseException:
-            claim.release()
-            raise
+        claim = claim_unique_names(probe, [name], namespace=probe.get_namespace(), own=own,
+                                   allow=f'-p {ALLOW_PARAMETER}:=true')
     finally:
         probe.destroy_node()
     (context or _default_context()).on_shutdown(functools.partial(NodeClaim.release, claim))
