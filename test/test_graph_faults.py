@@ -95,7 +95,7 @@ def _assert_fault_reported(code, out, err, fault: str) -> tuple[dict, Path]:
     assert code == 1, err[-3000:]
     assert 'Traceback' not in err, err[-3000:]
     assert f'fault: {fault}' in err
-    result = json.loads(out.strip().splitlines()[-1])
+    result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
     assert result['fault'] == fault and result['success'] is False
     bag = Path(result['bag'])
     assert json.loads((bag.parent / 'summary.json').read_text())['fault'] == fault

@@ -32,7 +32,8 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
              '--hw-arm', '--duration', '17', '--stabilizer', 'smc', '--json'],
             capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stderr[-3000:]
-        summary = json.loads(run.stdout.strip().splitlines()[-1])
+        lines = [line for line in run.stdout.splitlines() if line.startswith('{')]
+        summary = json.loads(lines[-1])
         assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, summary
         assert summary['theta_amp_deg'] < 2.0, summary
         assert summary['x_err_max_m'] <= 0.10, summary

@@ -50,7 +50,7 @@ def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path):
     # An orderly stop: no fault, no refusal, no error logged by any node.
     for bad in ('[ERROR]', '[FATAL]', 'fault', 'refused', 'Traceback', 'warning'):
         assert bad not in err, err
-    result = json.loads(out.strip().splitlines()[-1])
+    result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
     assert result['fault'] is None
     assert result['catch_time_s'] is not None and result['catch_time_s'] < 10.0
     assert result['success'] is True, result
@@ -93,7 +93,7 @@ def test_processes_lockstep_is_deterministic():
         code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '16',
                               '--json'], timeout=150)
         assert code == 0, err
-        result = json.loads(out.strip().splitlines()[-1])
+        result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})
     assert summaries[0]['catch_time_s'] is not None
     assert summaries[0] == summaries[1]

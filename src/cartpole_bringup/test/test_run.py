@@ -115,7 +115,7 @@ def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until,
             proc.communicate()
         node.destroy_node()
     assert proc.returncode == 0, err
-    result = json.loads(out.strip().splitlines()[-1])
+    result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
     assert result['lockstep'] is False and result['elapsed_s'] > 0.4
     assert result['catch_time_s'] is None and result['success'] is False  # far too short
     bag = Path(result['bag'])
