@@ -5,6 +5,8 @@ concurrent runs on one machine (and the network) never see each other. Set
 before any rclpy import and inherited by every subprocess a test starts.
 """
 import os
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -49,3 +51,18 @@ def spin_until():
             executor.spin_once(timeout_sec=min(0.1, remaining))
         return True
     return _spin_until
+
+
+@pytest.fixture(scope='session')
+def cold_plan_run(tmp_path_factory):
+    """``cartpole offline --swingup time_optimal --json`` once a session from a cold plan
+    cache (a fresh directory): ``(cache directory, CompletedProcess)``.
+
+    The run solves the default start's plan first (about 10 s); tests that need that
+    plan use this cache directory instead of solving it again.
+    """
+    cache = tmp_path_factory.mktemp('plan-cache')
+    run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'offline', '--swingup',
+                          'time_optimal', '--json'], capture_output=True, text=True, timeout=900,
+                         env=dict(os.environ, CARTPOLE_CACHE_DIR=str(cache)))
+    return cache, run

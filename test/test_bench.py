@@ -1,6 +1,7 @@
 """The benchmarks run end to end at a tiny size and write their reports (no timing asserted),
 and the controller sweep gives the same numbers serially, on a process pool and on Dask."""
 import json
+import math
 import subprocess
 import sys
 
@@ -32,6 +33,16 @@ def test_sweep_is_identical_serially_on_a_pool_and_on_dask():
     assert [r['scenario'] for r in serial] == [c.scenario for c in cases]
 
 
+def test_the_grid_has_the_appendix_h_offsets_friction_x1_5_and_the_lighter_tip_with_offset():
+    for b in (0.01, 0.02, 0.05, 0.1):
+        for sign, name in ((1, f'offset +{b:g}'), (-1, f'offset -{b:g}')):
+            assert bc.SCENARIOS[name]['encoder_offset'] == sign * b
+            assert bc.SCENARIOS[name]['theta0'] - math.pi == pytest.approx(sign * b)
+    assert bc.SCENARIOS['friction x1.5'] == {'friction_scale': 1.5}
+    both = bc.SCENARIOS['offset +0.05 mass-20%']
+    assert both['encoder_offset'] == 0.05 and both['tip_mass'] == pytest.approx(0.8 * 0.251)
+
+
 def test_unknown_scenario_is_refused_with_the_list():
     with pytest.raises(ValueError, match='nominal'):
         bc.make_cases(['sign_based'], ['smc'], ['mass-50%'], seeds=1)
@@ -40,13 +51,17 @@ def test_unknown_scenario_is_refused_with_the_list():
 @pytest.mark.slow
 def test_bench_control_writes_table_json_and_figures(tmp_path):
     out = cartpole('bench', 'control', '--seeds', '1', '--duration', '12', '--swingups', 'sign_based',
-                   '--stabilizers', 'smc', 'pid', '--scenarios', 'nominal', 'friction x1.2',
+                   '--stabilizers', 'smc', 'pid', '--scenarios', 'nominal', 'offset +0.02',
                    '--workers', '2', '--no-bound', '--out', str(tmp_path))
     report = (tmp_path / 'control.md').read_text()
     assert '| swing-up | stabiliser | runs | success |' in report
-    assert 'sign_based | smc | friction x1.2 | 1 |' in report
+    assert 'sign_based | smc | offset +0.02 | 1 |' in report
+    assert 'force rms / p2p (nominal) [N]' in report and '### Encoder offsets' in report
     results = json.loads((tmp_path / 'control.json').read_text())
-    assert len(results) == 4 and {r['stabilizer'] for r in results} == {'smc', 'pid'}
+    assert len(results) == 4
+    assert {r['stabilizer'] for r in results} == {'smc', 'pid'}
+    for r in results:
+        assert r['force_rms_n'] > 0.0 and r['force_p2p_n'] > 0.0 and r['x_err_mean_m'] >= 0.0
     for png in ('success_heatmap.png', 'catch_times.png'):
         assert (tmp_path / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert 'control.md' in out.stdout or 'written to' in out.stdout
@@ -66,6 +81,9 @@ def test_bench_offline_reports_speed_and_stage_costs(tmp_path):
 def test_bench_loop_measures_graph_and_floor(tmp_path):
     cartpole('bench', 'loop', '--duration', '3', '--modes', 'single', '--out', str(tmp_path))
     report = (tmp_path / 'loop.md').read_text()
-    assert 'our graph' in report and 'bare rclpy floor' in report and 'p99 ratio' in report
+    assert 'our graph' in report and 'bare rclpy floor' in report and 'ratio graph / floor' in report
     result = json.loads((tmp_path / 'loop.json').read_text())
-    assert result['single']['graph']['commands'] > 0 and result['single']['bare']['commands'] > 0
+    for executor in ('events', 'single'):  # each graph against a floor on its own executor
+        run = result['single'][executor]
+        assert run['graph']['commands'] > 0 and run['bare']['commands'] > 0
+        assert set(run['graph']['cpu_percent']) == {'cartpole run'}

@@ -76,6 +76,7 @@ def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path):
     analysed = json.loads(out)
     assert analysed['success'] is True
     assert analysed['catch_time_s'] == pytest.approx(result['catch_time_s'])
+    assert analysed['swingup_law'] == result['swingup_law'] == 'pendulum_energy'
 
 
 SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m', 'mse_x',

@@ -6,7 +6,8 @@
 //   - streams S lines, answers P, obeys E, R, L, U (joint_protocol.cpp),
 //   - writes the current setpoint to DAC0 as 1953 + setpoint (12 bit, Appendix A),
 //   - drives the servo amplifier's enable pin,
-//   - enforces the 50 ms watchdog: enabled and no U for 50 ms -> zero current.
+//   - enforces the 50 ms watchdog: enabled and no U for 50 ms -> zero current
+//     (checked every sample tick, tripping at the tick that crosses the deadline).
 //
 // PIN NUMBERS: the thesis's figure 2.3 names the signals (DAC, OE, 8-pin bus,
 // SEL, enable, RST) but its text gives no pin numbers. Every number below is
@@ -35,7 +36,7 @@ static const bool POSITIVE_SETPOINT_DRIVES_RIGHT = true;
 // cable in use: opening it resets the Due (and the sketch zeroes the counters).
 #define HOST SerialUSB
 static const uint32_t BAUD = 115200;      // ignored by the native port, used by Serial
-static const uint32_t SAMPLE_US = 5000;   // Ts = 5 ms (thesis section 9.2)
+static const uint32_t SAMPLE_US = JP_SAMPLE_US;   // Ts = 5 ms (thesis section 9.2)
 
 static JpDevice dev;
 static JpLineBuffer rx;

@@ -269,8 +269,10 @@ bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t n
 size_t jp_device_tick(JpDevice *d, uint32_t now_us, bool limit_left, bool limit_right,
                       char *out, size_t cap) {
   size_t n = 0;
-  // unsigned subtraction: correct across the micros() wrap
-  if (d->enabled && !d->watchdog_tripped && (uint32_t)(now_us - d->last_u_us) >= JP_WATCHDOG_US) {
+  // unsigned subtraction: correct across the micros() wrap; trip at the tick that
+  // would otherwise be the last one before the deadline (elapsed + Ts > 50 ms)
+  if (d->enabled && !d->watchdog_tripped &&
+      (uint32_t)(now_us - d->last_u_us) > JP_WATCHDOG_US - JP_SAMPLE_US) {
     d->watchdog_tripped = true;
     n += jp_format_error(out + n, cap - n, JP_ERR_WATCHDOG, "watchdog");
   }

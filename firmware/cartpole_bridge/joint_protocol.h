@@ -19,6 +19,7 @@
 #define JP_PROTOCOL_VERSION 1
 #define JP_MAX_LINE 96
 #define JP_WATCHDOG_US 50000UL   // no U for 50 ms while enabled -> zero current
+#define JP_SAMPLE_US 5000UL      // the sample period Ts; the watchdog runs once a period
 
 #define JP_FLAG_ENABLED     0x01
 #define JP_FLAG_WATCHDOG    0x02
@@ -115,6 +116,9 @@ bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t n
                            char *reply, size_t reply_cap, size_t *reply_len);
 // Once a sample period: watchdog and limit switches. Up to 3 notice lines
 // (! watchdog, ! limit) are concatenated into out; returns their total length.
+// The watchdog trips at the tick that crosses its deadline: when the next tick
+// (JP_SAMPLE_US later) would come more than JP_WATCHDOG_US after the last U, so
+// the current is zero within 50 ms of the last U (SPEC 8), never later.
 size_t jp_device_tick(JpDevice *d, uint32_t now_us, bool limit_left, bool limit_right,
                       char *out, size_t cap);
 // The setpoint the DAC outputs now: 0 unless enabled, watchdog quiet and not

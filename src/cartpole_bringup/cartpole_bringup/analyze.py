@@ -13,6 +13,8 @@ What is taken from where:
 - time: the messages' ``header.stamp``; t = 0 is simulated time zero when the
   run was in lockstep (``/clock`` recorded, or ``lockstep=true`` in the bag's
   custom_data), else the first sample;
+- swing-up law (``swingup_law``): the status's ``swingup_law`` at the catch
+  (else the last one); None for bags recorded before the status carried it;
 - catch time: the first ``/cartpole/controller_status`` whose ``event`` has
   ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
   (the sample the switch was computed from) or else its header stamp;
@@ -98,6 +100,8 @@ class SeriesBuilder:
     catch_ns: int | None = None
     controllers: dict[str, str] = field(default_factory=dict)
     """swingup / stabilizer names from the last status."""
+    swingup_law: str | None = None
+    """The status's ``swingup_law`` at the first catch (until then the latest)."""
     limit_flag: bool = False
     truth_contact: bool = False
     """A ``/cartpole/true_state`` sample carried a non-zero end-stop force."""
@@ -139,6 +143,8 @@ class SeriesBuilder:
         gap = _float_or_none(values.get('longest_cycle_gap_s'))
         if gap is not None and (not self.cycle_gaps or gap > self.cycle_gaps[-1][1]):
             self.cycle_gaps.append((cycle_ns, gap))
+        if self.catch_ns is None and values.get('swingup_law'):
+            self.swingup_law = values['swingup_law']
         if self.catch_ns is None and (CATCH_EVENT in events or is_stabilising(mode)):
             self.catch_ns = cycle_ns
 
@@ -225,7 +231,9 @@ class SeriesBuilder:
                                     catch_time=series.catch_time, end_stop_contact=contact,
                                     fault=fault or self.first_fault(end_ns),
                                     controllers=series.controllers,
-                                    longest_cycle_gap_s=self.longest_cycle_gap(end_ns))
+                                    longest_cycle_gap_s=self.longest_cycle_gap(end_ns),
+                                    swingup_law=self.swingup_law,
+                                    force=series.force, t_force=series.t_force)
         return series, summary
 
 

@@ -11,12 +11,23 @@ What is measured, the same way for the graph and for its floor:
   probe.
 - the floor: a chain of the same shape with no computation, ``source`` (a
   200 Hz timer publishing stamped JointState) -> ``relay`` -> ``relay``, in one
-  process or in three, measured by the same probe. The ratio of the two
-  isolates what our nodes add to what rclpy and DDS cost on this machine.
+  process or in three, measured by the same probe, **spun the way the graph is
+  spun**: in one process by the same executor (:func:`cartpole_bringup.graph.make_executor`,
+  ``spin_once`` every 0.05 s as :class:`~cartpole_bringup.graph.Graph` does), one
+  process a node by rclpy's SingleThreadedExecutor as every node's ``main``
+  (:func:`cartpole_sim.node_main.run_node`). The ratio of the two isolates
+  what our nodes add to what rclpy and DDS cost on this machine.
+
+Executors (:data:`EXECUTORS`): the one-process graph runs on the C++
+EventsExecutor by default (``cartpole run --executor events``) or on rclpy's
+SingleThreadedExecutor; both are measured, each against its own floor. With
+one process a node every node spins a SingleThreadedExecutor.
 
 Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
-the previous one, and samples for which no command arrived. CPU: user + system
-time of each process from /proc over the run.
+the previous one, and samples for which no command arrived. CPU: user +
+system time of each process from /proc over the run (``utime + stime``, not
+the children's), per node with one process a node (the graph's nodes are the
+children of ``cartpole run``, named by their executable).
 """
 from __future__ import annotations
 
@@ -34,18 +45,59 @@ import numpy as np
 
 SAMPLE_TIME = 0.005
 
+EXECUTORS = {'single': ('events', 'single'), 'processes': ('single',)}
+"""Executors measured per mode (one process: either, ``cartpole run --executor``;
+one process a node: node_main.run_node's SingleThreadedExecutor)."""
+BARE_ROLES = ('source', 'relay1', 'relay2')
+"""The floor's chain."""
+SPIN_TIMEOUT = {'single': 0.05, 'processes': 0.1}
+"""spin_once timeout of the floor: Graph.spin_until's and run_node's."""
+
 
 def _stamp_s(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
-def _cpu_seconds(pid: int) -> float | None:
+def _stat_fields(pid: int) -> list[str] | None:
+    """/proc/<pid>/stat from field 3 (state) on, or None if the process is gone."""
     try:
-        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
     except OSError:
         return None
-    ticks = os.sysconf('SC_CLK_TCK')
-    return (int(fields[11]) + int(fields[12]) + int(fields[13]) + int(fields[14])) / ticks
+
+
+def _cpu_seconds(pid: int) -> float | None:
+    """CPU time of this process alone: utime + stime (fields 14, 15) [s]."""
+    fields = _stat_fields(pid)
+    if fields is None:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def _process_name(pid: int, default: str) -> str:
+    """The graph node a process runs (its executable's name, as in graph.NODES), else ``default``."""
+    from .graph import NODES
+    try:
+        argv = Path(f'/proc/{pid}/cmdline').read_bytes().split(b'\0')
+    except OSError:
+        return default
+    names = {exe: name for name, (_, exe, _, _) in NODES.items()}
+    for arg in argv[:2]:
+        base = os.path.basename(arg.decode(errors='replace'))
+        if base in names:
+            return names[base]
+    return default
+
+
+def _children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (scanning /proc for their parent PID)."""
+    out = []
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            fields = _stat_fields(int(entry.name))
+            if fields is not None and int(fields[1]) == pid:
+                out.append(int(entry.name))
+    return sorted(out)
 
 
 class _Probe:
@@ -145,8 +197,19 @@ def _stop(procs: list[subprocess.Popen]) -> None:
             p.wait()
 
 
+def _cpu_by_process(procs: list[subprocess.Popen], labels: list[str]) -> dict[str, int]:
+    """The processes to account CPU to: each started one (named by ``labels``) and, for
+    a graph started with one process a node, its node processes (by node name). Name -> PID."""
+    out: dict[str, int] = {}
+    for p, label in zip(procs, labels):
+        out[label] = p.pid
+        for child in _children(p.pid):
+            out[_process_name(child, f'child {child}')] = child
+    return out
+
+
 def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
-             duration: float, warmup: float = 3.0) -> dict[str, Any]:
+             duration: float, labels: list[str], warmup: float = 3.0) -> dict[str, Any]:
     probe = _Probe(sample_topic, command_topic)
     procs = [_start(c) for c in cmds]
     try:
@@ -156,72 +219,97 @@ def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
         probe.record(warmup)
         probe.sample_stamps.clear()
         probe.latencies.clear()
-        cpu0 = [_cpu_seconds(p.pid) for p in procs]
+        pids = _cpu_by_process(procs, labels)
+        cpu0 = {name: _cpu_seconds(pid) for name, pid in pids.items()}
         t0 = time.monotonic()
         probe.record(duration)
         elapsed = time.monotonic() - t0
-        cpu1 = [_cpu_seconds(p.pid) for p in procs]
+        cpu1 = {name: _cpu_seconds(pid) for name, pid in pids.items()}
         stats = _stats(probe)
-        stats['cpu_percent'] = [None if a is None or b is None else 100.0 * (b - a) / elapsed
-                                for a, b in zip(cpu0, cpu1)]
+        stats['cpu_percent'] = {
+            name: None if cpu0[name] is None or cpu1[name] is None
+            else 100.0 * (cpu1[name] - cpu0[name]) / elapsed for name in pids}
         return stats
     finally:
         _stop(procs)
         probe.close()
 
 
-def _graph_cmds(mode: str, duration: float) -> list[list[str]]:
+def _graph_cmds(mode: str, duration: float, executor: str) -> list[list[str]]:
     cmd = [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration',
-           str(duration + 60.0)]
+           str(duration + 60.0), '--executor', executor]
     if mode == 'processes':
         cmd.append('--processes')
     return [cmd]
 
 
-def _bare_cmds(mode: str) -> list[list[str]]:
-    me = [sys.executable, '-m', 'cartpole_bringup.bench_loop']
+def _bare_cmds(mode: str, executor: str) -> list[list[str]]:
+    me = [sys.executable, '-m', 'cartpole_bringup.bench_loop', '--executor', executor,
+          '--spin-timeout', repr(SPIN_TIMEOUT[mode])]
     if mode == 'processes':
-        return [me + ['--node', 'source'], me + ['--node', 'relay1'], me + ['--node', 'relay2']]
-    return [me + ['--node', 'source', '--node', 'relay1', '--node', 'relay2']]
+        return [me + ['--node', role] for role in BARE_ROLES]
+    return [me + [arg for role in BARE_ROLES for arg in ('--node', role)]]
 
 
-def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes')) -> dict[str, Any]:
-    """Measure graph and floor in each mode; returns results and a markdown table."""
+def _ratio(graph: dict[str, Any], bare: dict[str, Any], key: str) -> float | None:
+    return graph[key] / bare[key] if graph[key] and bare[key] else None
+
+
+def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
+                       executors=('events', 'single')) -> dict[str, Any]:
+    """Measure graph and floor for each mode and executor; results and a markdown table.
+
+    ``results[mode][executor]`` holds ``graph``, ``bare`` (the floor) and the
+    ``p50_ratio`` / ``p99_ratio`` graph / floor; ``executors`` filters
+    :data:`EXECUTORS` (one process a node always runs ``single``).
+    """
     env_note = os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     results: dict[str, Any] = {'discovery_range': env_note}
-    for mode in modes:
-        results[mode] = {
-            'graph': _measure(_graph_cmds(mode, duration), '/joint_states', '/cartpole/force_command',
-                              duration),
-            'bare': _measure(_bare_cmds(mode), '/bench/source', '/bench/relay2', duration),
-        }
-        g, b = results[mode]['graph'], results[mode]['bare']
-        results[mode]['p99_ratio'] = (g['p99_ms'] / b['p99_ms']) if g['p99_ms'] and b['p99_ms'] else None
+    runs = [(mode, ex) for mode in modes for ex in EXECUTORS[mode]
+            if ex in executors or mode == 'processes']
+    for mode, ex in runs:
+        graph = _measure(_graph_cmds(mode, duration, ex), '/joint_states',
+                         '/cartpole/force_command', duration,
+                         ['cartpole run (monitor)' if mode == 'processes' else 'cartpole run'])
+        bare = _measure(_bare_cmds(mode, ex), '/bench/source', '/bench/relay2', duration,
+                        list(BARE_ROLES) if mode == 'processes' else ['floor'])
+        results.setdefault(mode, {})[ex] = {
+            'graph': graph, 'bare': bare, 'p50_ratio': _ratio(graph, bare, 'p50_ms'),
+            'p99_ratio': _ratio(graph, bare, 'p99_ms')}
+    return {'results': results, 'markdown': _markdown(results, runs, duration)}
+
+
+def _markdown(results: dict[str, Any], runs: list[tuple[str, str]], duration: float) -> str:
     md = [f'Real-time graph, {duration:g} s measured per row after 3 s warm-up; latency = receipt of '
           'the force command - stamp of the sample it was computed from. The floor is the same '
-          'chain shape (source -> relay -> relay) with no computation.\n',
-          '| mode | path | p50 [ms] | p99 [ms] | max [ms] | samples | missed cycles | late cycles '
-          '| unanswered samples | CPU per process [%] |', '|' + '---|' * 10]
-    for mode in modes:
+          'chain shape (source -> relay -> relay) with no computation, on the same executor, '
+          'spun the same way. CPU: each process alone (utime + stime), per node with one '
+          'process a node.\n',
+          '| mode | executor | path | p50 [ms] | p99 [ms] | max [ms] | samples | missed cycles '
+          '| late cycles | unanswered samples | CPU [%] |', '|' + '---|' * 11]
+    for mode, ex in runs:
+        r = results[mode][ex]
         for path in ('graph', 'bare'):
-            r = results[mode][path]
-            cpu = ', '.join('-' if c is None else f'{c:.0f}' for c in r['cpu_percent'])
-            md.append(f'| {mode} | {"our graph" if path == "graph" else "bare rclpy floor"} | '
-                      f'{r["p50_ms"]:.3f} | {r["p99_ms"]:.3f} | {r["max_ms"]:.3f} | {r["samples"]} | '
-                      f'{r["missed_cycles"]} | {r["late_cycles"]} | {r["unanswered_samples"]} | {cpu} |')
-        ratio = results[mode]['p99_ratio']
-        md.append(f'| {mode} | p99 ratio graph / floor | {ratio:.2f} | | | | | | | |' if ratio else
-                  f'| {mode} | p99 ratio | - | | | | | | | |')
-    results_md = '\n'.join(md) + '\n'
-    return {'results': results, 'markdown': results_md}
+            m = r[path]
+            cpu = ', '.join(f'{name} {"-" if c is None else f"{c:.0f}"}'
+                            for name, c in m['cpu_percent'].items())
+            md.append(f'| {mode} | {ex} | {"our graph" if path == "graph" else "bare rclpy floor"} '
+                      f'| {m["p50_ms"]:.3f} | {m["p99_ms"]:.3f} | {m["max_ms"]:.3f} | '
+                      f'{m["samples"]} | {m["missed_cycles"]} | {m["late_cycles"]} | '
+                      f'{m["unanswered_samples"]} | {cpu} |')
+        ratios = ' / '.join('-' if r[k] is None else f'{r[k]:.2f}' for k in ('p50_ratio', 'p99_ratio'))
+        md.append(f'| {mode} | {ex} | ratio graph / floor, p50 / p99 | {ratios} | | | | | | | |')
+    return '\n'.join(md) + '\n'
 
 
 # -- the bare chain's nodes ------------------------------------------------------------
-def _bare_main(roles: list[str]) -> int:
+def _bare_main(roles: list[str], executor_kind: str, spin_timeout: float) -> int:
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
+
+    from .graph import make_executor
 
     rclpy.init()
     qos = QoSProfile(depth=10)
@@ -243,14 +331,16 @@ def _bare_main(roles: list[str]) -> int:
             src = '/bench/source' if role == 'relay1' else '/bench/relay1'
             pub = node.create_publisher(JointState, f'/bench/{role}', qos)
             node.create_subscription(JointState, src, lambda m, pub=pub: pub.publish(m), qos)
-    executor = SingleThreadedExecutor()
+    executor = make_executor(executor_kind, rclpy.get_default_context())
     for n in nodes:
         executor.add_node(n)
     try:
-        executor.spin()
+        while rclpy.ok():  # as Graph.spin_until and node_main.run_node spin
+            executor.spin_once(timeout_sec=spin_timeout)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown()
@@ -259,5 +349,8 @@ def _bare_main(roles: list[str]) -> int:
 
 if __name__ == '__main__':
     parser = argparse.ArgumentParser(description='bare rclpy chain for the loop benchmark')
-    parser.add_argument('--node', action='append', choices=['source', 'relay1', 'relay2'], required=True)
-    sys.exit(_bare_main(parser.parse_args().node))
+    parser.add_argument('--node', action='append', choices=BARE_ROLES, required=True)
+    parser.add_argument('--executor', choices=EXECUTORS['single'], default='single')
+    parser.add_argument('--spin-timeout', type=float, default=SPIN_TIMEOUT['single'])
+    cli = parser.parse_args()
+    sys.exit(_bare_main(cli.node, cli.executor, cli.spin_timeout))

@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     'emulate': 'device emulator (the plant behind the Joint protocol) on a new pseudo-terminal',
     'identify': 'fit plant parameters to a recorded test',
     'bound': 'minimum-time swing-up bounds for the parameters in use',
+    'plan': 'solve and cache the minimum-time plan of the time_optimal swing-up for a start',
 }
 
 

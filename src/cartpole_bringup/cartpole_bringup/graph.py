@@ -57,6 +57,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from std_srvs.srv import Trigger
 
+from cartpole_sim import realtime
 from cartpole_sim.domain_guard import (ALLOW_PARAMETER, DuplicateNodeError, NodeClaim,
                                        claim_unique_names, domain_id, probe_node)
 
@@ -235,6 +236,7 @@ class Graph:
         self._next_check = 0.0
         self._next_duplicate_check = time.monotonic() + DUPLICATE_CHECK_PERIOD
         self._duplicates_reported: set[str] = set()
+        self.realtime: realtime.LoopHygiene | None = None
         self._claim = None if spec.allow_duplicates else self._claim_names()
         try:
             self.executor = make_executor(spec.executor, context)
@@ -324,6 +326,15 @@ class Graph:
             self._start_processes()
         else:
             self._start_in_process()
+            # The loop's real-time hygiene for this process (cartpole_sim.realtime), once
+            # the executor has spun (its threads exist then and take the priority too).
+            self.executor.spin_once(timeout_sec=0.0)
+            try:
+                self.realtime = realtime.enter_loop(
+                    0 if self.spec.lockstep else None, what='cartpole run',
+                    log=self.monitor.get_logger().info, warn=self.monitor.get_logger().warning)
+            except ValueError as error:
+                raise GraphError(str(error)) from None
         self.wall_start = time.monotonic()
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
             if self.should_stop():
@@ -586,6 +597,8 @@ class Graph:
                     proc.wait()
             self.monitor.destroy_node()
             self.executor.shutdown(timeout_sec=1.0)
+            if self.realtime is not None:
+                self.realtime.leave()
             self._release_claim()
         return list(self.warnings)
 

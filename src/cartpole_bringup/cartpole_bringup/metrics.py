@@ -23,7 +23,8 @@ WINDOW_S = 10.0
 """The thesis's table 10.2 measures the last 10 s."""
 
 SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
-                'mse_x', 'mse_theta', 'end_stop_contact', 'success')
+                'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'swingup_law',
+                'force_rms_n', 'force_p2p_n')
 
 
 def wrap(theta: np.ndarray) -> np.ndarray:
@@ -37,7 +38,9 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
               x_ref: float, catch_time: float | None, end_stop_contact: bool,
               window: float = WINDOW_S, fault: str | None = None,
               controllers: Sequence[dict[str, Any]] | None = None,
-              longest_cycle_gap_s: float | None = None) -> dict[str, Any]:
+              longest_cycle_gap_s: float | None = None, swingup_law: str | None = None,
+              force: Sequence[float] | None = None,
+              t_force: Sequence[float] | None = None) -> dict[str, Any]:
     """The SPEC section 5 summary of one run from hanging rest.
 
     Parameters
@@ -52,7 +55,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     end_stop_contact
         Whether the cart touched an end stop.
     window
-        Length of the final window for the amplitude, error and MSE figures.
+        Length of the final window for the amplitude, error, MSE and force figures.
     fault
         Why the run stopped early or lost control (SPEC 8): a node that
         died, the controller manager's first fault; None when nothing went
@@ -63,6 +66,14 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     longest_cycle_gap_s
         The longest gap between two control cycles the controller manager
         reported [s]; None when not reported (offline).
+    swingup_law
+        What produced the swing-up (SPEC 8): the swing-up plugin's law at the
+        first catch (else at the end), e.g. ``pendulum_energy``,
+        ``time_optimal:plan``, ``time_optimal:fallback(no plan)``; None when
+        not known (a bag recorded before the status carried it).
+    force, t_force
+        The force commands [N] and their times [s] (``t_force`` defaults to
+        ``t``); ``force_rms_n`` and ``force_p2p_n`` are null without them.
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -89,7 +100,30 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         'fault': fault,
         'controllers': [dict(c) for c in controllers or ()],
         'longest_cycle_gap_s': None if longest_cycle_gap_s is None else float(longest_cycle_gap_s),
+        'swingup_law': swingup_law,
+        **control_effort(force, t if t_force is None else t_force, t[-1] - window),
     }
+
+
+def control_effort(force: Sequence[float] | None, t_force: Sequence[float],
+                   since: float) -> dict[str, float | None]:
+    """``force_rms_n`` and ``force_p2p_n`` (SPEC 8) of the commands stamped at or after ``since``.
+
+    The root mean square of the force command and its peak-to-peak range
+    over the window, what an amplifier sees: heat and noise. Null when no
+    command falls in the window (or none was given).
+    """
+    if force is None:
+        return {'force_rms_n': None, 'force_p2p_n': None}
+    f = np.asarray(force, dtype=float)
+    tf = np.asarray(t_force, dtype=float)
+    if f.shape != tf.shape:
+        raise ValueError(f'force and t_force differ in length ({f.size} and {tf.size})')
+    f = f[tf >= since]
+    if f.size == 0:
+        return {'force_rms_n': None, 'force_p2p_n': None}
+    return {'force_rms_n': float(np.sqrt(np.mean(f * f))),
+            'force_p2p_n': float(np.max(f) - np.min(f))}
 
 
 def end_stop_touched(x: Sequence[float], travel: float,

@@ -3,29 +3,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
+from cartpole_sim import scenario_options
 from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.plant import Scenario
+from cartpole_sim.scenario import Scenario
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    """Scenario options of the simulated plant (SPEC section 5)."""
-    g = parser.add_argument_group('simulated plant scenario')
-    g.add_argument('--tip-mass', type=float, default=None, metavar='KG',
-                   help='tip mass of the simulated plant (default: the thesis 0.251 kg)')
-    g.add_argument('--friction-scale', type=float, default=1.0, metavar='F',
-                   help='multiply every cart and pendulum friction coefficient of the plant')
-    g.add_argument('--theta0', type=float, default=math.pi, metavar='RAD',
-                   help='initial pendulum angle (default pi, hanging)')
-    g.add_argument('--x0', type=float, default=0.0, metavar='M',
-                   help='initial cart position from the left stop (default 0)')
-    g.add_argument('--encoder-offset', type=float, default=0.0, metavar='RAD',
-                   help='pendulum angle minus pi when the encoders were reset (Appendix H)')
-    g.add_argument('--noise', action='store_true', help='add measurement noise before quantisation')
-    g.add_argument('--seed', type=int, default=0, help='seed of the noise generator')
+    """Scenario options of the simulated plant (SPEC sections 5 and 8), and --plant-params.
+
+    The scenario options themselves are :mod:`cartpole_sim.scenario_options`'s,
+    which ``cartpole emulate`` shares.
+    """
+    g = scenario_options.add_scenario_arguments(parser)
     g.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
                    help='nominal plant parameters (CartPoleParameters YAML); default: thesis values')
 
@@ -50,13 +43,11 @@ def nominal_parameters(args: argparse.Namespace) -> CartPoleParameters:
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    if args.tip_mass is not None and not args.tip_mass > 0:
-        raise SystemExit(f'--tip-mass must be > 0, got {args.tip_mass}')
-    if not args.friction_scale >= 0:
-        raise SystemExit(f'--friction-scale must be >= 0, got {args.friction_scale}')
-    return Scenario(x0=args.x0, theta0=args.theta0, tip_mass=args.tip_mass,
-                    friction_scale=args.friction_scale, encoder_offset=args.encoder_offset,
-                    noise=args.noise, seed=args.seed)
+    """The scenario of the options; SystemExit with the reason if one is invalid."""
+    try:
+        return scenario_options.scenario_from_args(args)
+    except ValueError as error:
+        raise SystemExit(str(error)) from None
 
 
 def load_ros_parameters(path: Path | None, node_name: str) -> dict[str, Any]:
@@ -103,3 +94,10 @@ def print_summary(summary: dict[str, Any], as_json: bool) -> None:
         else:
             text = 'null' if value is None else str(value)
         print(f'{key:<{width}}  {text}')
+
+
+def progress_printer(prefix: str) -> Callable[[str], None]:
+    """A ``progress`` callback: one line on stderr (stdout stays the summary, e.g. JSON)."""
+    def say(text: str) -> None:
+        print(f'{prefix}: {text}', file=sys.stderr, flush=True)
+    return say

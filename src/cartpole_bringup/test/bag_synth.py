@@ -57,12 +57,14 @@ def trajectory(duration=DURATION, x_offset=0.0):
 
 def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset=0.0,
               t_origin=0.0, clock=True, custom_data=None, switch=None, events=None,
-              cycle_gap=None):
+              cycle_gap=None, swingup_laws=None):
     """Write the known trajectory as a bag; returns the arrays.
 
     ``switch=(t, name)``: the stabiliser is ``name`` from ``t`` on (a ``ros2 param
     set``); ``events={t: 'fault:...'}``: extra status events; ``cycle_gap(t)``: the
-    status key ``longest_cycle_gap_s``.
+    status key ``longest_cycle_gap_s``; ``swingup_laws``: (before the catch, from the
+    catch on) values of the status's ``swingup_law``; None leaves the key out (a bag
+    from before it existed).
     """
     ts = _types()
     t, x, theta, x_dot, theta_dot, force = trajectory(x_offset=x_offset)
@@ -92,6 +94,8 @@ def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset
                       'event': event, 'state_stamp': repr(float(tk))}
             if cycle_gap is not None:
                 values['longest_cycle_gap_s'] = repr(float(cycle_gap(t[k])))
+            if swingup_laws is not None:
+                values['swingup_law'] = swingup_laws[int(t[k] >= CATCH_TIME + TS / 2)]
             bag.write('/cartpole/controller_status',
                       diagnostic(ts, tk, 'controller_manager', values, mode), 0)
             if hw_limits is not None and k % 20 == 0:

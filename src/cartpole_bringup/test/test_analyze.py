@@ -42,8 +42,41 @@ def test_known_trajectory_gives_the_known_summary(known_bag):
     assert s['mse_theta'] == pytest.approx(0.01 ** 2 / 2 * 1000 / 1001, rel=1e-6)
     assert s['end_stop_contact'] is False
     assert s['success'] is True
+    assert s['swingup_law'] is None  # not recorded: not guessed
+    # The force commands, 2 sin(t), over the last 10 s (SPEC 8's force_rms_n, force_p2p_n).
+    t, *_, force = bag_synth.trajectory()
+    last = force[t >= t[-1] - 10.0]
+    assert s['force_rms_n'] == pytest.approx(float(np.sqrt(np.mean(last ** 2))), rel=1e-9)
+    assert s['force_p2p_n'] == pytest.approx(float(last.max() - last.min()), rel=1e-9)
     assert a.topics['/cartpole/true_state'] == 2001
     assert a.series.t[0] == 0.0 and a.series.t[-1] == pytest.approx(20.0)
+
+
+def test_summary_names_the_swingup_law_of_the_catch(tmp_path):
+    # The status at the catch names the law that swung up; what the swing-up plugin
+    # reports later (here: after the catch, a fall-back reason) does not change it.
+    path = tmp_path / 'bag'
+    bag_synth.write_run(path, swingup_laws=('time_optimal:plan',
+                                            'time_optimal:fallback(not at hanging rest)'))
+    assert analyze_bag(path).summary['swingup_law'] == 'time_optimal:plan'
+    bag_synth.write_run(tmp_path / 'bag2', swingup_laws=('time_optimal:fallback(no plan)',
+                                                         'time_optimal:fallback(no plan)'))
+    assert analyze_bag(tmp_path / 'bag2').summary['swingup_law'] == 'time_optimal:fallback(no plan)'
+
+
+def test_series_builder_takes_the_law_at_the_catch_from_a_status_series():
+    from cartpole_bringup.analyze import SeriesBuilder
+    b = SeriesBuilder()
+    statuses = [('swingup', '', 'time_optimal'), ('swingup', '', 'time_optimal:plan'),
+                ('stabilizing', 'catch', 'time_optimal:plan'),
+                ('swingup', 'fall', 'time_optimal:fallback(not at hanging rest)')]
+    for k, (mode, event, law) in enumerate(statuses):
+        b.status(k, {'mode': mode, 'event': event, 'swingup_law': law,
+                     'state_stamp': repr(k * 0.005)})
+    assert b.swingup_law == 'time_optimal:plan'
+    never = SeriesBuilder()
+    never.status(0, {'mode': 'swingup', 'event': '', 'swingup_law': 'pendulum_energy'})
+    assert never.swingup_law == 'pendulum_energy'
 
 
 def test_x_ref_option_overrides_the_bag(known_bag):
@@ -246,3 +279,19 @@ def test_offline_spans_follow_modes_and_switch_events():
     assert spans_from_modes(t, modes, events, 'pendulum_energy', 'lqg') == [
         {'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0, 'end_s': 0.01},
         {'kind': 'stabilizer', 'name': 'smc', 'start_s': 0.01, 'end_s': 0.02}]
+
+
+def test_force_keys_are_null_without_commands_and_a_length_mismatch_is_refused():
+    from cartpole_bringup import metrics
+    t = np.arange(0.0, 20.0, 0.01)
+    common = dict(x_ref=0.0, catch_time=1.0, end_stop_contact=False)
+    s = metrics.summarize(t, 0.0 * t, 0.0 * t, **common)
+    assert s['force_rms_n'] is None and s['force_p2p_n'] is None
+    s = metrics.summarize(t, 0.0 * t, 0.0 * t, force=np.full(5, 3.0), t_force=np.arange(5.0),
+                          **common)                      # no command in the last 10 s
+    assert s['force_rms_n'] is None
+    s = metrics.summarize(t, 0.0 * t, 0.0 * t, force=np.where(t < 15.0, -3.0, 1.0), **common)
+    assert s['force_rms_n'] == pytest.approx(np.sqrt(0.5 * 9 + 0.5 * 1), rel=1e-2)
+    assert s['force_p2p_n'] == 4.0
+    with pytest.raises(ValueError, match='length'):
+        metrics.summarize(t, 0.0 * t, 0.0 * t, force=np.zeros(3), **common)

@@ -33,6 +33,20 @@ def test_options_become_node_parameters():
     assert armed == {'port': 'X', 'armed': True, 'home_on_start': True}
 
 
+def test_disturbance_options_become_sim_parameters():
+    args = parse('--sim', '--lockstep', '--delay', '0.0075', '--jitter', '0.002', '--drop', '0.1',
+                 '--force-noise', '0.5', '--actuator-gain', '0.8', '--actuator-tau', '0.003',
+                 '--cart-mass', '5.2', '--push', '12:cart:10:0.1', '--push', '15:pendulum:-0.3:0.02')
+    sim = run_cmd.node_parameters(args)['sim']
+    assert {k: sim[k] for k in ('delay', 'jitter', 'drop', 'force_noise', 'actuator_gain',
+                                'actuator_tau', 'cart_mass')} == {
+        'delay': 0.0075, 'jitter': 0.002, 'drop': 0.1, 'force_noise': 0.5,
+        'actuator_gain': 0.8, 'actuator_tau': 0.003, 'cart_mass': 5.2}
+    from cartpole_sim.plant import Push, parse_push
+    assert [parse_push(t) for t in sim['pushes'].split()] == [
+        Push(12.0, 'cart', 10.0, 0.1), Push(15.0, 'pendulum', -0.3, 0.02)]
+
+
 def test_graph_spec_and_process_command_lines(tmp_path):
     from cartpole_bringup.graph import GraphSpec, command_line, ros_value_text
 

@@ -6,7 +6,11 @@ the current state (bumpless, like ros2_control's
 ``set_current_state_as_first_setpoint``), updated once per control cycle and
 deactivated. It returns the *raw* force of its law; the controller manager adds
 the cart friction feedforward (6.12), saturates to what the actuator can give
-and guards the rail.
+and guards the rail. After each update the manager tells the plugin what became
+of its force (:class:`CommandFeedback`, :meth:`Controller.command_applied`), so
+that a law with an integrator stops integrating while its command is not what
+reaches the cart (anti-windup). The hook has a default that does nothing: a
+plugin without integrators ignores it.
 
 The contract carries a version number (:data:`API_VERSION`); the registry
 refuses plugins written for another major version.
@@ -16,7 +20,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 from cartpole_sim.model import CartPoleParameters, wrap_angle
 
@@ -129,13 +133,45 @@ class ControlContext:
     work then (no background solves, no files), just refuse bad gains."""
 
 
+@dataclass(frozen=True)
+class CommandFeedback:
+    """What the manager did with the active plugin's raw force in one cycle.
+
+    The input of the anti-windup of every integrator (conditional
+    integration): an integrator must not grow while its push does not reach
+    the cart.
+    """
+
+    raw: float
+    """The plugin's force u of this cycle [N]."""
+    force: float
+    """The force command sent to the actuator [N], after the feedforward (6.12),
+    the saturation to [force_min, force_max] (Appendix C) and the rail guard."""
+    limited: int
+    """+1 if the command was cut from above (saturated at force_max, or the rail
+    guard withheld a push to the right), -1 if cut from below, 0 if it passed:
+    the sign of ``u + B_ff(x_dot, u) - force``."""
+    held: bool = False
+    """The force is not the law's at all (the rail guard brakes or holds the
+    cart): every integrator keeps its value."""
+
+    def blocks(self, effect: float) -> bool:
+        """True if an increment changing the force by ``effect`` [N] must not be taken.
+
+        That is while the force is held, or while the command is limited in
+        the direction the increment would push it further.
+        """
+        return self.held or self.limited * effect > 0.0
+
+
 class Controller(ABC):
     """Base class of every swing-up law and stabiliser plugin.
 
     Subclasses set :attr:`kind` and :attr:`name`, list their tunables in
     :attr:`parameters`, and implement :meth:`update`. The lifecycle is:
     ``configure`` (any time, between updates), ``activate`` (bumpless, from
-    the current state), ``update`` once per cycle, ``deactivate``.
+    the current state), ``update`` once per cycle, each followed by the
+    manager's :meth:`command_applied`, ``deactivate``.
     """
 
     api_version: ClassVar[int] = API_VERSION
@@ -184,6 +220,29 @@ class Controller(ABC):
     def on_configure(self) -> None:
         """Recompute derived quantities from :attr:`gains` and :attr:`context`."""
 
+    @classmethod
+    def prepare(cls, gains: Mapping[str, Any], context: ControlContext, start: ControllerState,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+        """Do the slow work a run from ``start`` needs before it starts; may block for long.
+
+        Batch and lockstep runs call it once before their first cycle (a
+        real-time loop never waits for it), with the run's ``gains`` and
+        ``context``. Returns the gain changes that make the run's instance
+        use that work (e.g. the start to load a plan for); ``progress``
+        takes one-line messages for the user. Default: nothing to do.
+        """
+        return {}
+
+    @property
+    def law(self) -> str:
+        """What produces the output now (``swingup_law`` of the status and summary, SPEC 8).
+
+        The plugin's name; a plugin that switches between laws says which,
+        as ``<name>:<law>`` (e.g. ``time_optimal:plan``,
+        ``time_optimal:fallback(no plan)``). Read every cycle: keep it cheap.
+        """
+        return self.name
+
     def activate(self, state: ControllerState) -> None:
         """Start from ``state`` without a bump (reset integrators, filters)."""
         self.active = True
@@ -191,6 +250,16 @@ class Controller(ABC):
     @abstractmethod
     def update(self, state: ControllerState) -> float:
         """The law's raw force [N] for ``state`` (before feedforward and saturation)."""
+
+    def command_applied(self, feedback: CommandFeedback) -> None:
+        """What became of the force of the last :meth:`update` (the anti-windup's input).
+
+        Called by the manager once after every update of the active plugin,
+        in the same cycle. The default does nothing; a law with an integrator
+        takes back the increment of this cycle when
+        ``feedback.blocks(effect)`` (see :class:`CommandFeedback`). A plugin
+        used without the manager simply never hears of it.
+        """
 
     def deactivate(self) -> None:
         self.active = False

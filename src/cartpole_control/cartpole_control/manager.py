@@ -13,7 +13,11 @@ One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
 4. the active plugin's raw force ``u``; only one controller runs (section 6.4);
 5. ``u + B_ff(x_dot, u)``, the cart friction feedforward (6.12);
 6. saturation to ``[force_min, force_max]`` (Appendix C);
-7. the rail guard (:mod:`cartpole_control.rail_guard`).
+7. the rail guard (:mod:`cartpole_control.rail_guard`);
+8. the active plugin hears what became of its force
+   (:meth:`~cartpole_control.controller.Controller.command_applied`): cut by
+   the saturation or the rail guard, or held; its integrators stop then
+   (anti-windup).
 
 Modes: ``idle`` (disabled, zero force), ``swingup``, ``stabilizing`` and
 ``fault`` (zero force until :meth:`~ControllerManager.restart`; the one
@@ -28,13 +32,13 @@ import logging
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
 
 from .catch import CatchTrigger
-from .controller import KINDS, STABILIZER, SWINGUP, ControlContext, Controller, ControllerState, \
-    ParameterSpec
+from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, ControlContext, Controller, \
+    ControllerState, ParameterSpec
 from .feedforward import FrictionFeedforward
 from .rail_guard import BRAKING, STOPPED, RailGuard
 from .registry import load_controllers
@@ -54,13 +58,15 @@ _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 
 MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'rail')
-CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness')
+CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
+                'feedforward.velocity_band')
 """Manager parameters that the plugins see through their ControlContext."""
 
 
 def _friction_feedforward(values: Mapping[str, Any]) -> FrictionFeedforward:
     return FrictionFeedforward(values['feedforward.right'], values['feedforward.left'],
-                               values['feedforward.steepness'])
+                               values['feedforward.steepness'],
+                               values['feedforward.velocity_band'])
 
 
 def _changes_context(changes: Mapping[str, Any], current: Mapping[str, Any]) -> bool:
@@ -103,6 +109,10 @@ class ManagerOutput:
     catch_time: float | None
     """Time of the first catch since :meth:`ControllerManager.reset`, or None."""
     fault_reason: str
+    swingup_law: str = ''
+    """What the swing-up plugin runs (:attr:`Controller.law`): its name, or e.g.
+    ``time_optimal:plan`` / ``time_optimal:fallback(no plan)``; the last one
+    that ran while another mode is active."""
 
 
 _new_object = object.__new__
@@ -124,9 +134,17 @@ def _controller_state(t: float, x: float, theta: float, x_dot: float, theta_dot:
     return state
 
 
+def _command_feedback(raw: float, force: float, limited: int, held: bool) -> CommandFeedback:
+    """``CommandFeedback(raw, force, limited, held)``, built directly (see :func:`_controller_state`)."""
+    feedback = _new_object(CommandFeedback)
+    _set_attribute(feedback, '__dict__', {'raw': raw, 'force': force, 'limited': limited,
+                                          'held': held})
+    return feedback
+
+
 def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
                     raw_force, feedforward, event, catch_count, fall_count, catch_time,
-                    fault_reason) -> ManagerOutput:
+                    fault_reason, swingup_law) -> ManagerOutput:
     """``ManagerOutput(...)`` with every field positional, built directly (see
     :func:`_controller_state`); a test checks it equals the dataclass's own."""
     out = _new_object(ManagerOutput)
@@ -135,7 +153,7 @@ def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy
         'enabled': enabled, 'energy': energy, 'energy_error': energy_error,
         'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
         'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
-        'fault_reason': fault_reason})
+        'fault_reason': fault_reason, 'swingup_law': swingup_law})
     return out
 
 
@@ -236,6 +254,10 @@ class ControllerManager:
                           'while x_dot < 0 [N] (thesis 9.2.1: 2.8)', low=0.0, high=20.0),
             ParameterSpec('feedforward.steepness', 20.0, 'k of tanh(k u) in (6.12) [1/N]; 0 turns '
                           'the feedforward off', low=0.0, high=1000.0),
+            ParameterSpec('feedforward.velocity_band', 0.0005, 'Cart friction feedforward while '
+                          'stabilising: above this |x_dot| [m/s] the kinetic friction is '
+                          'compensated along the velocity, below it blended into (6.12); '
+                          '0 = (6.12) at every speed', low=0.0, high=1.0),
             ParameterSpec('rail.margin', 0.02, 'Rail guard: distance kept from each end stop [m]',
                           low=0.0, high=0.15),
             ParameterSpec('rail.max_brake_force', 30.0, 'Rail guard: braking force F_b [N], '
@@ -350,22 +372,64 @@ class ControllerManager:
             self._pending.update(accepted)
         return SetResult(True)
 
+    def prepare(self, start: ControllerState,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+        """Before a batch or lockstep run from ``start``: each configured plugin's
+        :meth:`Controller.prepare` (blocking: e.g. a missing plan is solved now).
+
+        The gain changes the plugins ask for are queued like
+        :meth:`set_parameters` and returned as ``<plugin>.<gain>`` parameters
+        (for a graph started afterwards). ValueError if one is refused.
+        """
+        with self._lock:
+            values = dict(self._values)
+        context = self._make_context(values)
+        changes: dict[str, Any] = {}
+        for kind in KINDS:
+            name = values[kind]
+            asked = self._registry[kind][name].prepare(self._gains(name, values), context, start,
+                                                       progress)
+            changes.update({f'{name}.{key}': value for key, value in asked.items()})
+        if changes:
+            result = self.set_parameters(changes)
+            if not result.successful:
+                raise ValueError(f'prepared parameters refused: {result.reason}')
+        return changes
+
     # -- requests -----------------------------------------------------------------------
-    def restart(self) -> str:
+    def restart(self) -> SetResult:
         """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
 
         A fault is cleared and the rail guard re-armed (after its brake has
-        stopped the cart). With ``enabled`` false the manager stays idle.
-        Returns what will happen, for a service reply.
+        stopped the cart). The answer says truthfully what will happen, for
+        the service reply: ``successful`` is False when there is nothing to
+        restart (control running, or idle because ``enabled`` is false) and
+        then nothing is requested.
         """
+        mode = self.mode
         with self._lock:
-            self._restart_requested = True
-            enabled = self._values['enabled']
-        if self.mode in (SWINGUP_MODE, STABILIZING):
-            return f'already running ({self.mode}); nothing to restart'
+            enabled = bool(self._values['enabled'])
+            if mode == FAULT or (mode == IDLE and enabled):
+                self._restart_requested = True
+        if mode == FAULT:
+            cleared = f'fault ({self.fault_reason}) cleared' if self.fault_reason \
+                else 'fault cleared'
+            if not enabled:
+                return SetResult(True, f'{cleared}; control is disabled (enabled = false), '
+                                       'staying idle')
+            if self._guard.status == BRAKING:
+                return SetResult(True, f'{cleared}; swing-up restarts once the rail guard has '
+                                       'braked the cart to rest')
+            return SetResult(True, f'{cleared}; swing-up restarts at the next control cycle')
+        if mode == IDLE:
+            if not enabled:
+                return SetResult(False, 'nothing to restart: control is disabled (enabled = '
+                                        'false); set enabled to true to start a swing-up')
+            return SetResult(True, 'swing-up starts at the next control cycle')
         if not enabled:
-            return 'fault cleared; control is disabled (enabled = false), staying idle'
-        return 'swing-up restarts at the next control cycle'
+            return SetResult(False, f'nothing to restart: control ({mode}) is being disabled '
+                                    '(enabled = false)')
+        return SetResult(False, f'already running ({mode}); nothing to restart')
 
     def reset(self) -> None:
         """Back to the start of a run: counters cleared, guard re-armed, swing-up (or idle) next.
@@ -515,7 +579,8 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    feedforward = self._feedforward(x_dot, raw)
+                    feedforward = (self._feedforward.stabilizing(x_dot, raw)
+                                   if self.mode == STABILIZING else self._feedforward(x_dot, raw))
                     force = min(max(raw + feedforward, self._force_min), self._force_max)
         guard = self._guard
         # After a trip the guard keeps hold: a cart it has stopped is braked again
@@ -524,8 +589,24 @@ class ControllerManager:
             force, tripped = guard.command(x, x_dot, theta_dot, force)
             if tripped:
                 self._fault('rail guard', events)
+        if active is not None and active is self._active \
+                and not self._tell_plugin(active, raw, raw + feedforward, force, events):
+            force = 0.0
         self._last_force = force
         return self._output(t, force, raw, feedforward, events)
+
+    def _tell_plugin(self, plugin: Controller, raw: float, wanted: float, force: float,
+                     events: list[str]) -> bool:
+        """Step 8: the plugin's anti-windup input; False if the plugin raised (then a fault)."""
+        limited = 1 if wanted > force else (-1 if wanted < force else 0)
+        held = self._guard.status == BRAKING or self._guard.status == STOPPED
+        try:
+            plugin.command_applied(_command_feedback(raw, force, limited, held))
+        except Exception as error:  # a plugin bug: fail safe, say why
+            logger.exception('controller %s failed', plugin.name)
+            self._fault(f'{plugin.name} failed: {type(error).__name__}: {error}', events)
+            return False
+        return True
 
     def stale(self, t: float) -> ManagerOutput:
         """No state for ``state_timeout``: zero force and fault 'stale state' (until restart)."""
@@ -559,4 +640,4 @@ class ControllerManager:
                                self._enabled, energy, self._upright_energy - energy, raw,
                                feedforward, ';'.join(events) if events else '',
                                self.catch_count, self.fall_count, self.catch_time,
-                               self.fault_reason)
+                               self.fault_reason, self._plugins[SWINGUP].law)

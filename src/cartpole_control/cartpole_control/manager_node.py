@@ -20,9 +20,20 @@ Wiring only; every decision is the manager's.
 - a stale-state timer on the node clock (the ROS clock: with
   ``use_sim_time`` it follows ``/clock``, so a lockstep simulation slower than
   real time is not "stale"): no state for ``state_timeout`` -> zero force and
-  fault ``stale state``;
+  fault ``stale state``; a check that itself comes more than ``state_timeout``
+  late (this process did not run: the states may be waiting in the
+  subscription) leaves the verdict to the next check;
 - service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
-  fault;
+  fault; ``success`` false and the reason when there is nothing to restart;
+- subscribes ``/cartpole/plant_reset`` (std_msgs/Header, published by the
+  simulator's ``~/reset`` and the bridge's homing): the plant (or the
+  position reference) is new from ``stamp`` on, so the first state stamped at
+  or after it starts a new run (:meth:`ControllerManager.reset`: swing-up, or
+  idle when disabled; event
+  ``plant_reset``) instead of the running controller (and the rail guard)
+  seeing the jump;
+- ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between
+  two control cycles since start (a stall figure, :mod:`cartpole_sim.realtime`);
 - zero force on shutdown (:meth:`publish_zero`, also called by
   :meth:`destroy_node`).
 """
@@ -39,13 +50,15 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -53,7 +66,8 @@ NODE_NAME = 'controller_manager'
 STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
 STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
-               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp')
+               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
+               'swingup_law', 'longest_cycle_gap_s')
 """The KeyValues of the controller status, in this order (docs/architecture.md)."""
 
 
@@ -149,8 +163,16 @@ class ControllerManagerNode(Node):
                                                 PUBLISH_DEPTH)
         self._pub_status = self.create_publisher(DiagnosticArray, '/cartpole/controller_status',
                                                  PUBLISH_DEPTH)
+        # Created before the state subscription: when both are ready at once, the
+        # executor hands over the reset first.
+        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+                                 PLANT_RESET_QOS)
         self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
+        self._reset_from: float | None = None
+        """Stamp [s] of a plant reset not yet handed over (see _on_plant_reset)."""
+        self._last_check_ns: int | None = None
+        self.cycle_gaps = CycleGapMeter()
         self._last_state_ns: int | None = None
         self._last_stamp = None
         self._last_command: JointState | None = None
@@ -199,6 +221,11 @@ class ControllerManagerNode(Node):
                 '/cartpole/state needs position and velocity of joints cart and pendulum; '
                 'message ignored', throttle_duration_sec=1.0)
             return
+        self.cycle_gaps.tick()
+        reset = self._reset_from is not None and state.t >= self._reset_from
+        if reset:
+            self._reset_from = None
+            self.manager.reset()
         out = self.manager.update(state)
         force = JointState()
         force.header.stamp = msg.header.stamp
@@ -209,10 +236,17 @@ class ControllerManagerNode(Node):
         self._last_state_ns = self.get_clock().now().nanoseconds
         self._last_stamp = msg.header.stamp
         self._stale = False
-        self._publish_status(out, msg.header.stamp)
+        self._publish_status(out, msg.header.stamp, 'plant_reset' if reset else '')
+        collect_when_idle()  # the command is out: the loop has time until the next sample
 
-    def _publish_status(self, out: ManagerOutput, stamp) -> None:
-        self._pub_status.publish(status_message(out, stamp))
+    def _on_plant_reset(self, msg: Header) -> None:
+        self._reset_from = _stamp_seconds(msg.stamp)
+        self.get_logger().info(f'plant reset at t = {self._reset_from:.3f} s: a new swing-up '
+                               'starts from the first state after it')
+
+    def _publish_status(self, out: ManagerOutput, stamp, extra_event: str = '') -> None:
+        self._pub_status.publish(status_message(out, stamp, self.cycle_gaps.longest,
+                                                extra_event))
         if out.event.startswith('fault') or ';fault' in out.event:
             self.get_logger().error(f'fault: {out.fault_reason}; zero force until '
                                     '~/restart_swingup')
@@ -220,10 +254,16 @@ class ControllerManagerNode(Node):
             self.get_logger().info(f'{out.event} at t = {out.t:.3f} s')
 
     def _check_stale(self) -> None:
+        now = self.get_clock().now()
+        previous, self._last_check_ns = self._last_check_ns, now.nanoseconds
         if self._last_state_ns is None or self._stale:
             return
-        now = self.get_clock().now()
         if (now.nanoseconds - self._last_state_ns) * 1e-9 <= self.manager.state_timeout:
+            return
+        if previous is not None and (now.nanoseconds - previous) * 1e-9 > self.manager.state_timeout:
+            # This check itself comes late: it is this process that did not run (the
+            # states may be waiting in the subscription). Judge at the next check,
+            # once they had their turn; the stall shows in longest_cycle_gap_s.
             return
         self._stale = True
         stamp = now.to_msg()
@@ -233,9 +273,8 @@ class ControllerManagerNode(Node):
 
     # -- services and shutdown ---------------------------------------------------------------------
     def _on_restart(self, request, response):
-        running = self.manager.mode not in (IDLE, FAULT)
-        response.message = self.manager.restart()
-        response.success = not running
+        answer = self.manager.restart()
+        response.success, response.message = answer.successful, answer.reason
         self.get_logger().info(f'restart_swingup: {response.message}')
         return response
 
@@ -261,8 +300,14 @@ class ControllerManagerNode(Node):
         super().destroy_node()
 
 
-def status_message(out: ManagerOutput, stamp) -> DiagnosticArray:
-    """The ``/cartpole/controller_status`` message of one cycle (numbers as repr(float))."""
+def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
+                   extra_event: str = '') -> DiagnosticArray:
+    """The ``/cartpole/controller_status`` message of one cycle (numbers as repr(float)).
+
+    ``extra_event`` (the node's own, e.g. ``plant_reset``) goes before the
+    manager's events in ``event``.
+    """
+    event = ';'.join(e for e in (extra_event, out.event) if e)
     if out.mode == FAULT:
         level = DiagnosticStatus.ERROR
     elif out.mode == IDLE:
@@ -281,8 +326,10 @@ def status_message(out: ManagerOutput, stamp) -> DiagnosticArray:
         'force': repr(float(out.force)),
         'catch_count': repr(float(out.catch_count)),
         'fall_count': repr(float(out.fall_count)),
-        'event': out.event,
+        'event': event,
         'state_stamp': repr(_stamp_seconds(stamp)),
+        'swingup_law': out.swingup_law,
+        'longest_cycle_gap_s': repr(float(longest_cycle_gap)),
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',

@@ -38,9 +38,9 @@ with zero-order hold: after the free-time solve, the problem is solved again
 with h = Ts fixed and N = ceil(T / Ts) intervals (a feasibility problem whose
 cost is a small force-smoothness term), warm-started from the first.
 
-Cache. :class:`TrajectoryCache` stores plans as ``.npz`` files named by the
-SHA-256 of the problem (plant parameters, start, region, limits, grid), so a
-repeated start costs one file read.
+Cache. :mod:`cartpole_control.plan_cache` stores plans as ``.npz`` files
+named by :meth:`MinimumTimeProblem.key`, the SHA-256 of the problem (plant
+parameters, start, region, limits, grid), with a lock per plan.
 """
 from __future__ import annotations
 
@@ -153,6 +153,23 @@ class MinimumTimeProblem:
             'grid': grid,
         }
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+    def to_dict(self) -> dict:
+        """A JSON-able description; :meth:`from_dict` rebuilds an equal problem (same key)."""
+        return {'params': self.params.to_dict(), 'start': list(self.start),
+                'region': dataclasses.asdict(self.region), 'force_scale': self.force_scale,
+                'rail_margin': self.rail_margin, 'friction': self.friction,
+                'terminal_cart_speed': self.terminal_cart_speed,
+                'terminal_cart_window': self.terminal_cart_window,
+                'terminal_cart_ref': self.terminal_cart_ref, 'terminal_hold': self.terminal_hold}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> 'MinimumTimeProblem':
+        fields = dict(data)
+        fields['params'] = CartPoleParameters.from_dict(fields['params'])
+        fields['region'] = CatchRegion(**fields.get('region', {}))
+        fields['start'] = tuple(fields['start'])
+        return cls(**fields)
 
 
 @dataclass(frozen=True)
@@ -498,49 +515,6 @@ def swingup_bounds(params: CartPoleParameters, cases: Sequence[str] = BOUND_CASE
     return {case: solve_minimum_time(bound_problem(case, params, friction), n_intervals,
                                      refine_intervals)
             for case in cases}
-
-
-# -- cache ------------------------------------------------------------------------------------------
-def default_cache_dir() -> Path:
-    """``$CARTPOLE_CACHE_DIR``, else ``$XDG_CACHE_HOME/cartpole/trajectories`` (~/.cache/...)."""
-    env = os.environ.get('CARTPOLE_CACHE_DIR')
-    if env:
-        return Path(env)
-    base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
-    return Path(base) / 'cartpole' / 'trajectories'
-
-
-class TrajectoryCache:
-    """Plans on disk, one ``<key>.npz`` a problem (key: :meth:`MinimumTimeProblem.key`)."""
-
-    def __init__(self, directory: str | Path | None = None) -> None:
-        self.directory = Path(directory) if directory else default_cache_dir()
-
-    def path(self, key: str) -> Path:
-        return self.directory / f'{key}.npz'
-
-    def get(self, key: str) -> Trajectory | None:
-        """The cached plan for ``key``, or None (a damaged file counts as missing)."""
-        path = self.path(key)
-        if not path.is_file():
-            return None
-        try:
-            return Trajectory.load(path)
-        except Exception:
-            return None
-
-    def put(self, key: str, trajectory: Trajectory) -> None:
-        trajectory.save(self.path(key))
-
-    def solve(self, problem: MinimumTimeProblem, grid: float, **options) -> Trajectory:
-        """The plan for ``problem`` on ``grid``: from the cache, or solved and stored."""
-        key = problem.key(grid)
-        cached = self.get(key)
-        if cached is not None:
-            return cached
-        traj = solve_minimum_time(problem, grid=grid, **options)
-        self.put(key, traj)
-        return traj
 
 
 # -- tracking -----------------------------------------------------------------------------------------

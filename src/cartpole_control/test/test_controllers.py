@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from cartpole_control import registry
-from cartpole_control.controller import (API_VERSION, STABILIZER, SWINGUP, ControlContext,
-                                         Controller, ControllerState)
+from cartpole_control.controller import (API_VERSION, STABILIZER, SWINGUP, CommandFeedback,
+                                         ControlContext, Controller, ControllerState)
+from cartpole_control.manager import ControllerManager
 from cartpole_control.controllers.full_energy import FullEnergySwingUp
 from cartpole_control.controllers.pendulum_energy import PendulumEnergySwingUp
 from cartpole_control.controllers.pid import PidStabilizer
@@ -209,19 +210,94 @@ def test_activation_is_bumpless_and_resets_integrators(kind, name):
             assert getattr(used, attr) == 0.0
 
 
-def test_pid_integrators_hold_while_saturated():
+def _integrals(controller):
+    return [getattr(controller, a) for a in ('integral', 'integral_x', 'integral_theta')
+            if hasattr(controller, a)]
+
+
+RIGHT_OF_X_REF = 0.01
+"""The cart 1 cm right of x*, pendulum upright at rest: every law's integral then pushes the
+force to the right (positive). The cart must first move right so that the pendulum leans
+left and then carries it back left (the non-minimum phase of the cart position): the
+steady-state gain of every stabiliser on x - x* is positive, and so is its integral's."""
+
+
+def _hold_right_of_x_ref(controller, feedback, steps=200):
+    state = consistent_state(0.0, X_REF + RIGHT_OF_X_REF, 0.0, 0.0, 0.0)
+    controller.activate(state)
+    first = controller.update(state)
+    controller.command_applied(feedback)
+    last = first
+    for k in range(1, steps):
+        last = controller.update(consistent_state(k * 0.005, X_REF + RIGHT_OF_X_REF, 0.0, 0.0,
+                                                  0.0))
+        controller.command_applied(feedback)
+    return first, last
+
+
+@pytest.mark.parametrize('name', STABILIZERS)
+def test_integrators_integrate_the_cart_error_when_the_command_passes(name):
+    controller = make(STABILIZER, name)
+    first, last = _hold_right_of_x_ref(controller, CommandFeedback(raw=1.0, force=4.0, limited=0))
+    assert any(abs(v) > 1e-4 for v in _integrals(controller)), _integrals(controller)
+    assert last > first + 0.5   # the integral action pushes right, ever harder
+
+
+@pytest.mark.parametrize('name', STABILIZERS)
+@pytest.mark.parametrize('feedback', [
+    CommandFeedback(raw=60.0, force=34.25, limited=1),            # saturated at force_max
+    CommandFeedback(raw=3.0, force=0.0, limited=1),               # rail guard withheld a push right
+    CommandFeedback(raw=-3.0, force=12.0, limited=-1, held=True),  # rail guard braking
+], ids=['saturated', 'rail-guard-limited', 'rail-guard-holds'])
+def test_integrators_do_not_wind_up_while_the_command_is_cut_or_held(name, feedback):
+    controller = make(STABILIZER, name)
+    first, last = _hold_right_of_x_ref(controller, feedback)
+    assert all(v == 0.0 for v in _integrals(controller)), _integrals(controller)
+    # still the law without its integral, up to this cycle's increment (taken back after it)
+    assert last == pytest.approx(first, abs=0.05)
+
+
+@pytest.mark.parametrize('name', STABILIZERS)
+def test_a_command_cut_the_other_way_does_not_stop_the_integrator(name):
+    """Saturated at force_min while the integrator pushes the force up: it keeps integrating."""
+    controller = make(STABILIZER, name)
+    _hold_right_of_x_ref(controller, CommandFeedback(raw=-60.0, force=-37.36, limited=-1), 40)
+    assert any(abs(v) > 1e-4 for v in _integrals(controller))
+
+
+def test_pid_outer_integrator_holds_while_theta_ref_is_limited():
     pid = make(STABILIZER, 'pid')
-    state = consistent_state(0.0, X_REF, -0.4, 0.0, 0.0)      # far out: force beyond +34 N
-    pid.activate(state)
-    for k in range(1, 50):
-        pid.update(consistent_state(k * 0.005, X_REF, -0.4, 0.0, 0.0))
-    assert pid.integral_theta == 0.0
     far = consistent_state(0.0, 0.0, 0.0, 0.0, 0.0)         # cart 0.38 m off: theta* limited
     pid.activate(far)
     for k in range(1, 50):
         pid.update(consistent_state(k * 0.005, 0.0, 0.0, -1.5, 0.0))
     assert abs(pid.theta_ref) == pytest.approx(pid.gains['theta_max'])
     assert pid.integral_x == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('name', STABILIZERS)
+def test_integrators_in_the_manager_stay_put_while_the_force_saturates(name):
+    """The manager's own feedback: a stabiliser held at force_min does not wind up.
+
+    The state is a pendulum leaning far right with the cart right of x*: the
+    law wants far more than the amplifier's -37 N... in the manager, which
+    reports the cut to the plugin every cycle.
+    """
+    manager = ControllerManager(PARAMS, stabilizer=name)
+    manager.update_values(0.0, X_REF, math.pi, 0.0, 0.0)       # hanging: swing-up
+    t = 0.005
+    out = manager.update_values(t, X_REF + 0.05, 0.0, 0.0, 0.0)  # upright at rest: a catch
+    assert out.mode == 'stabilizing'
+    plugin = manager.active_plugins()[STABILIZER]
+    for k in range(2, 60):
+        t = k * 0.005
+        out = manager.update_values(t, X_REF + 0.05, -0.35, 0.0, -3.0)
+        assert out.force == pytest.approx(PARAMS.force_max) or out.force == pytest.approx(
+            PARAMS.force_min), out.force
+    integrals = _integrals(plugin)
+    pushed = [abs(v) for v in integrals]
+    assert max(pushed) < 1e-2, integrals
 
 
 def test_stateless_laws_are_deterministic():

@@ -5,12 +5,14 @@ import math
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from cartpole_control.controller import ControlContext, ControllerState
 from cartpole_control.controllers.full_energy import FullEnergySwingUp
-from cartpole_control.controllers.lqg import LqgStabilizer, lqr_gain
+from cartpole_control.controllers.lqg import LqgStabilizer, augmented_model, lqi_gain, lqr_gain
 from cartpole_control.controllers.pid import PidStabilizer
-from cartpole_control.controllers.smc import SlidingModeStabilizer, regular_form_linearisation
+from cartpole_control.controllers.smc import (SlidingModeStabilizer, ackermann,
+                                              regular_form_linearisation)
 from cartpole_sim.model import CartPoleParameters, accelerations, linearise_upright
 
 PARAMS = CartPoleParameters()
@@ -21,6 +23,7 @@ SPEC_LQR_POLES = np.array([-127.9, -1.68 + 1.41j, -1.68 - 1.41j, -1.00])  # SPEC
 THESIS_SMC_GAIN = np.array([10.0, -1.0, -2.0])                          # (8.39), "k ~"
 THESIS_PID_INNER_POLES = np.array([-37.187, -8.033, -0.15])             # (8.9)
 THESIS_Q = (100.0, 400.0, 100.0, 400.0)                                 # (8.21)/(8.22)
+THESIS_SMC_POLES = (-1.0, 0.0, -4.0, 2.4, -4.0, -2.4)                   # section 8.3
 
 
 def configured(cls, **gains):
@@ -50,16 +53,57 @@ def test_lqr_closed_loop_poles_match_spec_and_are_stable():
     np.testing.assert_allclose(sorted_poles(poles), sorted_poles(SPEC_LQR_POLES), rtol=0.0, atol=0.06)
 
 
-def test_tuned_default_q_is_bryson_with_5_cm_and_faster():
+def test_default_lqi_gain_solves_the_augmented_riccati_equation():
+    """K_aug = R^-1 B_aug^T P with P solving the ARE of [A 0; e_1^T 0], [B; 0], diag(q, q_i)."""
     lqg = configured(LqgStabilizer)
-    assert lqg.gains['q'] == (400.0, 400.0, 400.0, 400.0)
+    q = np.asarray(lqg.gains['q'], dtype=float)
+    assert q.shape == (5,) and q[4] > 0.0
     a, b = linearise_upright(PARAMS)
-    tuned = np.linalg.eigvals(a - b @ lqg.gain[None, :])
-    thesis = np.linalg.eigvals(a - b @ configured(LqgStabilizer, q=THESIS_Q).gain[None, :])
-    assert np.all(tuned.real < 0.0)
-    # the cart's oscillatory pair is faster (-2.47 +- 1.78j instead of -1.68 +- 1.41j)
-    assert min(abs(z.real) for z in tuned if z.imag > 0) > 1.4 * min(
-        abs(z.real) for z in thesis if z.imag > 0)
+    # The augmented model built here, independently of the plugin's helper.
+    a_aug = np.zeros((5, 5))
+    a_aug[:4, :4] = a
+    a_aug[4, 0] = 1.0
+    b_aug = np.vstack([b, [[0.0]]])
+    k_aug = np.append(lqg.gain, lqg.integral_gain)[None, :]
+    r = lqg.gains['r']
+    p = scipy.linalg.solve_continuous_are(a_aug, b_aug, np.diag(q), np.array([[r]]))
+    np.testing.assert_allclose(k_aug, b_aug.T @ p / r, rtol=1e-9)
+    # the Riccati residual of the gain, and the closed-loop poles of the augmented model
+    residual = a_aug.T @ p + p @ a_aug - p @ b_aug @ b_aug.T @ p / r + np.diag(q)
+    assert np.max(np.abs(residual)) < 1e-6 * np.max(np.abs(p))
+    poles = np.linalg.eigvals(a_aug - b_aug @ k_aug)
+    assert np.all(poles.real < 0.0), poles
+    assert lqg.integral_gain < 0.0  # u = ... - K_i int (x - x*): a cart right of x* is pulled back
+    # what the plugin does with it: u = -K (x - x*) - K_i xi, as a closed loop
+    state = ControllerState(0.0, CONTEXT.x_ref + 0.01, 0.0, 0.0, 0.0)
+    lqg.activate(state)
+    assert lqg.update(state) == pytest.approx(-lqg.gain[0] * 0.01)  # bumpless: xi = 0
+
+
+def test_zero_integral_weight_gives_exactly_the_plain_lqr_gain():
+    a, b = linearise_upright(PARAMS)
+    r = np.array([[0.01]])
+    plain = lqr_gain(a, b, np.diag(THESIS_Q), r)[0]
+    four = configured(LqgStabilizer, q=THESIS_Q)
+    five = configured(LqgStabilizer, q=THESIS_Q + (0.0,))
+    np.testing.assert_array_equal(four.gain, plain)
+    np.testing.assert_array_equal(five.gain, plain)
+    assert four.integral_gain == five.integral_gain == 0.0
+    np.testing.assert_array_equal(lqi_gain(a, b, np.diag(THESIS_Q), r, 0.0)[0, :4], plain)
+    # (the augmented ARE itself has no stabilising solution then: the integrator's mode is
+    # marginal and outside the cost)
+    a_aug, b_aug = augmented_model(a, b)
+    with pytest.raises(ValueError):
+        lqr_gain(a_aug, b_aug, np.diag(THESIS_Q + (0.0,)), r)
+
+
+def test_thesis_gain_8_24_is_one_parameter_away_and_integral_weight_speeds_the_cart():
+    thesis = configured(LqgStabilizer, q=THESIS_Q)   # lqg.q: [100, 400, 100, 400]
+    np.testing.assert_allclose(thesis.gain, THESIS_LQR_GAIN, rtol=0.05)
+    assert thesis.integral_gain == 0.0
+    slow = configured(LqgStabilizer, q=THESIS_Q + (100.0,)).integral_gain
+    fast = configured(LqgStabilizer, q=THESIS_Q + (1000.0,)).integral_gain
+    assert fast < slow < 0.0
 
 
 def test_changing_q_recomputes_the_gain():
@@ -75,7 +119,8 @@ def test_changing_q_recomputes_the_gain():
 
 
 @pytest.mark.parametrize('gains, reason', [
-    ({'q': (100.0, 400.0, 100.0)}, 'needs 4 numbers'),
+    ({'q': (100.0, 400.0, 100.0)}, 'needs 4 entries'),
+    ({'q': (100.0, 400.0, 100.0, 400.0, 1.0, 1.0)}, 'needs 4 entries'),
     ({'q': (100.0, -400.0, 100.0, 400.0)}, 'below its minimum'),
     ({'r': -0.01}, 'below its minimum'),
     ({'r': 0.0}, 'below its minimum'),
@@ -95,19 +140,39 @@ def test_lqg_refuses_bad_gains_and_keeps_the_old_ones(gains, reason):
 # -- SMC --------------------------------------------------------------------------
 def test_smc_manifold_gain_close_to_thesis_8_39():
     """(8.39) prints k ~ [10, -1, -2] (one significant figure); 'close' = within 0.25 each."""
-    k = configured(SlidingModeStabilizer).k
+    smc = configured(SlidingModeStabilizer, poles=THESIS_SMC_POLES)   # one parameter away
+    k = smc.k[:3]
+    assert smc.k[3] == 0.0
     np.testing.assert_allclose(k, THESIS_SMC_GAIN, atol=0.25)
     a, b = regular_form_linearisation(PARAMS)
     np.testing.assert_allclose(sorted_poles(np.linalg.eigvals(a - b @ k[None, :])),
                                sorted_poles([-1.0, -4.0 + 2.4j, -4.0 - 2.4j]), atol=1e-9)
 
 
-def test_smc_changed_poles_move_the_manifold():
+def test_smc_default_manifold_has_integral_action_with_the_thesis_poles_and_one_more():
+    """Four poles on the regular form extended by eta_4 = int (x - x*) dt."""
     smc = configured(SlidingModeStabilizer)
+    poles = smc.gains['poles']
+    assert len(poles) == 8 and poles[:6] == THESIS_SMC_POLES
+    a, b = regular_form_linearisation(PARAMS, integral=True)
+    assert a[3].tolist() == [0.0, 0.0, 1.0, 0.0] and b[3, 0] == 0.0   # eta_4_dot = eta_3, no u
+    wanted = [complex(poles[i], poles[i + 1]) for i in range(0, 8, 2)]
+    np.testing.assert_allclose(sorted_poles(np.linalg.eigvals(a - b @ smc.k[None, :])),
+                               sorted_poles(wanted), atol=1e-9)
+    assert smc.k[3] != 0.0
+    # Ackermann's formula agrees with scipy's pole placement where both apply (distinct poles).
+    import scipy.signal
+    distinct = [-2.0, -3.0, -5.0, -0.5]
+    np.testing.assert_allclose(ackermann(a, b, distinct),
+                               scipy.signal.place_poles(a, b, distinct).gain_matrix[0], rtol=1e-9)
+
+
+def test_smc_changed_poles_move_the_manifold():
+    smc = configured(SlidingModeStabilizer, poles=THESIS_SMC_POLES)
     before = smc.k.copy()
     smc.configure({'poles': (-2.0, 0.0, -3.0, 0.0, -5.0, 0.0)}, CONTEXT)
     a, b = regular_form_linearisation(PARAMS)
-    np.testing.assert_allclose(sorted_poles(np.linalg.eigvals(a - b @ smc.k[None, :])),
+    np.testing.assert_allclose(sorted_poles(np.linalg.eigvals(a - b @ smc.k[None, :3])),
                                sorted_poles([-5.0, -3.0, -2.0]), atol=1e-9)
     assert not np.allclose(smc.k, before)
 
@@ -116,14 +181,15 @@ def test_smc_changed_poles_move_the_manifold():
     ((1.0, 0.0, -4.0, 2.4, -4.0, -2.4), 'negative real part'),
     ((-1.0, 0.0, -4.0, 2.4, -4.0, 2.4), 'conjugate'),
     ((-1.0, 0.0, -4.0, 2.4), 'needs 6 numbers'),
+    ((-1.0, 0.0, -4.0, 2.4, -4.0, -2.4, 0.0, 0.0), 'negative real part'),
 ])
 def test_smc_refuses_bad_poles(poles, reason):
     smc = configured(SlidingModeStabilizer)
-    k_before = smc.k.copy()
+    k_before, poles_before = smc.k.copy(), smc.gains['poles']
     with pytest.raises(ValueError, match=reason):
         smc.configure({'poles': poles}, CONTEXT)
     np.testing.assert_array_equal(smc.k, k_before)
-    assert smc.gains['poles'] == (-1.0, 0.0, -4.0, 2.4, -4.0, -2.4)
+    assert smc.gains['poles'] == poles_before
 
 
 def _jacobian(f, z0, eps=1e-6):
@@ -136,24 +202,38 @@ def _jacobian(f, z0, eps=1e-6):
     return np.array(cols).T
 
 
-def test_smc_linearised_closed_loop_is_stable_with_the_placed_poles():
-    """Inside the boundary layer: the three manifold poles plus -lambda_0 / phi_b."""
-    smc = configured(SlidingModeStabilizer)
+@pytest.mark.parametrize('poles', [THESIS_SMC_POLES, None], ids=['thesis', 'default'])
+def test_smc_linearised_closed_loop_is_stable_with_the_placed_poles(poles):
+    """Inside the boundary layer: the manifold poles plus -lambda_0 / phi_b.
+
+    The plant here has only the pendulum's viscous friction, the model (8.38)
+    is designed on (friction_steepness 0: no Coulomb term in the law's model).
+    With the integral the state is [x, theta, x_dot, theta_dot, eta_4].
+    """
+    gains = {'friction_steepness': 0.0}
+    if poles is not None:
+        gains['poles'] = poles
+    smc = configured(SlidingModeStabilizer, **gains)
     x_ref = CONTEXT.x_ref
+    plant = PARAMS.replace(c_p=0.0, c_c_right=0.0, c_c_left=0.0)
 
     def closed_loop(z):
         state = ControllerState(0.0, x_ref + z[0], z[1], z[2], z[3])
-        u = smc.update(state)
-        x_ddot, theta_ddot = accelerations(x_ref + z[0], z[1], z[2], z[3], u, PARAMS,
-                                           friction=False)
-        return np.array([z[2], z[3], x_ddot, theta_ddot])
+        smc.activate(state)
+        smc._integral.value = z[4]
+        u = smc.update(state)      # same stamp as the activation: no integration step
+        x_ddot, theta_ddot = accelerations(x_ref + z[0], z[1], z[2], z[3], u, plant)
+        return np.array([z[2], z[3], x_ddot, theta_ddot, z[0]])
 
-    poles = np.linalg.eigvals(_jacobian(closed_loop, np.zeros(4)))
+    jac = _jacobian(closed_loop, np.zeros(5))
+    design = smc.gains['poles']
+    wanted = [complex(design[i], design[i + 1]) for i in range(0, len(design), 2)]
     layer = -smc.gains['reaching_gain'] / smc.gains['boundary']
-    assert np.all(poles.real < 0.0)
-    np.testing.assert_allclose(sorted_poles(poles),
-                               sorted_poles([layer, -4.0 + 2.4j, -4.0 - 2.4j, -1.0]), atol=0.03)
-    # (the design's B of (8.38) has the pendulum's viscous term, this frictionless loop not)
+    if len(wanted) == 3:
+        jac, wanted = jac[:4, :4], wanted   # without the integral, eta_4 is not a state
+    poles_cl = np.linalg.eigvals(jac)
+    assert np.all(poles_cl.real < 0.0)
+    np.testing.assert_allclose(sorted_poles(poles_cl), sorted_poles([layer, *wanted]), atol=1e-4)
 
 
 # -- PID --------------------------------------------------------------------------
@@ -169,9 +249,22 @@ def test_pid_inner_loop_poles_close_to_thesis_8_9():
     np.testing.assert_allclose(np.sort(poles.real), np.sort(THESIS_PID_INNER_POLES), rtol=0.02)
 
 
-def test_pid_linearised_cascade_with_7_10_is_stable():
-    """Closed loop of the real plugin (update with (7.10), theta_ddot consistent with its force)."""
-    pid = configured(PidStabilizer)
+THESIS_PID_CART_GAINS = (0.2, 0.03, 0.15)                               # Table 8.1
+
+
+@pytest.mark.parametrize('cart_gains, expected_poles', [
+    (THESIS_PID_CART_GAINS, [-13.04 + 7.45j, -13.04 - 7.45j, -0.843 + 1.365j, -0.843 - 1.365j,
+                             -0.171, -0.133]),
+    (None, [-6.540 + 12.571j, -6.540 - 12.571j, -1.664 + 1.631j, -1.664 - 1.631j, -0.3014,
+            -0.1339]),
+], ids=['table-8.1', 'default'])
+def test_pid_linearised_cascade_with_7_10_is_stable(cart_gains, expected_poles):
+    """Closed loop of the real plugin (update with (7.10), theta_ddot consistent with its force).
+
+    Table 8.1's poles are those of the hand-derived cascade (x_ddot = u, SPEC 7); the
+    default's outer loop is faster (the integral takes up an encoder offset in seconds).
+    """
+    pid = configured(PidStabilizer, **({} if cart_gains is None else {'cart_gains': cart_gains}))
     x_ref = CONTEXT.x_ref
 
     def closed_loop(z):
@@ -189,9 +282,6 @@ def test_pid_linearised_cascade_with_7_10_is_stable():
     jac = _jacobian(closed_loop, np.zeros(6))
     poles = np.linalg.eigvals(jac)
     assert np.all(poles.real < 0.0), poles
-    # The poles of the hand-derived cascade (x_ddot = u, SPEC 7), up to v_p left out here.
-    expected_poles = [-13.04 + 7.45j, -13.04 - 7.45j, -0.843 + 1.365j, -0.843 - 1.365j,
-                      -0.171, -0.133]
     np.testing.assert_allclose(sorted_poles(poles), sorted_poles(expected_poles), rtol=0.01)
 
 

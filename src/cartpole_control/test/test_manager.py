@@ -47,6 +47,22 @@ class Recording(Controller):
         return self.gains['force']
 
 
+class Listening(Recording):
+    """Records what the manager reports about its command (the anti-windup hook)."""
+
+    kind, name = STABILIZER, 'listening'
+
+    def command_applied(self, feedback):
+        self.calls.append(('feedback', feedback))
+
+
+class Deaf(Listening):
+    kind, name = STABILIZER, 'deaf'
+
+    def command_applied(self, feedback):
+        raise RuntimeError('bad hook')
+
+
 class PushA(Recording):
     kind, name = SWINGUP, 'push_a'
 
@@ -71,7 +87,8 @@ class Broken(Recording):
 
 
 REGISTRY = {SWINGUP: {'push_a': PushA, 'push_b': PushB},
-            STABILIZER: {'hold_a': HoldA, 'hold_b': HoldB, 'broken': Broken}}
+            STABILIZER: {'hold_a': HoldA, 'hold_b': HoldB, 'broken': Broken,
+                         'listening': Listening, 'deaf': Deaf}}
 
 
 def make(**params):
@@ -125,7 +142,7 @@ def test_unknown_controller_is_refused_with_the_list_and_nothing_changes():
     before = m.get_parameters()
     result = m.set_parameters({'x_ref': 0.3, 'stabilizer': 'mpc'})
     assert not result.successful
-    assert "'mpc'" in result.reason and "['broken', 'hold_a', 'hold_b']" in result.reason
+    assert "'mpc'" in result.reason and "['broken', 'deaf', 'hold_a', 'hold_b', 'listening']" in result.reason
     assert m.get_parameters() == before
     out = m.update(upright(TS))
     assert out.stabilizer == 'hold_a' and out.event == ''
@@ -334,7 +351,9 @@ def test_stale_state_commands_zero_and_faults_until_restart():
         0.0, FAULT, 'stale state', 'fault:stale state')
     out = m.update(state(0.065))
     assert (out.force, out.mode, out.event) == (0.0, FAULT, '')
-    assert 'restarts' in m.restart()
+    answer = m.restart()
+    assert answer.successful and answer.reason == (
+        'fault (stale state) cleared; swing-up restarts at the next control cycle')
     out = m.update(state(0.07))
     assert (out.mode, out.event, out.fault_reason) == (SWINGUP_MODE, 'restart', '')
     assert out.force > 5.0
@@ -357,6 +376,54 @@ def test_a_plugin_that_raises_faults_with_zero_force():
     assert 'broken failed' in out.fault_reason and 'division by zero' in out.fault_reason
 
 
+def _feedback(manager):
+    return [c[1] for c in plugin(manager, STABILIZER).calls if c[0] == 'feedback']
+
+
+@pytest.mark.parametrize('force, limited', [(3.0, 0), (80.0, 1), (-80.0, -1)])
+def test_the_plugin_hears_whether_its_force_was_cut_by_the_saturation(force, limited):
+    m = make(stabilizer='listening', **{'listening.force': force})
+    out = m.update(upright(0.0))
+    assert out.mode == STABILIZING
+    (fb,) = _feedback(m)
+    assert (fb.raw, fb.force, fb.limited, fb.held) == (force, out.force, limited, False)
+    assert fb.force == out.raw_force + out.feedforward if limited == 0 else abs(fb.force) < 38.0
+
+
+def test_the_plugin_hears_the_rail_guard_withhold_a_push_into_the_stop():
+    """At rest at the left stop and upright: a push left is withheld (limited from below)."""
+    m = make(stabilizer='listening', **{'listening.force': -5.0})
+    out = m.update(upright(0.0, x=0.0))
+    assert out.force == 0.0 and m.guard_status == 'limited'
+    (fb,) = _feedback(m)
+    assert fb.limited == -1 and not fb.held and fb.force == 0.0
+
+
+def test_a_plugin_without_the_hook_still_runs_and_one_that_raises_in_it_faults():
+    m = make(stabilizer='hold_a', **{'hold_a.force': 2.0})     # the base class's hook: no-op
+    assert m.update(upright(0.0)).mode == STABILIZING
+    m = make(stabilizer='deaf', **{'deaf.force': 2.0})
+    out = m.update(upright(0.0))
+    assert out.mode == FAULT and out.force == 0.0 and 'bad hook' in out.fault_reason
+
+
+def test_stabilisers_get_the_velocity_band_feedforward_swingups_the_thesis_one():
+    ff = FrictionFeedforward(3.3, 2.8, 20.0, 0.01)
+    assert ff.stabilizing(0.02, -1.0) == pytest.approx(3.3)     # moving right: along x_dot
+    assert ff.stabilizing(-0.02, 1.0) == pytest.approx(-2.8)
+    assert ff.stabilizing(0.0, 1.0) == pytest.approx(3.3 * math.tanh(20.0))  # at rest: (6.12)
+    assert ff.stabilizing(0.005, -1.0) == pytest.approx(3.3 * (0.5 - 0.5 * math.tanh(20.0)))
+    assert ff(0.02, -1.0) == pytest.approx(-3.3 * math.tanh(20.0))            # (6.12)
+    assert FrictionFeedforward(3.3, 2.8, 20.0, 0.0).stabilizing(0.02, -1.0) == ff(0.02, -1.0)
+    m = make(stabilizer='listening', swingup='push_a', **{'listening.force': -1.0,
+                                                          'push_a.force': -1.0,
+                                                          'feedforward.velocity_band': 0.01})
+    swing = m.update(state(0.0, x_dot=0.05))
+    assert swing.mode == SWINGUP_MODE and swing.feedforward == pytest.approx(-3.3 * math.tanh(20))
+    held = m.update(upright(TS, x_dot=0.05))
+    assert held.mode == STABILIZING and held.feedforward == pytest.approx(3.3)
+
+
 def test_disable_gives_idle_and_zero_force_enable_restarts_swingup():
     m = make(swingup='push_a', **{'push_a.force': 5.0})
     m.update(state(0.0))
@@ -373,8 +440,34 @@ def test_disable_gives_idle_and_zero_force_enable_restarts_swingup():
 def test_starts_idle_when_disabled_and_restart_keeps_it_idle():
     m = make(enabled=False)
     assert m.update(state(0.0)).mode == IDLE
-    assert 'disabled' in m.restart()
-    assert m.update(state(TS)).mode == IDLE
+    answer = m.restart()
+    assert not answer.successful and 'nothing to restart' in answer.reason
+    assert 'disabled' in answer.reason and 'fault' not in answer.reason
+    out = m.update(state(TS))
+    assert (out.mode, out.event) == (IDLE, '')
+
+
+def test_restart_answers_truthfully_in_every_mode():
+    m = make(swingup='push_a', **{'push_a.force': 5.0})
+    m.update(state(0.0))
+    running = m.restart()                                  # swing-up: nothing to do
+    assert not running.successful and running.reason.startswith('already running (swingup)')
+    assert m.update(state(TS)).event == ''
+    m.set_parameters({'enabled': False})                   # being disabled, not yet applied
+    assert 'being disabled' in m.restart().reason
+    assert m.update(state(2 * TS)).mode == IDLE
+    idle = m.restart()                                     # disabled: no fault to clear
+    assert not idle.successful and 'fault' not in idle.reason
+    assert m.update(state(3 * TS)).event == ''             # and no restart happens
+    m.set_parameters({'enabled': True})
+    assert m.update(state(4 * TS)).event == 'restart'      # enabling restarts, as documented
+    m.stale(5 * TS)
+    m.set_parameters({'enabled': False})                   # a fault, then disabled
+    disabled_fault = m.restart()
+    assert disabled_fault.successful and disabled_fault.reason.startswith(
+        'fault (stale state) cleared; control is disabled')
+    out = m.update(state(6 * TS))
+    assert (out.mode, out.fault_reason) == (IDLE, '')
 
 
 def test_reset_clears_counters():
@@ -527,7 +620,7 @@ def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
     assert hash(s) == hash(ControllerState(*values)) and s.theta_w == wrap_angle(3.0)
     names = list(ManagerOutput.__dataclass_fields__)
     values = (0.1, 2.0, 'stabilizing', 'pendulum_energy', 'lqg', True, 1.5, 0.1, 1.9, 0.1,
-              'catch', 1, 0, 0.1, '')
+              'catch', 1, 0, 0.1, '', 'pendulum_energy')
     assert len(names) == len(values)
     out = _manager_output(*values)
     assert type(out) is ManagerOutput and out == ManagerOutput(*values)
@@ -535,3 +628,10 @@ def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
     for obj in (s, out):
         with pytest.raises(Exception):
             obj.t = 5.0  # still frozen
+    from cartpole_control.controller import CommandFeedback
+    from cartpole_control.manager import _command_feedback
+    fb = _command_feedback(40.0, 34.25, 1, False)
+    assert type(fb) is CommandFeedback and fb == CommandFeedback(40.0, 34.25, 1, False)
+    assert fb.blocks(0.1) and not fb.blocks(-0.1) and not fb.blocks(0.0)
+    with pytest.raises(Exception):
+        fb.force = 0.0

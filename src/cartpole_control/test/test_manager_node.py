@@ -144,6 +144,7 @@ def test_cycle_publishes_force_and_status_with_the_state_stamp(graph):
     assert float(kv['force']) == command.effort[0]
     assert float(kv['state_stamp']) == pytest.approx(12.345)
     assert float(kv['catch_count']) == 1.0
+    assert kv['swingup_law'] == 'pendulum_energy'  # the law of the swing-up that was caught
     assert float(kv['energy_error']) == pytest.approx(
         P.upright_energy - float(kv['energy']), abs=1e-12)
 
@@ -169,7 +170,7 @@ def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
     (result,) = h.set(lqg__q=[-1.0, 400.0, 100.0, 400.0])  # element out of range: we refuse
     assert not result.successful and 'below its minimum' in result.reason
     (result,) = h.set(lqg__q=[1.0, 2.0])
-    assert not result.successful and 'needs 4 numbers' in result.reason
+    assert not result.successful and 'needs 4 entries' in result.reason
     (result,) = h.set(fall__angle_deg=10.0)
     assert not result.successful and 'catch angle' in result.reason
     (result,) = h.set(x_ref='middle')  # wrong type: rclpy refuses
@@ -186,7 +187,8 @@ def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
 
 def test_describe_parameters_shows_descriptions_and_ranges(graph):
     node, h = graph
-    names = ['catch.angle_deg', 'stabilizer', 'lqg.q', 'sample_time', 'pendulum_energy.k_e']
+    names = ['catch.angle_deg', 'stabilizer', 'lqg.q', 'sample_time', 'pendulum_energy.k_e',
+             'pid.cart_gains']
     descriptors = h.call(h.describe_client,
                          DescribeParameters.Request(names=names)).descriptors
     d = dict(zip(names, descriptors))
@@ -195,7 +197,8 @@ def test_describe_parameters_shows_descriptions_and_ranges(graph):
     assert (rng.from_value, rng.to_value) == (1.0, 90.0)
     assert 'lqg' in d['stabilizer'].additional_constraints
     assert 'smc' in d['stabilizer'].additional_constraints
-    assert '4 numbers' in d['lqg.q'].additional_constraints
+    assert '3 numbers' in d['pid.cart_gains'].additional_constraints
+    assert '4 entries' in d['lqg.q'].description and '5' in d['lqg.q'].description
     assert d['sample_time'].read_only and not d['catch.angle_deg'].read_only
     assert d['pendulum_energy.k_e'].description
     assert not any(x.dynamic_typing for x in descriptors)
@@ -220,6 +223,19 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     assert values_of(status_array)[1]['mode'] in ('swingup', 'stabilizing')
 
 
+def test_a_late_stale_check_leaves_the_verdict_to_the_next_check(graph):
+    """A check that itself comes late means this process did not run (the states may
+    be queued): no fault then; the next, timely check still faults if none came."""
+    node, h = graph
+    h.send_state(3.0)
+    now = node.get_clock().now().nanoseconds
+    node._last_state_ns = node._last_check_ns = now - 200_000_000   # stalled 200 ms
+    node._check_stale()
+    assert not node._stale and node.manager.mode != 'fault'
+    node._check_stale()
+    assert node._stale and node.manager.mode == 'fault'
+
+
 def test_enabled_false_is_idle_with_zero_force(graph):
     node, h = graph
     (result,) = h.set(enabled=False)
@@ -228,6 +244,32 @@ def test_enabled_false_is_idle_with_zero_force(graph):
     status, kv = values_of(status_array)
     assert command.effort[0] == 0.0 and status.level == DiagnosticStatus.WARN
     assert kv['mode'] == 'idle' and kv['enabled'] == 'false'
+    # No fault to clear: the answer says there is nothing to restart, and nothing changes.
+    reply = h.call(h.restart_client, Trigger.Request())
+    assert not reply.success and 'nothing to restart' in reply.message
+    assert 'fault' not in reply.message
+    _, status_array = h.send_state(4.005)
+    assert values_of(status_array)[1]['mode'] == 'idle'
+
+
+def test_plant_reset_starts_a_new_swingup_from_the_first_state_after_it(graph):
+    from std_msgs.msg import Header
+
+    from cartpole_sim.node_main import PLANT_RESET_QOS
+    node, h = graph
+    _, status_array = h.send_state(5.0, theta=0.05)                  # caught: stabilising
+    assert values_of(status_array)[1]['mode'] == 'stabilizing'
+    pub = h.node.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
+    reset = Header()
+    reset.stamp.sec, reset.stamp.nanosec = 5, 10_000_000              # from t = 5.01 s on
+    pub.publish(reset)
+    assert h.spin_until(h.executor, lambda: node._reset_from is not None, 10.0)
+    _, status_array = h.send_state(5.005, theta=0.06)                 # before it: unchanged
+    assert values_of(status_array)[1]['mode'] == 'stabilizing'
+    _, status_array = h.send_state(5.01, x=0.0, theta=math.pi)        # the reset state
+    kv = values_of(status_array)[1]
+    assert (kv['mode'], kv['event'], kv['catch_count']) == ('swingup', 'plant_reset', '0.0')
+    assert float(kv['longest_cycle_gap_s']) >= 0.0
 
 
 def test_parameters_from_overrides_and_bad_overrides_refuse_to_start(ros_context):

@@ -93,30 +93,13 @@ def test_key_depends_on_parameters_start_and_grid():
     assert a.key() != dataclasses.replace(a, force_scale=0.9).key()
 
 
-def test_cache_round_trip_and_a_repeated_start_costs_no_solve(tmp_path, monkeypatch):
-    cache = to.TrajectoryCache(tmp_path)
-    problem = to.bound_problem('middle', P)
-    traj = to.Trajectory(dt=0.005, states=np.zeros((3, 4)), forces=np.array([1.0, -2.0]),
-                         success=True, solve_time=1.5, key=problem.key(0.005))
-    calls = []
-    monkeypatch.setattr(to, 'solve_minimum_time', lambda *a, **k: calls.append(a) or traj)
-    first = cache.solve(problem, 0.005)
-    second = cache.solve(problem, 0.005)
-    assert len(calls) == 1
-    np.testing.assert_array_equal(second.forces, traj.forces)
-    assert second.success and second.dt == 0.005 and second.final_time == pytest.approx(0.01)
-    assert first.key == second.key == problem.key(0.005)
-    # A damaged file counts as missing.
-    cache.path(problem.key(0.005)).write_bytes(b'not a plan')
-    assert cache.get(problem.key(0.005)) is None
-
-
-def test_default_cache_dir_follows_the_environment(monkeypatch, tmp_path):
-    monkeypatch.setenv('CARTPOLE_CACHE_DIR', str(tmp_path))
-    assert to.default_cache_dir() == tmp_path
-    monkeypatch.delenv('CARTPOLE_CACHE_DIR')
-    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
-    assert to.default_cache_dir() == tmp_path / 'cartpole' / 'trajectories'
+def test_problem_round_trips_through_its_json_description():
+    import json
+    problem = dataclasses.replace(to.bound_problem('left_stop', P.replace(m_p=0.2)),
+                                  region=to.CatchRegion(angle=0.1), terminal_cart_window=0.1,
+                                  terminal_hold=0.15, force_scale=0.9)
+    again = to.MinimumTimeProblem.from_dict(json.loads(json.dumps(problem.to_dict())))
+    assert again == problem and again.key(0.005) == problem.key(0.005)
 
 
 def test_tracking_gains_stabilise_the_linearised_error(bounds):

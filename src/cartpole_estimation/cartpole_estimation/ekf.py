@@ -1,10 +1,12 @@
 """Extended Kalman Filter of the cart-pendulum state from the two encoders (chapter 5).
 
-The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34) from the
-quantised cart position and pendulum angle, with the model of
-:mod:`cartpole_sim.model` discretised by forward Euler (5.6)-(5.9), a
-numerical Jacobian (5.20)/(5.21), the Kalman gain (5.12) and the Joseph form
-of the covariance update (5.14).
+The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34), and the pendulum
+encoder's offset b (Appendix H), from the quantised cart position and
+pendulum angle, with the model of :mod:`cartpole_sim.model` discretised
+(5.6)-(5.9) by the explicit midpoint rule (forward Euler, the thesis's (5.8),
+one parameter away), a numerical Jacobian (5.20)/(5.21), the Kalman gain
+(5.12) and the Joseph form of the covariance update (5.14)
+(:mod:`cartpole_estimation.covariance`).
 
 One call of :meth:`ExtendedKalmanFilter.update` per sample does the time
 update from the previous sample to this one under the force applied in that
@@ -18,13 +20,34 @@ Noise covariances. The thesis tuned, on the rig, ``R = diag(0.01, 0.1)``
 is exactly that: the covariance added per nominal period ``Ts``; a step of
 another length ``h`` (a missed sample, jitter) adds ``Q h / Ts``, i.e. Q is
 treated as a random walk whose intensity is ``Q / Ts`` per second. R is the
-covariance of one measurement.
+covariance of one measurement; it stays the thesis's, and Q is tuned on its
+scale (only the ratios set the gains). The thesis's Q trusts the model so
+little that the velocities follow every encoder tick (0.02 rad/s of
+theta_dot per tick of theta), which the stabilisers turn into force. The
+default Q is the model's real uncertainty instead: small and diagonal,
+``diag(1e-5, 1e-5, 0.01, 0.01)``, plus a random *force* on the cart,
+``q_force b b^T`` with ``b = h g(x)`` (4.40), since what the model gets wrong
+is mostly a force (the Coulomb friction of the cart, +-20 % of 3 N): it moves
+the cart and swings the pendulum together as the model couples them, so that
+the cart encoder corrects the pendulum's rate too. With a diagonal Q only,
+an EKF that trusts its model goes wrong with the friction (friction x1.2:
+the pendulum estimate 2 mrad off and a 4 cm limit cycle of the cart).
+
+The encoder's offset. The encoders are zeroed with the pendulum hanging; if
+it was not hanging still (Appendix H), the measured angle is the pendulum's
+minus a constant b. The filter carries b as a fifth state (its prior
+``angle_offset_p0``, a slow random walk ``angle_offset_q``) and measures
+``theta - b``. The model's gravity makes b observable: a pendulum at rest
+hangs at pi, and a swinging one swings about pi (0.1 rad is found within
+about 0.3 s). The angle the filter hands out is the pendulum's own; the
+controllers never see the offset. ``angle_offset_p0 = 0`` leaves the state
+out: the thesis's four-state filter.
 
 Friction in the filter's model. The plant's Coulomb friction uses
 ``tanh(k v)`` with ``k = 1000`` (a near step). Its slope at rest,
 ``c_c k / m_c`` = 716 1/s for the cart, makes the forward-Euler prediction
 at ``Ts`` = 5 ms unstable (|1 - Ts 716| > 1; the limit is
-k < 2 m_c / (c_c Ts) = 559). The filter uses its own steepness
+k < 2 m_c / (c_c Ts) = 559; the midpoint rule has the same limit). The filter uses its own steepness
 (:attr:`EkfConfig.friction_steepness`, 200 s/m and s/rad by default: Euler
 factor 1 - 0.72 = 0.28 at rest, still stable for sub-steps up to 2.8 Ts and
 +20 % friction). Smaller values (10-50) are stable too but let the modelled
@@ -40,215 +63,17 @@ same estimates bit for bit.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from cartpole_sim.model import CartPoleParameters, acceleration_function, wrap_angle
 
+from .covariance import correct, predict_covariance
+from .ekf_config import EkfConfig
+from .state_estimate import StateEstimate, _new_estimate
+
 __all__ = ['EkfConfig', 'StateEstimate', 'ExtendedKalmanFilter']
-
-_TWO_PI = 2.0 * math.pi
-
-
-def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in value)
-    except TypeError as exc:
-        raise ValueError(f'{name} must be a sequence of {length} numbers, got {value!r}') from exc
-    if len(values) != length:
-        raise ValueError(f'{name} must have {length} entries, got {len(values)}')
-    if not all(math.isfinite(v) and v > 0.0 for v in values):
-        raise ValueError(f'{name} entries must be finite and > 0, got {values}')
-    return values
-
-
-@dataclass(frozen=True)
-class EkfConfig:
-    """Tuning and safety limits of the EKF (section 5.2, 9.2.1).
-
-    Every field is validated on construction; a bad value raises
-    :class:`ValueError` naming it.
-    """
-
-    q_diag: tuple[float, float, float, float] = (1.0, 1.0, 50.0, 50.0)
-    """Diagonal of Q_k (9.2): covariance added to the state per nominal sample
-    period Ts, in m^2, rad^2, (m/s)^2, (rad/s)^2. A step of length h adds
-    Q h / Ts."""
-    r_diag: tuple[float, float] = (0.01, 0.1)
-    """Diagonal of R_k (9.1): measurement covariance of x [m^2] and theta [rad^2]."""
-    p0_diag: tuple[float, float, float, float] = (1.0e-6, 1.0e-5, 1.0e3, 1.0e5)
-    """Diagonal of P_0|0 after an (re)initialisation from a measurement:
-    positions about one encoder tick; velocities practically unknown (the
-    state is initialised with zero velocities, possibly mid-swing), so that
-    the next few samples set them: with Q and R of the thesis a prior of
-    (1 rad/s)^2 takes about 0.4 s to recover from a reset at 10 rad/s, this
-    one about 0.05 s."""
-    jacobian_step: float = 1.0e-6
-    """epsilon of the forward difference (5.21)."""
-    friction_steepness: float = 200.0
-    """k of tanh(k v) in the filter's Coulomb friction of cart [s/m] and
-    pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000,
-    with which forward Euler at Ts is unstable near rest (see the module
-    docstring)."""
-    sample_time: float | None = None
-    """Nominal Ts [s]; None takes ``params.sample_time`` (5 ms)."""
-    max_dt: float = 0.25
-    """Largest gap between two samples that is bridged by prediction [s];
-    a longer gap (or a clock jump backwards by more than this) re-initialises
-    the filter from the measurement."""
-    innovation_sigma: float = 6.0
-    """N: an innovation beyond N standard deviations of (5.12)'s
-    H P H^T + R counts as an outlier."""
-    innovation_count: int = 5
-    """M: this many consecutive outlier samples re-initialise the filter."""
-    max_innovation: tuple[float, float] = (0.05, 1.0)
-    """An innovation of x [m] / wrapped theta [rad] larger than this in one
-    sample (10 m/s resp. 200 rad/s over Ts) is an outlier whatever P says."""
-    max_covariance: float = 1.0e9
-    """Any diagonal entry of P above this (or non-finite) re-initialises;
-    must exceed every entry of ``p0_diag``."""
-    max_speed: tuple[float, float] = (20.0, 200.0)
-    """|x_dot| [m/s] / |theta_dot| [rad/s] above which the estimate is
-    considered diverged and re-initialised."""
-    max_position_excursion: float = 1.0
-    """The estimate of x may leave [0, travel] by at most this [m]."""
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, 'q_diag', _positive_tuple('q_diag', self.q_diag, 4))
-        object.__setattr__(self, 'r_diag', _positive_tuple('r_diag', self.r_diag, 2))
-        object.__setattr__(self, 'p0_diag', _positive_tuple('p0_diag', self.p0_diag, 4))
-        object.__setattr__(self, 'max_innovation',
-                           _positive_tuple('max_innovation', self.max_innovation, 2))
-        object.__setattr__(self, 'max_speed', _positive_tuple('max_speed', self.max_speed, 2))
-        for name in ('jacobian_step', 'friction_steepness', 'max_dt', 'innovation_sigma',
-                     'max_covariance', 'max_position_excursion'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value) or value <= 0.0:
-                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
-        if self.sample_time is not None and not (
-                isinstance(self.sample_time, (int, float)) and math.isfinite(self.sample_time)
-                and self.sample_time > 0.0):
-            raise ValueError(f'sample_time must be None or a finite number > 0, '
-                             f'got {self.sample_time!r}')
-        if self.max_covariance <= max(self.p0_diag):
-            raise ValueError(f'max_covariance ({self.max_covariance}) must exceed every '
-                             f'p0_diag entry {self.p0_diag}')
-        if not isinstance(self.innovation_count, int) or self.innovation_count < 1:
-            raise ValueError(f'innovation_count must be an integer >= 1, '
-                             f'got {self.innovation_count!r}')
-
-    def replace(self, **changes) -> 'EkfConfig':
-        """Return a copy with ``changes`` applied (validated again)."""
-        import dataclasses
-        return dataclasses.replace(self, **changes)
-
-
-@dataclass(frozen=True, slots=True)
-class StateEstimate:
-    """The filter's output for one sample (all SI units).
-
-    ``theta`` is continuous (not wrapped); ``theta_w`` is it wrapped to
-    (-pi, pi]. ``x_ddot``/``theta_ddot`` are the model accelerations
-    f(x_hat) + g(x_hat) u (4.40) at the corrected estimate under the force
-    that was applied in the interval ending at this sample, what (7.10)
-    needs.
-    """
-
-    t: float
-    x: float
-    theta: float
-    x_dot: float
-    theta_dot: float
-    theta_w: float
-    x_ddot: float
-    theta_ddot: float
-    covariance_diagonal: tuple[float, float, float, float]
-    """Diagonal of P_k|k (5.14)."""
-    innovation: tuple[float, float]
-    """y_k - h(x_hat_k|k-1) (5.11): x [m] and theta [rad] (wrapped); zeros
-    after an initialisation."""
-    dt: float
-    """Time since the previous accepted sample [s]; 0 on an initialisation."""
-    missed_samples: int = 0
-    """Samples missing in the interval that ended here (round(dt / Ts) - 1)."""
-    missed_samples_total: int = 0
-    """Missed samples since the filter was made."""
-    reset: bool = False
-    """The filter was (re)initialised from this sample's measurement."""
-    reset_reason: str = ''
-    """Why: 'initialisation', 'non-finite ...', 'innovation ...', 'covariance ...',
-    'state ...', 'gap ...', 'clock jumped back ...', 'requested'; '' otherwise."""
-    resets: int = 0
-    """Re-initialisations since the filter was made (the first one excluded)."""
-    rejected: str = ''
-    """Non-empty if this sample was refused (stamp not increasing or not
-    finite, measurement not finite): the estimate is the previous one,
-    unchanged (its ``t`` is the previous sample's)."""
-    warning: str = ''
-    """A repaired input, e.g. a non-finite force taken as 0 N."""
-    valid: bool = True
-    """False when no finite measurement backs this estimate (none seen yet,
-    or the state was dropped after a non-finite measurement)."""
-
-    def as_array(self) -> np.ndarray:
-        """The state [x, theta, x_dot, theta_dot] (4.34)."""
-        return np.array([self.x, self.theta, self.x_dot, self.theta_dot])
-
-
-_ESTIMATE_FIELDS = ('t', 'x', 'theta', 'x_dot', 'theta_dot', 'theta_w', 'x_ddot', 'theta_ddot',
-                    'covariance_diagonal', 'innovation', 'dt', 'missed_samples',
-                    'missed_samples_total', 'reset', 'reset_reason', 'resets', 'rejected',
-                    'warning', 'valid')
-
-
-def _estimate_factory():
-    """A positional constructor of :class:`StateEstimate`, all 19 fields in order.
-
-    The same object the dataclass ``__init__`` makes (no ``__post_init__``,
-    no defaults involved), built by the slots' own descriptors: a frozen
-    dataclass's generated ``__init__`` goes through ``object.__setattr__``
-    once per field and costs about 4 us, this about 1.5 us, once per sample.
-    A test checks both give equal objects.
-    """
-    names = tuple(f.name for f in fields(StateEstimate))
-    if names != _ESTIMATE_FIELDS:  # the signature below must list every field, in order
-        raise RuntimeError(f'StateEstimate fields changed: {names}')
-    setters = [getattr(StateEstimate, name).__set__ for name in names]
-    (s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14, s15, s16, s17,
-     s18) = setters
-    new = object.__new__
-
-    def make(t, x, theta, x_dot, theta_dot, theta_w, x_ddot, theta_ddot, covariance_diagonal,
-             innovation, dt, missed_samples, missed_samples_total, reset, reset_reason, resets,
-             rejected, warning, valid) -> StateEstimate:
-        est = new(StateEstimate)
-        s0(est, t)
-        s1(est, x)
-        s2(est, theta)
-        s3(est, x_dot)
-        s4(est, theta_dot)
-        s5(est, theta_w)
-        s6(est, x_ddot)
-        s7(est, theta_ddot)
-        s8(est, covariance_diagonal)
-        s9(est, innovation)
-        s10(est, dt)
-        s11(est, missed_samples)
-        s12(est, missed_samples_total)
-        s13(est, reset)
-        s14(est, reset_reason)
-        s15(est, resets)
-        s16(est, rejected)
-        s17(est, warning)
-        s18(est, valid)
-        return est
-
-    return make
-
-
-_new_estimate = _estimate_factory()
 
 
 @dataclass
@@ -261,7 +86,7 @@ class ExtendedKalmanFilter:
         The filter's model of the plant (nominal parameters). Its Coulomb
         friction steepness is replaced by ``config.friction_steepness``.
     config
-        Q, R, limits; see :class:`EkfConfig`.
+        Q, R, the offset prior, limits; see :class:`EkfConfig`.
 
     Notes
     -----
@@ -269,6 +94,11 @@ class ExtendedKalmanFilter:
     force command that was held during the interval that ended at this
     sample. The first update (and every re-initialisation) sets the state to
     the measurement with zero velocities.
+
+    The state is ``z = [x, m, x_dot, theta_dot, b]`` with ``m = theta - b``
+    the angle as the encoder reads it and b its offset
+    (:mod:`cartpole_estimation.covariance`); the estimates handed out carry
+    ``theta = m + b``, the pendulum's own angle.
     """
 
     params: CartPoleParameters = field(default_factory=CartPoleParameters)
@@ -291,22 +121,34 @@ class ExtendedKalmanFilter:
         self._acc = acceleration_function(self.model)  # (4.18) with the filter's friction
         self.sample_time = cfg.sample_time if cfg.sample_time is not None \
             else self.params.sample_time
-        self._q = tuple(cfg.q_diag)
+        offset = cfg.estimates_angle_offset
+        self._q_force = cfg.q_force
+        self._m_c, self._m_p, self._l = self.params.m_c, self.params.m_p, self.params.l
+        self._midpoint = cfg.discretisation == 'midpoint'
+        self._q = (*cfg.q_diag, cfg.angle_offset_q if offset else 0.0)
         # Thresholds of _check, read once per configuration.
         self._n2 = cfg.innovation_sigma * cfg.innovation_sigma
         self._x_low = -cfg.max_position_excursion
         self._x_high = self.params.travel + cfg.max_position_excursion
         self._r_x, self._r_theta = cfg.r_diag
         d0, d1, d2, d3 = cfg.p0_diag
-        # P_0|0 in the packed symmetric layout of :attr:`_pc` (see reset()).
-        self._p0 = (d0, 0.0, 0.0, 0.0, d1, 0.0, 0.0, d2, 0.0, d3)
+        # P_0|0 in the packed symmetric layout of :attr:`_pc` (see reset()), the
+        # offset's prior last and uncorrelated with the measured angle m.
+        self._offset_p0 = cfg.angle_offset_p0 if offset else 0.0
+        self._p0 = (d0, 0.0, 0.0, 0.0, 0.0, d1, 0.0, 0.0, 0.0, d2, 0.0, 0.0, d3, 0.0,
+                    self._offset_p0)
 
     def set_config(self, config: EkfConfig) -> None:
-        """Use another configuration from the next update on (state and P kept)."""
+        """Use another configuration from the next update on (state and P kept).
+
+        Switching the offset state off forgets the offset (b = 0, certain).
+        """
         if not isinstance(config, EkfConfig):
             raise TypeError(f'config must be an EkfConfig, got {type(config).__name__}')
         self.config = config
         self._configure()
+        if not config.estimates_angle_offset:
+            self._forget_offset()
 
     def set_noise(self, q_diag=None, r_diag=None) -> None:
         """Change Q (9.2) and/or R (9.1) between two updates; validated first.
@@ -335,10 +177,11 @@ class ExtendedKalmanFilter:
         self._outliers = 0
         self._last: StateEstimate | None = None
         self._pending_reason = ''
-        # P is symmetric; it is kept as its 10 upper-triangle entries
-        # (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33), a tuple of floats:
-        # the 4x4 algebra of (5.14)/(5.16) in scalar closed form is several
-        # times faster in CPython than small numpy products.
+        # The offset b and its variance carried over a re-initialisation (the
+        # encoders were not reset then); forgotten here, the prior is taken.
+        self._offset = (0.0, self._offset_p0)
+        # P is symmetric; it is kept as its 15 upper-triangle entries, a tuple
+        # of floats (:mod:`cartpole_estimation.covariance`).
         if x0 is None:
             self._s: list[float] | None = None
             self._pc = self._p0
@@ -346,14 +189,24 @@ class ExtendedKalmanFilter:
         s = [float(v) for v in np.asarray(x0, dtype=float).reshape(4)]
         if not all(math.isfinite(v) for v in s):
             raise ValueError(f'x0 must be finite, got {s}')
-        self._s = s
+        self._s = s + [0.0]
         self._pc = self._p0
 
-    def request_reset(self) -> None:
-        """Re-initialise from the next measurement, reported as 'requested'."""
+    def _forget_offset(self) -> None:
+        """b = 0 with no uncertainty and no correlation (the thesis's 4-state filter)."""
+        self._offset = (0.0, 0.0)
+        if self._s is not None:
+            self._s[4] = 0.0
+        pc = list(self._pc)
+        for i in (4, 8, 11, 13, 14):
+            pc[i] = 0.0
+        self._pc = tuple(pc)
+
+    def request_reset(self, reason: str = 'requested') -> None:
+        """Re-initialise from the next measurement, reported as ``reason``."""
         self.reset()
         self.resets += 1
-        self._pending_reason = 'requested'
+        self._pending_reason = reason
 
     @property
     def initialised(self) -> bool:
@@ -361,12 +214,18 @@ class ExtendedKalmanFilter:
 
     @property
     def covariance(self) -> np.ndarray:
-        """P_k|k (5.14), a new 4x4 array (symmetric)."""
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._pc
-        return np.array([[p00, p01, p02, p03],
-                         [p01, p11, p12, p13],
-                         [p02, p12, p22, p23],
-                         [p03, p13, p23, p33]])
+        """P_k|k (5.14) of z = [x, m, x_dot, theta_dot, b], a new 5x5 array (symmetric)."""
+        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = self._pc
+        return np.array([[p00, p01, p02, p03, p04],
+                         [p01, p11, p12, p13, p14],
+                         [p02, p12, p22, p23, p24],
+                         [p03, p13, p23, p33, p34],
+                         [p04, p14, p24, p34, p44]])
+
+    @property
+    def angle_offset(self) -> float:
+        """b, the estimated offset of the pendulum encoder [rad] (0.0 without the offset state)."""
+        return 0.0 if self._s is None else self._s[4]
 
     @property
     def last_estimate(self) -> StateEstimate | None:
@@ -432,127 +291,59 @@ class ExtendedKalmanFilter:
     def _predict(self, h: float, force: float) -> None:
         """Time update (5.15)/(5.16) over a step of length h.
 
-        x_k|k-1 = f_k(x_k-1|k-1, u) (5.15) and P_k|k-1 = F_k P F_k^T + Q (5.16),
-        the latter in closed form on the 10 entries of the symmetric P, with
-        F_k = [[1, 0, h, 0], [0, 1, 0, h], [0, f21, f22, f23], [0, f31, f32, f33]]
-        (:meth:`_linearise`). Q is added as ``Q h / Ts`` (module docstring).
+        x_k|k-1 = f_k(x_k-1|k-1, u) (5.15), the model at theta = m + b, with
+        f_k the explicit midpoint rule (or forward Euler (5.8) with
+        ``discretisation='euler'``), and P_k|k-1 = F_k P F_k^T + Q (5.16)
+        (:func:`~cartpole_estimation.covariance.predict_covariance`, F_k's rows
+        from :meth:`_linearise`). Q is added as ``Q h / Ts`` (module docstring).
         """
-        x, th, xd, thd = self._s
-        a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, th, xd, thd, force, h)
-        self._s = [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0]
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._pc
-        # B = F_k P, row by row. F_k's first column is e_1, so B's first column
-        # enters only P_i0 of the product, of which the upper triangle keeps
-        # P_00: B_10, B_20, B_30 are not needed.
-        b00 = p00 + h * p02
-        b01 = p01 + h * p12
-        b02 = p02 + h * p22
-        b03 = p03 + h * p23
-        b11 = p11 + h * p13
-        b12 = p12 + h * p23
-        b13 = p13 + h * p33
-        b21 = f21 * p11 + f22 * p12 + f23 * p13
-        b22 = f21 * p12 + f22 * p22 + f23 * p23
-        b23 = f21 * p13 + f22 * p23 + f23 * p33
-        b31 = f31 * p11 + f32 * p12 + f33 * p13
-        b32 = f31 * p12 + f32 * p22 + f33 * p23
-        b33 = f31 * p13 + f32 * p23 + f33 * p33
-        # P_k|k-1 = B F_k^T + Q, upper triangle.
-        q0, q1, q2, q3 = self._q
+        x, m, xd, thd, off = self._s
+        a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, m + off, xd, thd, force, h)
+        if self._midpoint:
+            # Explicit midpoint rule: the model's accelerations half a step on.
+            hh = 0.5 * h
+            xd_m = xd + hh * a0
+            thd_m = thd + hh * b0
+            a0, b0 = self._acc(x + hh * xd, m + off + hh * thd, xd_m, thd_m, force)
+            self._s = [x + h * xd_m, m + h * thd_m, xd + h * a0, thd + h * b0, off]
+        else:
+            self._s = [x + h * xd, m + h * thd, xd + h * a0, thd + h * b0, off]
+        q = self._q
         if h != self.sample_time:
             ratio = h / self.sample_time
-            q0, q1, q2, q3 = q0 * ratio, q1 * ratio, q2 * ratio, q3 * ratio
-        self._pc = (b00 + h * b02 + q0,
-                    b01 + h * b03,
-                    f21 * b01 + f22 * b02 + f23 * b03,
-                    f31 * b01 + f32 * b02 + f33 * b03,
-                    b11 + h * b13 + q1,
-                    f21 * b11 + f22 * b12 + f23 * b13,
-                    f31 * b11 + f32 * b12 + f33 * b13,
-                    f21 * b21 + f22 * b22 + f23 * b23 + q2,
-                    f31 * b21 + f32 * b22 + f33 * b23,
-                    f31 * b31 + f32 * b32 + f33 * b33 + q3)
+            q = tuple(v * ratio for v in q)
+        pc = predict_covariance(self._pc, h, f21, f22, f23, f31, f32, f33, q)
+        q_force = self._q_force
+        if q_force > 0.0:
+            # + q_force b b^T, b = h g(x) (4.40): a random force on the cart.
+            s_th = math.sin(m + off)
+            g_c = h / (self._m_c + self._m_p * s_th * s_th)
+            g_p = g_c * math.cos(m + off) / self._l
+            if h != self.sample_time:
+                q_force *= h / self.sample_time
+            pc = (*pc[:9], pc[9] + q_force * g_c * g_c, pc[10] + q_force * g_c * g_p, pc[11],
+                  pc[12] + q_force * g_p * g_p, pc[13], pc[14])
+        self._pc = pc
 
     def _correct(self, y_x: float, y_theta: float) -> tuple[float, float, float, float]:
-        """Measurement update (5.10)-(5.14) with H = [I 0] (5.18).
+        """Measurement update (5.10)-(5.14) (:func:`~cartpole_estimation.covariance.correct`).
 
-        Returns the innovation (5.11), theta's wrapped to (-pi, pi] so that
-        a 2 pi jump of the measured angle is not taken for motion, and the
-        innovation variances (H P H^T + R)_ii. Scalar code where H's
-        structure makes it cheaper than matrix products: S = H P H^T + R is
-        the upper-left 2x2 block of P plus R, K = P H^T S^-1 (5.12) uses P's
-        first two columns, and the Joseph form (5.14)
-        P = (I - K H) P (I - K H)^T + K R K^T is evaluated entry by entry as
-        C = (I - K H) P, then C (I - K H)^T + K R K^T (upper triangle).
+        Returns the innovation (5.11) and the innovation variances.
         """
-        s = self._s
-        nu_x = y_x - s[0]
-        nu_t = y_theta - s[1]
-        if not -math.pi < nu_t <= math.pi:
-            nu_t = wrap_angle(nu_t)
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._pc
-        r_x = self._r_x
-        r_t = self._r_theta
-        # S = H P H^T + R and its inverse in closed form.
-        s00 = p00 + r_x
-        s11 = p11 + r_t
-        det = s00 * s11 - p01 * p01
-        i00 = s11 / det
-        i01 = -p01 / det
-        i11 = s00 / det
-        # K = P H^T S^-1 (5.12).
-        k00 = p00 * i00 + p01 * i01
-        k01 = p00 * i01 + p01 * i11
-        k10 = p01 * i00 + p11 * i01
-        k11 = p01 * i01 + p11 * i11
-        k20 = p02 * i00 + p12 * i01
-        k21 = p02 * i01 + p12 * i11
-        k30 = p03 * i00 + p13 * i01
-        k31 = p03 * i01 + p13 * i11
-        # x_k|k = x_k|k-1 + K y~ (5.13).
-        self._s = [s[0] + k00 * nu_x + k01 * nu_t, s[1] + k10 * nu_x + k11 * nu_t,
-                   s[2] + k20 * nu_x + k21 * nu_t, s[3] + k30 * nu_x + k31 * nu_t]
-        # Joseph form (5.14). A = I - K H = [[a00, -k01, 0, 0], [-k10, a11, 0, 0],
-        # [-k20, -k21, 1, 0], [-k30, -k31, 0, 1]]; C = A P (C_32 is not needed).
-        a00 = 1.0 - k00
-        a11 = 1.0 - k11
-        c00 = a00 * p00 - k01 * p01
-        c01 = a00 * p01 - k01 * p11
-        c02 = a00 * p02 - k01 * p12
-        c03 = a00 * p03 - k01 * p13
-        c10 = a11 * p01 - k10 * p00
-        c11 = a11 * p11 - k10 * p01
-        c12 = a11 * p12 - k10 * p02
-        c13 = a11 * p13 - k10 * p03
-        c20 = -k20 * p00 - k21 * p01 + p02
-        c21 = -k20 * p01 - k21 * p11 + p12
-        c22 = -k20 * p02 - k21 * p12 + p22
-        c23 = -k20 * p03 - k21 * p13 + p23
-        c30 = -k30 * p00 - k31 * p01 + p03
-        c31 = -k30 * p01 - k31 * p11 + p13
-        c33 = -k30 * p03 - k31 * p13 + p33
-        # K R K^T with R = diag(r_x, r_theta): (K R)_i0 k_j0 + (K R)_i1 k_j1.
-        kr00, kr01 = k00 * r_x, k01 * r_t
-        kr10, kr11 = k10 * r_x, k11 * r_t
-        kr20, kr21 = k20 * r_x, k21 * r_t
-        kr30, kr31 = k30 * r_x, k31 * r_t
-        self._pc = (a00 * c00 - k01 * c01 + (kr00 * k00 + kr01 * k01),
-                    a11 * c01 - k10 * c00 + (kr00 * k10 + kr01 * k11),
-                    -k20 * c00 - k21 * c01 + c02 + (kr00 * k20 + kr01 * k21),
-                    -k30 * c00 - k31 * c01 + c03 + (kr00 * k30 + kr01 * k31),
-                    a11 * c11 - k10 * c10 + (kr10 * k10 + kr11 * k11),
-                    -k20 * c10 - k21 * c11 + c12 + (kr10 * k20 + kr11 * k21),
-                    -k30 * c10 - k31 * c11 + c13 + (kr10 * k30 + kr11 * k31),
-                    -k20 * c20 - k21 * c21 + c22 + (kr20 * k20 + kr21 * k21),
-                    -k30 * c20 - k31 * c21 + c23 + (kr20 * k30 + kr21 * k31),
-                    -k30 * c30 - k31 * c31 + c33 + (kr30 * k30 + kr31 * k31))
+        self._s, self._pc, nu_x, nu_t, s00, s11 = correct(self._s, self._pc, y_x, y_theta,
+                                                         self._r_x, self._r_theta)
         return nu_x, nu_t, s00, s11
 
     def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
                     reason: str, warning: str = '') -> StateEstimate:
-        """Set the state to the measurement, velocities zero, P = P_0|0."""
-        self._s = [y_x, y_theta, 0.0, 0.0]
-        self._pc = self._p0
+        """Set the state to the measurement, velocities zero, P = P_0|0.
+
+        The offset estimate and its variance carry over (the encoders were
+        not reset, only the filter), or the prior after :meth:`reset`.
+        """
+        offset, variance = self._offset
+        self._s = [y_x, y_theta, 0.0, 0.0, offset]
+        self._pc = self._p0 if variance == self._offset_p0 else self._p0[:14] + (variance,)
         self._t = t
         self._outliers = 0
         return self._estimate(t, force, (0.0, 0.0), 0.0, 0, True, reason, warning)
@@ -560,17 +351,21 @@ class ExtendedKalmanFilter:
     def _reinitialise(self, t: float, y_x: float, y_theta: float, force: float,
                       reason: str, warning: str = '') -> StateEstimate:
         self.resets += 1
+        offset, variance = self._s[4], self._pc[14]
+        if self._offset_p0 > 0.0 and math.isfinite(offset) and 0.0 <= variance <= self._offset_p0:
+            self._offset = (offset, variance)
         return self._initialise(t, y_x, y_theta, force, reason, warning)
 
     def _estimate(self, t: float, force: float, innovation: tuple[float, float], dt: float,
                   missed: int, reset: bool, reason: str, warning: str = '') -> StateEstimate:
-        x, th, xd, thd = self._s
+        x, m, xd, thd, off = self._s
+        th = m + off
         x_ddot, theta_ddot = self._acc(x, th, xd, thd, force)
         pc = self._pc
         est = _new_estimate(t, x, th, xd, thd, wrap_angle(th), x_ddot, theta_ddot,
-                            (pc[0], pc[4], pc[7], pc[9]), innovation, dt, missed,
-                            self.missed_samples_total, reset, reason, self.resets, '',
-                            warning, True)
+                            (pc[0], pc[5] + 2.0 * pc[8] + pc[14], pc[9], pc[12]), innovation,
+                            dt, missed, self.missed_samples_total, reset, reason, self.resets,
+                            '', warning, True, off)
         self._last = est
         return est
 
@@ -592,7 +387,7 @@ class ExtendedKalmanFilter:
             covariance_diagonal=last.covariance_diagonal, innovation=last.innovation,
             dt=0.0, missed_samples_total=self.missed_samples_total, reset=reset,
             reset_reason=reason if reset else '', resets=self.resets, rejected=reason,
-            valid=last.valid and not reset)
+            valid=last.valid and not reset, angle_offset=last.angle_offset)
 
     def update(self, t: float, x_meas: float, theta_meas: float, force: float) -> StateEstimate:
         """Process one sample: time update over [t_prev, t], then measurement update.
@@ -629,7 +424,11 @@ class ExtendedKalmanFilter:
             last = self._last
             had_state = self._t is not None
             pending = self._pending_reason
+            kept = (self._s[4], self._pc[14]) if self._s is not None else self._offset
             self.reset()
+            if self._offset_p0 > 0.0 and math.isfinite(kept[0]) \
+                    and 0.0 <= kept[1] <= self._offset_p0:
+                self._offset = kept  # the encoders were not reset: keep what is known of b
             if had_state:
                 self.resets += 1
                 pending = 'recovery after non-finite measurement'
@@ -678,17 +477,18 @@ class ExtendedKalmanFilter:
     def _check(self, nu_x: float, nu_t: float, s11: float, s22: float) -> str:
         """Divergence tests: state, covariance, innovation; '' if all is well."""
         cfg = self.config
-        x, th, xd, thd = self._s
+        x, m, xd, thd, off = self._s
         isfinite = math.isfinite
-        if not (isfinite(x) and isfinite(th) and isfinite(xd) and isfinite(thd)):
+        if not (isfinite(x) and isfinite(m) and isfinite(xd) and isfinite(thd)
+                and isfinite(off)):
             return 'state not finite'
         pc = self._pc
-        d0, d1, d2, d3 = pc[0], pc[4], pc[7], pc[9]
+        d0, d1, d2, d3, d4 = pc[0], pc[5], pc[9], pc[12], pc[14]
         max_cov = cfg.max_covariance
         # 0 <= d <= max_cov is false for a negative, infinite or NaN entry.
         if not (0.0 <= d0 <= max_cov and 0.0 <= d1 <= max_cov and 0.0 <= d2 <= max_cov
-                and 0.0 <= d3 <= max_cov):
-            return f'covariance blow-up (diag P = {(d0, d1, d2, d3)})'
+                and 0.0 <= d3 <= max_cov and 0.0 <= d4 <= max_cov):
+            return f'covariance blow-up (diag P = {(d0, d1, d2, d3, d4)})'
         max_speed = cfg.max_speed
         if abs(xd) > max_speed[0] or abs(thd) > max_speed[1]:
             return f'state out of bounds (x_dot = {xd:.3g} m/s, theta_dot = {thd:.3g} rad/s)'

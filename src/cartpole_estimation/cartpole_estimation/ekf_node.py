@@ -16,6 +16,12 @@ the order in which DDS delivers the two (with one process a node the sample
 can overtake the command). A command that does not come within
 ``lockstep_wait`` wall seconds (the simulator stepped on its own timeout) is
 not waited for any longer.
+
+A ``/cartpole/plant_reset`` (std_msgs/Header, the simulator's ``~/reset``)
+re-initialises the filter from the first sample stamped at or after its
+``stamp`` (reset reason ``plant reset``): the jump of the plant back to its
+initial state is not an innovation to filter. The health reports the
+longest wall-clock gap between two samples (``longest_cycle_gap_s``).
 """
 from __future__ import annotations
 
@@ -27,12 +33,15 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_sim.model import CartPoleParameters
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_sim.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from .ekf_config import DISCRETISATIONS, changes_from_parameters, q_parameter
 
 JOINT_NAMES = ('cart', 'pendulum')
 
@@ -61,10 +70,12 @@ class EkfNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('ekf', **kwargs)
         defaults = EkfConfig()
-        self.declare_parameter('q', list(defaults.q_diag), ParameterDescriptor(
-            description='Diagonal of the process covariance Q_k added per sample period '
-                        '(thesis 9.2): x [m^2], theta [rad^2], x_dot [(m/s)^2], '
-                        'theta_dot [(rad/s)^2]; 4 entries, each > 0.'))
+        self.declare_parameter('q', q_parameter(defaults), ParameterDescriptor(
+            description='Process covariance Q_k added per sample period: its diagonal for '
+                        'x [m^2], theta [rad^2], x_dot [(m/s)^2], theta_dot [(rad/s)^2] (each '
+                        '> 0) and, as a fifth entry, q_force (>= 0), the variance of a random '
+                        'force on the cart [N^2]; 4 entries = no force noise, the thesis (9.2) '
+                        'is [1, 1, 50, 50].'))
         self.declare_parameter('r', list(defaults.r_diag), ParameterDescriptor(
             description='Diagonal of the measurement covariance R_k (thesis 9.1): '
                         'x [m^2], theta [rad^2]; 2 entries, each > 0.'))
@@ -78,6 +89,17 @@ class EkfNode(Node):
                         '[s/m] and pendulum [s/rad] (4.20)/(4.21). Forward Euler at Ts is '
                         'unstable near rest above 2 m_c / (c_c Ts), about 560.',
             floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)]))
+        self.declare_parameter('angle_offset_p0', defaults.angle_offset_p0, ParameterDescriptor(
+            description='Prior variance of the pendulum encoder\'s offset (Appendix H), on the '
+                        'scale of P; 0 = no offset state (the thesis\'s 4-state filter). Takes '
+                        'effect at the next (re)initialisation.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0e6)]))
+        self.declare_parameter('angle_offset_q', defaults.angle_offset_q, ParameterDescriptor(
+            description='Random walk of the encoder offset per sample period, on the scale of P.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
+        self.declare_parameter('discretisation', defaults.discretisation, ParameterDescriptor(
+            description="f_k of the prediction: 'midpoint' (explicit midpoint rule) or 'euler' "
+                        '(forward Euler, thesis 5.8).'))
         self.declare_parameter('health_period', 0.1, ParameterDescriptor(
             description='Period of /cartpole/ekf/health [s] (node clock).',
             floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)]))
@@ -94,16 +116,16 @@ class EkfNode(Node):
             description='Lockstep: longest wait for that command [wall s].', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)]))
 
-        reason = self._validate([self.get_parameter('q'), self.get_parameter('r')])
+        names = ('q', 'r', 'friction_steepness', 'angle_offset_p0', 'angle_offset_q',
+                 'discretisation')
+        reason = self._validate([self.get_parameter(n) for n in names])
         if reason:
             raise ValueError(f'ekf: {reason}')
         params_file = self.get_parameter('plant_params_file').value
         params = CartPoleParameters.from_yaml(params_file) if params_file \
             else CartPoleParameters()
-        self.filter = ExtendedKalmanFilter(params, EkfConfig(
-            q_diag=tuple(self.get_parameter('q').value),
-            r_diag=tuple(self.get_parameter('r').value),
-            friction_steepness=self.get_parameter('friction_steepness').value))
+        self.filter = ExtendedKalmanFilter(params, EkfConfig(**changes_from_parameters(
+            {n: self.get_parameter(n).value for n in names})))
         self._command_timeout = self.get_parameter('command_timeout').value
 
         # Force command held as the plant holds it: value and the measurement
@@ -129,6 +151,11 @@ class EkfNode(Node):
         self._state_msg.name = list(JOINT_NAMES)
         self._state_pub = self.create_publisher(JointState, '/cartpole/state', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/ekf/health', 10)
+        self._reset_from: float | None = None
+        self.cycle_gaps = CycleGapMeter()
+        # Before /joint_states: when both are ready at once, the reset is taken first.
+        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+                                 PLANT_RESET_QOS)
         self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -146,17 +173,31 @@ class EkfNode(Node):
         self.add_post_set_parameters_callback(self._on_parameters_set)
 
     # -- parameters ---------------------------------------------------------------------
-    @staticmethod
-    def _validate(parameters) -> str:
+    def _validate(self, parameters) -> str:
+        """'' if the filter takes these values (checked on a candidate EkfConfig), else why not."""
         for p in parameters:
             if p.name == 'q':
-                reason = _positive_array_reason('q', p.value, 4)
+                values = list(p.value)
+                reason = _positive_array_reason('q', values[:4], 4) if len(values) in (4, 5) \
+                    else f'q needs 4 entries (the diagonal of Q) or 5 (and q_force), got {len(values)}'
+                if not reason and len(values) == 5 and not (math.isfinite(values[4])
+                                                             and values[4] >= 0.0):
+                    reason = f'q_force (the fifth entry of q) must be finite and >= 0, got {values[4]}'
             elif p.name == 'r':
                 reason = _positive_array_reason('r', p.value, 2)
+            elif p.name == 'discretisation':
+                reason = '' if p.value in DISCRETISATIONS else \
+                    f'discretisation must be one of {list(DISCRETISATIONS)}, got {p.value!r}'
             else:
                 reason = ''
             if reason:
                 return reason
+        changes = changes_from_parameters({p.name: p.value for p in parameters})
+        try:
+            base = self.filter.config if hasattr(self, 'filter') else EkfConfig()
+            base.replace(**changes)
+        except (ValueError, TypeError) as error:
+            return str(error)
         return ''
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
@@ -165,15 +206,9 @@ class EkfNode(Node):
 
     def _on_parameters_set(self, parameters: list[Parameter]) -> None:
         # Same callback group as the subscriptions: applied between two updates.
-        changes = {}
+        changes = changes_from_parameters({p.name: p.value for p in parameters})
         for p in parameters:
-            if p.name == 'q':
-                changes['q_diag'] = tuple(p.value)
-            elif p.name == 'r':
-                changes['r_diag'] = tuple(p.value)
-            elif p.name == 'friction_steepness':
-                changes['friction_steepness'] = float(p.value)
-            elif p.name == 'command_timeout':
+            if p.name == 'command_timeout':
                 self._command_timeout = float(p.value)
             elif p.name == 'health_period':
                 self._health_timer.cancel()
@@ -272,6 +307,12 @@ class EkfNode(Node):
             if self._last_estimate is not None:
                 self._state_pub.publish(self._state_msg)
             return
+        self.cycle_gaps.tick()
+        if self._reset_from is not None and t >= self._reset_from:
+            self._reset_from = None
+            self.filter.request_reset('plant reset')
+            self._force_by_stamp.clear()  # commands of the run before the reset
+            self._force_received_at = None
         force = self._prediction_force()
         est = self.filter.update(t, x, theta, force)
         if est.rejected:
@@ -298,6 +339,12 @@ class EkfNode(Node):
         self.last_bad = why
         self.get_logger().warning(f'/joint_states sample dropped: {why}',
                                   throttle_duration_sec=1.0)
+
+    def _on_plant_reset(self, msg: Header) -> None:
+        """The plant is back in its initial state from ``msg.stamp`` on (simulator reset)."""
+        self._reset_from = _stamp_seconds(msg.stamp)
+        if self._last_sample_t is not None and self._last_sample_t >= self._reset_from:
+            self._reset_from = self._last_sample_t  # came late: the next sample re-initialises
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.filter.request_reset()
@@ -329,12 +376,15 @@ class EkfNode(Node):
         values = {
             'innovation_x': innovation[0], 'innovation_theta': innovation[1],
             'p_x': p_diag[0], 'p_theta': p_diag[1], 'p_x_dot': p_diag[2],
-            'p_theta_dot': p_diag[3], 'resets': f.resets, 'reset_reason': self._last_reset_reason,
+            'p_theta_dot': p_diag[3], 'angle_offset': f.angle_offset,
+            'p_angle_offset': float(f.covariance[4, 4]),
+            'resets': f.resets, 'reset_reason': self._last_reset_reason,
             'missed_samples': f.missed_samples_total, 'dt': dt, 'samples': self.samples,
             'bad_messages': self.bad_messages, 'duplicate_samples': self.duplicate_samples,
             'bad_commands': self.bad_commands,
             'rejected_samples': f.rejected_samples, 'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
+            'longest_cycle_gap_s': self.cycle_gaps.longest,
         }
         status.values = [KeyValue(key=k, value=repr(float(v)) if isinstance(v, (int, float))
                                   else str(v)) for k, v in values.items()]

@@ -155,16 +155,27 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
 def test_refused_q_keeps_the_old_one_with_a_reason(harness, spin_until):
     from rclpy.parameter import Parameter
     h = harness()
-    for bad in ([1.0, 1.0, 50.0], [1.0, 1.0, 50.0, -1.0]):
+    default = list(h.ekf.get_parameter('q').value)
+    assert len(default) == 5 and h.ekf.filter.config.q_force == default[4] > 0.0
+    for bad in ([1.0, 1.0, 50.0], [1.0, 1.0, 50.0, -1.0], [1.0, 1.0, 50.0, 50.0, -1.0],
+                [1.0] * 6):
         result = h.ekf.set_parameters([Parameter('q', value=bad)])[0]
         assert not result.successful and 'q' in result.reason
-    assert list(h.ekf.get_parameter('q').value) == [1.0, 1.0, 50.0, 50.0]
-    assert h.ekf.filter.config.q_diag == (1.0, 1.0, 50.0, 50.0)
+    assert list(h.ekf.get_parameter('q').value) == default
+    assert h.ekf.filter.config.q_diag == tuple(default[:4])
     result = h.ekf.set_parameters([Parameter('r', value=[0.01])])[0]
     assert not result.successful and 'r needs 2' in result.reason
-    result = h.ekf.set_parameters([Parameter('q', value=[2.0, 2.0, 20.0, 30.0])])[0]
+    # the thesis's Q (9.2), one parameter away: 4 entries, no force noise
+    result = h.ekf.set_parameters([Parameter('q', value=[1.0, 1.0, 50.0, 50.0])])[0]
+    assert result.successful
+    assert h.ekf.filter.config.q_diag == (1.0, 1.0, 50.0, 50.0)
+    assert h.ekf.filter.config.q_force == 0.0
+    result = h.ekf.set_parameters([Parameter('q', value=[2.0, 2.0, 20.0, 30.0, 5.0])])[0]
     assert result.successful
     assert h.ekf.filter.config.q_diag == (2.0, 2.0, 20.0, 30.0)
+    assert h.ekf.filter.config.q_force == 5.0
+    result = h.ekf.set_parameters([Parameter('discretisation', value='rk4')])[0]
+    assert not result.successful and 'midpoint' in result.reason
     result = h.ekf.set_parameters([Parameter('plant_params_file', value='x.yaml')])[0]
     assert not result.successful
 
@@ -262,3 +273,28 @@ def test_prediction_uses_the_command_stamped_with_the_previous_sample(harness, s
     h.meas_pub.publish(joint_state(2.005, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
     assert h.ekf._last_force_used == -5.0
+
+
+def test_plant_reset_reinitialises_from_the_first_sample_after_it(harness, spin_until):
+    """/sim/reset puts the cart back at the stop: the jump is not filtered as an innovation."""
+    from std_msgs.msg import Header
+
+    from cartpole_sim.node_main import PLANT_RESET_QOS
+    h = harness()
+    assert connected(h, spin_until)
+    reset_pub = h.node.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
+    for k in range(20):                                   # balancing in the middle
+        h.meas_pub.publish(joint_state(10.0 + k * TS, 0.38, 0.01))
+        assert spin_until(h.executor, lambda: len(h.states) > k, timeout=5.0)
+    reset = Header()
+    reset.stamp.sec, reset.stamp.nanosec = 10, 100_000_000   # t = 10.1 s, sample 20
+    reset_pub.publish(reset)
+    assert spin_until(h.executor, lambda: h.ekf._reset_from is not None, timeout=5.0)
+    h.meas_pub.publish(joint_state(10.1, 0.0, math.pi))
+    assert spin_until(h.executor, lambda: len(h.states) > 20, timeout=5.0)
+    after = h.states[20]
+    assert tuple(after.position) == (0.0, math.pi) and tuple(after.velocity) == (0.0, 0.0)
+    assert h.ekf.filter.resets == 1 and h.ekf._last_reset_reason == 'plant reset'
+    status = h.ekf.health_status()
+    kv = {v.key: v.value for v in status.values}
+    assert kv['reset_reason'] == 'plant reset' and float(kv['longest_cycle_gap_s']) > 0.0

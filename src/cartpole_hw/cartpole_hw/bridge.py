@@ -14,9 +14,28 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
   encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
   ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
   the device ``U,0`` every sample (zero force, device watchdog quiet).
+- An arming requested ahead (``arm_requested``, the ``armed`` parameter at
+  start) waits, besides, for a warm loop: ``warm_commands`` consecutive
+  commands received while disarmed, each fresh within half the
+  ``command_timeout``. A loop still starting up (a backlog of samples being
+  worked off, commands older than the watchdog) would otherwise be armed and
+  at once disarmed by the watchdogs. An explicit :meth:`BridgeCore.arm` arms
+  at once.
 - Host watchdog: once commands flow, no fresh command for ``command_timeout``
   -> ``U,0``, ``E,0``, disarmed (a *trip*). Non-finite or stale commands
-  (stamp older than ``command_timeout``) are not fresh.
+  (stamp older than ``command_timeout``) are not fresh. The watchdogs run at
+  every :meth:`BridgeCore.on_tick` (at least every ``tick_period``, the
+  link's read timeout), and the host watchdog trips at the tick that would
+  otherwise be the last one before the deadline: ``U,0`` goes out at most
+  ``command_timeout`` after the last command arrived (SPEC 8), not up to a
+  tick later.
+- A checksummed sample whose sequence number jumps further ahead than the
+  device can have counted since the last accepted sample (one per
+  ``sample_time``, plus ``sequence_slack``) is refused as a bad sample
+  (``bad_samples``): a corrupted line that kept a valid checksum, not a
+  million lost samples. Should the device really have jumped, three
+  consecutive samples that follow the new number are taken as the new
+  sequence (``sequence_resyncs``).
 - Faults that disarm (``U,0`` + ``E,0``): no valid sample for
   ``sample_timeout``, the device's watchdog flag, a limit switch closing
   while armed, a device ``!`` line with a fault code (>= 16), a serial
@@ -42,6 +61,7 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 
 from cartpole_sim.plant import CounterUnwrapper
+from cartpole_sim.realtime import CycleGapMeter
 
 from . import protocol as jp
 
@@ -59,12 +79,25 @@ class BridgeConfig:
     """Time to wait for the ``V`` answer to a ``P`` before asking again [s]."""
     latency_window: int = 400
     """Number of latest command latencies kept for p50/max (2 s at 200 Hz)."""
+    tick_period: float = 0.002
+    """Longest gap between two :meth:`BridgeCore.on_tick` calls [s] (the link's read
+    timeout); the host watchdog trips one tick early rather than one tick late."""
+    sample_time: float = 0.005
+    """The device's sample period Ts [s] (one sequence number per period)."""
+    sequence_slack: float = 0.1
+    """Sequence jumps beyond elapsed time / sample_time + this / sample_time are refused [s]."""
+    warm_commands: int = 20
+    """Consecutive fresh commands (within command_timeout / 2) an arming requested ahead
+    waits for: the control loop answers the samples in time (100 ms at 200 Hz)."""
 
     def __post_init__(self) -> None:
-        for name in ('command_timeout', 'sample_timeout', 'answer_timeout'):
+        for name in ('command_timeout', 'sample_timeout', 'answer_timeout', 'tick_period',
+                     'sample_time', 'sequence_slack'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+        if not (isinstance(self.warm_commands, int) and self.warm_commands >= 0):
+            raise ValueError(f'warm_commands must be an integer >= 0, got {self.warm_commands!r}')
 
 
 @dataclass(frozen=True)
@@ -122,6 +155,16 @@ class BridgeCore:
         self._unwrap_cart = CounterUnwrapper(self.config.calibration.counter_bits)
         self._unwrap_pend = CounterUnwrapper(self.config.calibration.counter_bits)
         self._since_resync = 0
+        self._last_sequence_receipt: float | None = None
+        self._jump_candidate: int | None = None
+        self._jump_run = 0
+        self.gaps = CycleGapMeter()
+        """Longest gap between two valid samples' receipts (a stall figure)."""
+        self.homes = 0
+        """Completed homings (each moves the position reference: x = 0 now)."""
+        self.warm_run = 0
+        """Consecutive fresh commands received while disarmed (see warm_commands)."""
+        self._last_warm_command = -math.inf
         # counters for the health report
         self.samples = 0
         self.bad_lines: Counter[str] = Counter()
@@ -134,6 +177,8 @@ class BridgeCore:
         self.bad_commands = 0
         self.stale_commands = 0
         self.limit_inhibits = 0
+        self.bad_samples = 0
+        self.sequence_resyncs = 0
         self.last_error = ''
         self.latencies: deque[float] = deque(maxlen=self.config.latency_window)
         self.last_setpoint = 0
@@ -174,6 +219,7 @@ class BridgeCore:
         self.armed = True
         self.arm_requested = True
         self.commands_live = False
+        self.warm_run = 0
         self.armed_at = now
         self._since_resync = 0
         return True, 'armed', [E_ON, U_ZERO]
@@ -226,6 +272,10 @@ class BridgeCore:
         """A force command [N] from the controller; ``latency`` = now - its stamp [s]."""
         if not self.armed:
             self.ignored_commands += 1
+            fresh = math.isfinite(force) and (latency is None
+                                              or latency <= 0.5 * self.config.command_timeout)
+            self.warm_run = self.warm_run + 1 if fresh else 0
+            self._last_warm_command = now
             return []
         if not math.isfinite(force):
             self.bad_commands += 1
@@ -251,7 +301,9 @@ class BridgeCore:
         out: list[bytes] = []
         if not self.connected:
             return out
-        if self.armed and self.commands_live and now - self.last_command > self.config.command_timeout:
+        cfg = self.config
+        if self.armed and self.commands_live and \
+                now + cfg.tick_period - self.last_command > cfg.command_timeout:
             self.watchdog_trips += 1
             out += self._fault(f'host watchdog: no fresh force command for '
                                f'{1e3 * (now - self.last_command):.0f} ms')
@@ -264,9 +316,17 @@ class BridgeCore:
                 self.last_error = 'homing failed: no V answer after R'
             self.ping_sent = now
             out += [PING, STREAM_ON]
-        if self.arm_requested and not self.armed and not self.arm_refusal():
+        if self.arm_requested and not self.armed and not self.arm_refusal() \
+                and self.loop_warm(now):
             out += self.arm(now)[2]
         return out
+
+    def loop_warm(self, now: float) -> bool:
+        """The control loop answers in time: ``warm_commands`` fresh commands in a row,
+        the latest within ``command_timeout`` (see the module docstring)."""
+        cfg = self.config
+        return self.warm_run >= cfg.warm_commands and \
+            (cfg.warm_commands == 0 or now - self._last_warm_command <= cfg.command_timeout)
 
     # -- received lines ------------------------------------------------------------------------------
     def on_line(self, line: bytes | jp.DecodeError, now: float) -> Output:
@@ -292,6 +352,8 @@ class BridgeCore:
         if self.homing:
             self.homing = False
             self.homed = True
+            self.homes += 1
+            self.gaps.last = None      # the samples discarded while homing are no stall
             self._unwrap_cart.reset()
             self._unwrap_pend.reset()
         return []
@@ -304,8 +366,35 @@ class BridgeCore:
             return self._fault(f'device fault {message.code}: {message.text}')
         return []
 
+    def _implausible_sequence(self, seq: int, now: float) -> bool:
+        """Refuse a forward jump the device cannot have made (see the module docstring)."""
+        last = self.tracker.last
+        if last is None or self._last_sequence_receipt is None:
+            return False
+        delta = (seq - last) % jp.UINT32
+        if delta <= 1 or delta >= jp.UINT32 // 2:
+            return False  # next, duplicate or backwards: the tracker's business
+        cfg = self.config
+        possible = 1 + (now - self._last_sequence_receipt + cfg.sequence_slack) / cfg.sample_time
+        if delta <= possible:
+            return False
+        follows = self._jump_candidate is not None and seq == (self._jump_candidate + 1) % jp.UINT32
+        self._jump_run = self._jump_run + 1 if follows else 1
+        self._jump_candidate = seq
+        if self._jump_run >= 3:  # the device really continues from there
+            self._jump_run, self._jump_candidate = 0, None
+            self.sequence_resyncs += 1
+            self.tracker.resync(seq)
+            return False
+        self.bad_samples += 1
+        return True
+
     def _on_sample(self, s: jp.Sample, now: float) -> Output:
         out: list[bytes] = []
+        if self._implausible_sequence(s.seq, now):
+            return Output()
+        self._jump_run, self._jump_candidate = 0, None
+        self._last_sequence_receipt = now
         jump = self.tracker.update(s.seq)
         if jump < 0:
             # sequence went back: the device restarted, its counters are zero again
@@ -317,6 +406,7 @@ class BridgeCore:
             return Output(out)  # counts before the reset took effect
         self.samples += 1
         self.last_sample = now
+        self.gaps.tick(now)
         previous, self.flags = self.flags, s.flags
         cal = self.config.calibration
         x = cal.cart_position(self._unwrap_cart.update(s.cart_ticks))
@@ -359,6 +449,8 @@ class BridgeCore:
             'armed': str(self.armed).lower(),
             'homed': str(self.homed).lower(),
             'homing': str(self.homing).lower(),
+            'arm_requested': str(self.arm_requested).lower(),
+            'warm_commands': str(self.warm_run),
             'samples': str(self.samples),
             'lost_samples': str(self.tracker.lost),
             'bad_lines': str(sum(self.bad_lines.values())),
@@ -378,6 +470,9 @@ class BridgeCore:
             'setpoint': str(self.last_setpoint),
             'ignored_commands': str(self.ignored_commands),
             'bad_commands': str(self.bad_commands),
+            'bad_samples': str(self.bad_samples),
+            'sequence_resyncs': str(self.sequence_resyncs),
+            'longest_cycle_gap_s': repr(self.gaps.longest),
             'stale_commands': str(self.stale_commands),
             'limit_inhibits': str(self.limit_inhibits),
             'faults': str(self.faults),

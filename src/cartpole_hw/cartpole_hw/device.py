@@ -12,7 +12,11 @@ Rules (SPEC section 4):
 - ``U,<s>`` sets the setpoint, clamped to the DAC range, feeds the watchdog
   and clears a tripped watchdog.
 - Watchdog: enabled and no ``U`` for :data:`WATCHDOG_US` -> zero current,
-  flag bit 1 and one ``!,16,watchdog`` until the next ``U``.
+  flag bit 1 and one ``!,16,watchdog`` until the next ``U``. It is checked
+  once a sample period, at the tick that crosses the deadline: a tick trips
+  it when the next tick would come more than :data:`WATCHDOG_US` after the
+  last ``U``, so the current is zero at most 50 ms after the last ``U``
+  arrived (SPEC 8), and at least 45 ms after it.
 - ``R`` zeroes the counters; refused (``!,9``) while enabled: the position
   reference must not move under a running controller.
 - ``P`` answers ``V,1,<name>``; ``L,1``/``L,0`` start/stop streaming.
@@ -31,6 +35,8 @@ from . import protocol as jp
 
 WATCHDOG_US = 50_000
 """Device watchdog: longest time without ``U`` while enabled [us] (SPEC 4)."""
+SAMPLE_PERIOD_US = 5_000
+"""The firmware's sample period Ts [us]: the watchdog runs once a period."""
 
 
 def elapsed_us(now_us: int, then_us: int) -> int:
@@ -46,6 +52,7 @@ class DeviceLogic:
     dac_zero: int = 1953
     dac_max: int = 4095
     watchdog_us: int = WATCHDOG_US
+    sample_period_us: int = SAMPLE_PERIOD_US
     positive_setpoint_drives_right: bool = True
 
     enabled: bool = False
@@ -90,10 +97,14 @@ class DeviceLogic:
 
     # -- periodic ------------------------------------------------------------------------
     def tick(self, now_us: int, limit_left: bool, limit_right: bool) -> list[bytes]:
-        """Run the watchdog and the limit switches at ``now_us``; returns lines to send."""
+        """Run the watchdog and the limit switches at ``now_us``; returns lines to send.
+
+        Called once a sample period; the watchdog trips at this tick when the
+        next one (``sample_period_us`` later) would be past the deadline.
+        """
         out: list[bytes] = []
         if self.enabled and not self.watchdog_tripped and \
-                elapsed_us(now_us, self.last_u_us) >= self.watchdog_us:
+                elapsed_us(now_us, self.last_u_us) > self.watchdog_us - self.sample_period_us:
             self.watchdog_tripped = True
             out.append(self.error(jp.ERROR_CODES['watchdog'], 'watchdog'))
         if self.enabled and limit_left and not self._limit_left:

@@ -11,11 +11,25 @@ more than 0.2 s resynchronises and is counted in ``overruns``).
 
 Per sample period: read the limit switches (cart within ``limit_margin`` of a
 stop or in it), run the watchdog, send ``S`` if streaming, then hold the DAC
-output over the next 5 ms of the plant (zero-order hold).
+output over the next 5 ms of the plant (zero-order hold). Host lines are
+handled as they arrive (the loop waits on the pty between periods), each at
+its own device time, as the firmware handles them at ``micros()``; so the
+watchdog measures from a ``U``'s real arrival and the current is zero from
+the period that starts at most 50 ms after it (SPEC 8).
 
-Faults (for testing the bridge):
+Like the firmware it stands in for, the emulator must not stall: ``cartpole
+emulate`` takes the loop processes' real-time hygiene
+(:mod:`cartpole_sim.realtime`: SCHED_FIFO when permitted, collector frozen
+and run between periods).
 
-- ``drop``: each outgoing line is lost with this probability;
+The plant runs the scenario's disturbances (:mod:`cartpole_sim.scenario`:
+delay, jitter, actuator gain and lag, force noise, pushes, model errors);
+a sample the scenario loses (``drop``) is not sent (its ``seq`` is skipped,
+so the host sees the gap).
+
+Faults of the link (for testing the bridge):
+
+- ``drop`` (``--drop-lines``): each outgoing line is lost with this probability;
 - ``corrupt``: each outgoing line gets one random byte replaced (never by ``\\n``);
 - stall: the USB link freezes for N ms: nothing is read (host bytes wait in
   the pty and arrive late) and the lines produced meanwhile are lost; the
@@ -40,8 +54,10 @@ import time
 import tty
 from dataclasses import dataclass, field
 
+from cartpole_sim import realtime
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario, wrap_counter
+from cartpole_sim.scenario_options import add_scenario_arguments, scenario_from_args
 
 from . import protocol as jp
 from .device import DeviceLogic
@@ -77,7 +93,8 @@ class Emulator:
         self.plant = Plant(self.params, self.scenario)
         self.calibration = jp.Calibration.from_parameters(self.params)
         self.device = DeviceLogic(name=name, dac_zero=self.calibration.dac_zero,
-                                  dac_max=self.calibration.dac_max)
+                                  dac_max=self.calibration.dac_max,
+                                  sample_period_us=int(round(self.params.sample_time * 1e6)))
         self.link = link
         self.faults = faults or FaultConfig()
         self.limit_margin = float(limit_margin)
@@ -182,7 +199,9 @@ class Emulator:
         except (BlockingIOError, OSError):
             self.tx_dropped += 1   # nobody reads the pty: its buffer is full
 
-    def _receive(self) -> None:
+    def _receive(self, now_us: int | None = None) -> None:
+        """Read the pty and handle its lines at device time ``now_us`` (default: the
+        coming period's)."""
         if self._master is None or time.monotonic() < self._stall_until:
             return
         try:
@@ -191,6 +210,10 @@ class Emulator:
             return
         except OSError:
             return
+        self.feed(data, self.t_us if now_us is None else now_us)
+
+    def feed(self, data: bytes, now_us: int) -> None:
+        """Host bytes arriving at device time ``now_us`` [us]: handle every complete line."""
         for item in self._splitter.feed(data):
             if isinstance(item, jp.DecodeError):
                 self._send(self.device.error(jp.ERROR_CODES[item.reason], item.reason))
@@ -198,11 +221,16 @@ class Emulator:
             self.lines_in += 1
             self.received.append(item)
             del self.received[:-200]
-            replies, reset = self.device.handle_line(item, self.t_us)
+            replies, reset = self.device.handle_line(item, now_us)
             if reset:
                 self._offset = self.plant.encoder_counts()
             for reply in replies:
                 self._send(reply)
+
+    def device_time_us(self, until_next_period: float) -> int:
+        """Device time [us] ``until_next_period`` wall seconds before the coming period."""
+        ahead = min(max(int(until_next_period * 1e6), 0), self.device.sample_period_us - 1)
+        return (self.t_us - ahead) % jp.UINT32
 
     # -- one sample period ---------------------------------------------------------------
     def limits(self) -> tuple[bool, bool]:
@@ -222,8 +250,9 @@ class Emulator:
         for line in self.device.tick(self.t_us, left, right):
             self._send(line)
         cart, pend = self.counters()
+        lost = self.plant.sample_lost()  # scenario drop: this sample never reaches the host
         line = self.device.sample_line(self.t_us, cart, pend)
-        if line is not None:
+        if line is not None and not lost:
             self._send(line)
         force = self.calibration.setpoint_to_force(self.device.output_setpoint())
         self.plant.step(force)
@@ -266,6 +295,7 @@ class Emulator:
                 self._receive()
                 self._scheduled_faults(k * ts)
                 self.sample_period()
+                realtime.collect_when_idle()   # the period's work is done
                 k += 1
                 if now - (t0 + k * ts) > 0.2:      # far behind (suspended?): resynchronise
                     self.overruns += 1
@@ -278,7 +308,7 @@ class Emulator:
                 except (OSError, ValueError):
                     ready = []
                 if ready:
-                    self._receive()
+                    self._receive(self.device_time_us(deadline - time.monotonic()))
             else:
                 self._stop.wait(timeout)
 
@@ -337,24 +367,18 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
                         'e.g. /tmp/cartpole-emu; give this path to the bridge')
     p.add_argument('--name', default='cartpole_emulator', help='firmware name in the V answer')
     p.add_argument('--duration', type=float, default=None, metavar='S', help='exit after S seconds')
-    p.add_argument('--tip-mass', type=float, default=None, metavar='KG')
-    p.add_argument('--friction-scale', type=float, default=1.0, metavar='F')
-    p.add_argument('--theta0', type=float, default=math.pi, metavar='RAD',
-                   help='initial pendulum angle (default pi, hanging)')
-    p.add_argument('--x0', type=float, default=0.0, metavar='M',
-                   help='initial cart position from the left stop (default 0)')
-    p.add_argument('--noise', action='store_true', help='encoder noise before quantisation')
-    p.add_argument('--seed', type=int, default=0)
     p.add_argument('--params', metavar='FILE.yaml', help='plant parameters (CartPoleParameters YAML)')
     p.add_argument('--limit-margin', type=float, default=0.003, metavar='M',
                    help='limit switches close this close to a stop (default 3 mm)')
-    p.add_argument('--drop', type=_probability, default=0.0, help='probability of losing a line')
+    p.add_argument('--drop-lines', type=_probability, default=0.0, metavar='P',
+                   help='probability of losing any line sent (a link fault; --drop loses samples)')
     p.add_argument('--corrupt', type=_probability, default=0.0,
                    help='probability of corrupting one byte of a line')
     p.add_argument('--stall', type=_pair, action='append', default=[], metavar='AT:MS',
                    help='freeze the link for MS milliseconds at device time AT seconds (repeatable)')
     p.add_argument('--disconnect', type=_pair, action='append', default=[], metavar='AT:S',
                    help='pull the cable at AT seconds for S seconds (repeatable)')
+    add_scenario_arguments(p, title='emulated plant scenario')
     return p
 
 
@@ -363,9 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         params = CartPoleParameters.from_yaml(args.params) if args.params else CartPoleParameters()
-        scenario = Scenario(x0=args.x0, theta0=args.theta0, tip_mass=args.tip_mass,
-                            friction_scale=args.friction_scale, noise=args.noise, seed=args.seed)
-        faults = FaultConfig(drop=args.drop, corrupt=args.corrupt, stalls=list(args.stall),
+        scenario = scenario_from_args(args)
+        faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt, stalls=list(args.stall),
                              disconnects=list(args.disconnect))
         emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
                             limit_margin=args.limit_margin, seed=args.seed)
@@ -382,10 +405,18 @@ def main(argv: list[str] | None = None) -> int:
         emulator._stop.set()
 
     previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    hygiene = None
     try:
         emulator.open()
+        hygiene = realtime.enter_loop(what='emulator',
+                                      log=lambda text: print(text, file=sys.stderr))
         emulator.run(args.duration)
+    except ValueError as exc:          # a bad CARTPOLE_REALTIME
+        print(f'cartpole emulate: error: {exc}', file=sys.stderr)
+        return 2
     finally:
+        if hygiene is not None:
+            hygiene.leave()
         emulator.close()
         for s, handler in previous.items():
             signal.signal(s, handler)

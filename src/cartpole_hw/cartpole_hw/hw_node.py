@@ -13,7 +13,10 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 - ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
   ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
-  status ``hw_bridge``) every ``health_period``.
+  status ``hw_bridge``) every ``health_period``;
+- after a homing (the position reference moved: x = 0 now), announces it on
+  ``/cartpole/plant_reset`` (std_msgs/Header, stamp = the first sample's)
+  before that sample, so the EKF re-initialises instead of filtering the jump.
 """
 from __future__ import annotations
 
@@ -27,12 +30,13 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
-from cartpole_sim.node_main import PUBLISH_DEPTH, run_node
+from cartpole_sim.node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -98,7 +102,8 @@ class HwBridgeNode(Node):
                         'at the left stop and the pendulum hanging still', **ro))
         self.declare_parameter('armed', False, ParameterDescriptor(
             description='true enables the amplifier and forwards force commands; true at start '
-                        'arms as soon as the device answers and the encoders are homed; any '
+                        'arms as soon as the device answers, the encoders are homed and the '
+                        'control loop answers the samples in time (20 fresh commands); any '
                         'fault sets it back to false'))
 
         p = {name: self.get_parameter(name).value for name in _CALIBRATION}
@@ -123,6 +128,8 @@ class HwBridgeNode(Node):
 
         self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
+        self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
+        self._homes_announced = 0
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/home', self._on_home)
@@ -143,6 +150,10 @@ class HwBridgeNode(Node):
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
+        homes = self.core.homes
+        if homes != self._homes_announced:
+            self._homes_announced = homes
+            self._reset_pub.publish(Header(stamp=msg.header.stamp))
         self._joint_pub.publish(msg)
         if self._home_pending and self.core.link_ready:
             self._home_pending = False

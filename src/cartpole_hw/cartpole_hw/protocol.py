@@ -447,6 +447,10 @@ class SequenceTracker:
         self.restarts += 1
         return -1
 
+    def resync(self, seq: int) -> None:
+        """Take ``seq`` as the next number (no loss counted): the sequence really moved."""
+        self.last = (seq - 1) % UINT32
+
     def reset(self) -> None:
         self.last = None
 

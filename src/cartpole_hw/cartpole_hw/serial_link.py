@@ -1,17 +1,25 @@
 """The serial port around :class:`~cartpole_hw.bridge.BridgeCore`: a reader thread.
 
 One thread owns the reading side of the port: it opens the port (and re-opens
-it every ``reconnect_period`` while it is gone), reads with a 2 ms timeout,
-splits lines, hands each to the core and calls ``on_sample`` right away (the
-sample -> publish path never waits for an executor), and runs the core's
-watchdogs after every read. Writes come from this thread and from the
+it every ``reconnect_period`` while it is gone), reads with a timeout of the
+core's ``tick_period`` (2 ms), splits lines, hands each to the core and calls
+``on_sample`` right away (the sample -> publish path never waits for an
+executor), and runs the core's watchdogs after every read that leaves nothing
+waiting in the port: after a stall of this process (a read that returns empty
+long after it was due, while the device's lines piled up) the lines are taken
+first, so the watchdogs judge the device, not this process's own scheduling. Writes come from this thread and from the
 caller's (ROS executor) thread; both hold ``lock``, the same lock that
 guards the core, so the order of the lines on the wire is the order of the
-core's decisions. A failed write or read closes the port; the core is told
+core's decisions. A write fails only when the port stays unwritable for
+:data:`WRITE_TIMEOUT` (pyserial's own write timeout also fires when the
+writing thread merely waited that long for the interpreter lock, after the
+bytes were written). A failed write or read closes the port; the core is told
 (it disarms) and the thread starts re-opening it. No ROS import.
 """
 from __future__ import annotations
 
+import os
+import select
 import threading
 import time
 from typing import Callable
@@ -20,6 +28,28 @@ import serial
 
 from . import protocol as jp
 from .bridge import BridgeCore, JointSample
+
+WRITE_TIMEOUT = 0.05
+"""Longest time the port may stay unwritable before the link counts as broken [s]."""
+MAX_DEFERRED_TICKS = 16
+"""Reads in a row that may put the watchdogs off because more bytes are waiting."""
+
+
+def write_all(fd: int, data: bytes, timeout: float) -> None:
+    """Write every byte to the non-blocking ``fd``; TimeoutError only if it stays
+    unwritable until ``timeout`` s after the call (a late thread is not a dead port)."""
+    deadline = time.monotonic() + timeout
+    view = memoryview(data)
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+            continue
+        except BlockingIOError:
+            pass
+        _, ready, _ = select.select([], [fd], [], max(0.0, deadline - time.monotonic()))
+        if not ready:
+            raise TimeoutError(f'port not writable for {timeout:g} s '
+                               f'({len(view)} of {len(data)} bytes unsent)')
 
 
 class SerialLink:
@@ -43,6 +73,7 @@ class SerialLink:
         self._splitter = jp.LineSplitter()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._deferred = 0
         self.open_error = ''
 
     # -- public ------------------------------------------------------------------------------
@@ -77,8 +108,8 @@ class SerialLink:
         if port is None:
             return
         try:
-            port.write(b''.join(lines))
-        except (serial.SerialException, OSError) as exc:
+            write_all(port.fileno(), b''.join(lines), WRITE_TIMEOUT)
+        except (serial.SerialException, OSError, ValueError) as exc:
             self._broken = f'write failed: {exc}'
 
     @property
@@ -88,7 +119,7 @@ class SerialLink:
     # -- thread ----------------------------------------------------------------------------------
     def _open(self) -> bool:
         try:
-            port = serial.Serial(self.port, self.baud, timeout=0.002, write_timeout=0.05,
+            port = serial.Serial(self.port, self.baud, timeout=self.core.config.tick_period,
                                  exclusive=True)
         except (serial.SerialException, OSError, ValueError) as exc:
             if str(exc) != self.open_error:
@@ -117,6 +148,13 @@ class SerialLink:
             if reason != 'shutdown':
                 self.log(f'closed {self.port}: {reason}')
 
+    @staticmethod
+    def _bytes_waiting(port: serial.Serial) -> int:
+        try:
+            return port.in_waiting
+        except (serial.SerialException, OSError, TypeError, AttributeError):
+            return 0  # the next read reports the failure
+
     def _run(self) -> None:
         next_attempt = 0.0
         while not self._stop.is_set():
@@ -133,21 +171,32 @@ class SerialLink:
             if self._broken:
                 self._close(self._broken)
                 continue
-            try:
-                port = self._serial
-                data = port.read(max(1, port.in_waiting))
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-                self._close(f'read failed: {exc}')
-                continue
-            now = self.clock()
-            samples: list[JointSample] = []
-            with self.lock:
-                for item in self._splitter.feed(data) if data else ():
-                    out = self.core.on_line(item, now)
-                    self.write(out.write)
-                    if out.sample is not None:
-                        samples.append(out.sample)
-                self.write(self.core.on_tick(self.clock()))
-            if self.on_sample is not None:
-                for sample in samples:
-                    self.on_sample(sample)
+            self._poll(self._serial)
+
+    def _poll(self, port: serial.Serial) -> None:
+        """One read of the port: lines to the core, watchdogs, samples to ``on_sample``."""
+        try:
+            data = port.read(max(1, port.in_waiting))
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            self._close(f'read failed: {exc}')
+            return
+        now = self.clock()
+        samples: list[JointSample] = []
+        with self.lock:
+            for item in self._splitter.feed(data) if data else ():
+                out = self.core.on_line(item, now)
+                self.write(out.write)
+                if out.sample is not None:
+                    samples.append(out.sample)
+            # The watchdogs judge time `tick_time` only if every byte that came before
+            # it has been read; else the next read takes them first (a bounded number of
+            # times, so a flood cannot keep the watchdogs away).
+            tick_time = self.clock()
+            if self._bytes_waiting(port) and self._deferred < MAX_DEFERRED_TICKS:
+                self._deferred += 1
+            else:
+                self._deferred = 0
+                self.write(self.core.on_tick(tick_time))
+        if self.on_sample is not None:
+            for sample in samples:
+                self.on_sample(sample)

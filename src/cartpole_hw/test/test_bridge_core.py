@@ -7,9 +7,16 @@ from cartpole_hw import protocol as jp
 from cartpole_hw.bridge import E_OFF, E_ON, RESET, U_ZERO, BridgeConfig, BridgeCore
 from cartpole_hw.device import DeviceLogic
 
+import importlib.util
+from pathlib import Path
+
+_spec = importlib.util.spec_from_file_location('hw_vectors', Path(__file__).with_name('vectors.py'))
+vectors = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(vectors)
+
 
 def sample(seq, cart=0, pend=0, flags=0):
-    return jp.encode(jp.Sample(seq, seq * 5000, cart, pend, flags))[:-1]
+    return jp.encode(jp.Sample(seq, seq * 5000 % jp.UINT32, cart, pend, flags))[:-1]
 
 
 def ready_core(t=0.0):
@@ -75,12 +82,90 @@ def test_host_watchdog_trips_after_command_timeout_and_disarms():
         t = k * 0.005
         core.on_line(sample(k, flags=1), t)
         assert setpoints(core.on_command(2.0, t, latency=0.001)) == [113]   # 56.744 * 2 N
-    assert core.on_tick(t + 0.049) == []
-    core.on_line(sample(5, flags=1), t + 0.049)
-    lines = core.on_tick(t + 0.051)
+    assert core.on_tick(t + 0.047) == []
+    core.on_line(sample(5, flags=1), t + 0.047)
+    lines = core.on_tick(t + 0.0485)       # the next tick (2 ms) would be past the 50 ms
     assert lines == [U_ZERO, E_OFF] and not core.armed and core.watchdog_trips == 1
     assert 'host watchdog' in core.last_error
     assert core.on_command(2.0, t + 0.06) == []          # stays disarmed: explicit re-arm
+
+
+@pytest.mark.parametrize('phase', [0.0, 0.0003, 0.0011, 0.0019])
+@pytest.mark.parametrize('jitter', [0.0, 0.0004])
+def test_host_watchdog_zero_force_within_50_ms_of_the_last_command(phase, jitter):
+    """SPEC 8 in simulated time: commands every 5 ms (arrival jitter), the link ticking
+    every ``tick_period`` at some phase; after the last command, U,0 goes out at the
+    last tick inside the 50 ms, not one tick later (nor earlier than needed)."""
+    cfg = BridgeConfig(sample_timeout=10.0)                 # samples are not this test's
+    core = ready_core()
+    core.config = cfg
+    core.arm(0.0)
+    last = 0.0
+    for k in range(1, 21):
+        last = k * 0.005 + (jitter if k % 2 else 0.0)
+        core.on_command(2.0, last, latency=0.001)
+    t = 0.1 + phase
+    while t <= last:
+        t += cfg.tick_period
+    while True:
+        lines = core.on_tick(t)
+        if lines:
+            break
+        t += cfg.tick_period
+    assert lines[:2] == [U_ZERO, E_OFF] and core.watchdog_trips == 1
+    assert cfg.command_timeout - cfg.tick_period < t - last <= cfg.command_timeout
+
+
+@pytest.mark.parametrize('elapsed_us,trips', vectors.load('watchdog'))
+@pytest.mark.parametrize('t0', [1000, jp.UINT32 - 256])
+def test_device_watchdog_shared_vectors(elapsed_us, trips, t0):
+    """The same vectors as the firmware's C++ test: a tick ``elapsed_us`` after the last U."""
+    d = DeviceLogic()
+    d.handle_line(jp.encode(jp.Enable(True)), t0)
+    d.handle_line(jp.encode(jp.Setpoint(100)), t0)
+    d.tick((t0 + int(elapsed_us)) % jp.UINT32, False, False)
+    assert d.watchdog_tripped == (trips == '1')
+    assert (d.output_setpoint() == 0) == (trips == '1')
+
+
+def test_absurd_sequence_jump_is_a_bad_sample_not_lost_samples():
+    core = ready_core()
+    for k in range(1, 11):
+        assert core.on_line(sample(k), k * 0.005).sample is not None
+    # a checksummed line whose seq jumped by a million (a garble the XOR did not catch)
+    out = core.on_line(sample(10 + 1_000_000), 0.055)
+    assert out.sample is None and out.write == []
+    assert (core.bad_samples, core.tracker.lost, core.samples) == (1, 0, 10)
+    assert core.on_line(sample(11), 0.056).sample is not None        # the stream goes on
+    # a real gap: 30 samples lost over 155 ms is accepted and counted as lost
+    assert core.on_line(sample(42), 0.056 + 0.155).sample is not None
+    h = core.health()
+    assert (h['lost_samples'], h['bad_samples'], h['sequence_resyncs']) == ('30', '1', '0')
+    # a device whose count really moved: three consecutive samples resynchronise
+    outs = [core.on_line(sample(5_000_000 + i), 0.22 + 0.005 * i) for i in range(4)]
+    assert [o.sample is not None for o in outs] == [False, False, True, True]
+    h = core.health()
+    assert (h['lost_samples'], h['bad_samples'], h['sequence_resyncs']) == ('30', '3', '1')
+
+
+def test_an_arming_requested_ahead_waits_for_a_warm_loop():
+    """armed:=true at start: no E,1 while the loop still works off a backlog (stale
+    commands), only after 20 fresh commands in a row; an explicit arm is immediate."""
+    core = ready_core()
+    core.arm_requested = True
+    t = 0.0
+    for k in range(1, 60):
+        t = k * 0.005
+        core.on_line(sample(k), t)
+        core.on_command(1.0, t + 0.001, latency=0.08 if k < 30 else 0.002)   # backlog, then live
+        lines = core.on_tick(t + 0.002)
+        if core.armed:
+            break
+        assert E_ON not in lines
+    assert core.armed and k == 29 + core.config.warm_commands
+    assert lines == [E_ON, U_ZERO]
+    other = ready_core()
+    assert other.arm(0.0)[0]                                     # the ~/arm service: at once
 
 
 def test_stale_and_nonfinite_commands_are_not_fresh():
@@ -148,7 +233,7 @@ def test_device_watchdog_enable_and_reset_rules():
     d.handle_line(b'E,1*58', 0)
     d.handle_line(b'U,500*4C', 1000)
     assert d.output_setpoint() == 500 and d.dac_value() == 2453
-    assert d.tick(1000 + 49_999, False, False) == []
+    assert d.tick(1000 + 45_000, False, False) == []       # the next tick is still in time
     assert d.tick(1000 + 50_000, False, False) == [jp.encode(jp.DeviceError(16, 'watchdog'))]
     assert d.output_setpoint() == 0 and d.flags() == jp.FLAG_ENABLED | jp.FLAG_WATCHDOG
     replies, reset = d.handle_line(b'R*52', 60_000)

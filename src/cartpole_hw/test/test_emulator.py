@@ -11,6 +11,7 @@ import serial
 
 from cartpole_hw import protocol as jp
 from cartpole_hw.emulator import Emulator, FaultConfig, main
+from cartpole_sim.plant import Scenario
 
 
 class Client:
@@ -84,20 +85,42 @@ def test_setpoint_reaches_the_amplifier_and_moves_the_cart_right(emulator):
     assert c.samples[-1].cart_ticks < moved.cart_ticks
 
 
-def test_device_watchdog_trips_50ms_after_the_last_setpoint(emulator):
+def test_device_watchdog_trips_within_50ms_of_the_last_setpoint(emulator):
     c = Client(emulator.link)
     c.send(jp.Stream(True), jp.Enable(True), jp.Setpoint(300))
     assert c.pump(lambda c: any(s.watchdog_tripped for s in c.samples))
     first = next(s for s in c.samples if s.watchdog_tripped)
-    enabled = [s for s in c.samples if s.enabled]
-    # U arrived with E,1, i.e. before the first enabled sample; the trip 50..55 ms later
-    assert 50_000 <= first.t_us - enabled[0].t_us + 5000 <= 60_000
+    # By device time: the U's arrival (as the device stamped it) to the first sample
+    # showing the trip, from which the current is zero (SPEC 8).
+    assert 45_000 < first.t_us - emulator.device.last_u_us <= 50_000
     assert any(isinstance(m, jp.DeviceError) and m.code == 16 for m in c.messages)
     assert emulator.device.output_setpoint() == 0
     c.send(jp.Setpoint(10))
     n = len(c.samples)
     assert c.pump(lambda c: len(c.samples) > n + 2)
     assert not c.samples[-1].watchdog_tripped             # cleared by the next U
+
+
+@pytest.mark.parametrize('before_period', [0.0, 0.0012, 0.0049])
+def test_setpoint_between_periods_is_zeroed_within_50ms_of_its_arrival(before_period):
+    """The emulator core in device time (no pty, no clock): a U that arrives
+    ``before_period`` s before a period is stamped then, and the first period with
+    zero current starts at most 50 ms after it."""
+    em = Emulator(Scenario(x0=0.3))
+    em.feed(jp.encode(jp.Enable(True)), em.t_us)
+    for _ in range(3):
+        em.sample_period()
+    arrival = em.device_time_us(before_period)
+    assert arrival == em.t_us - round(before_period * 1e6)
+    em.feed(jp.encode(jp.Setpoint(600)), arrival)
+    driving = 0.0
+    while not em.device.watchdog_tripped:
+        driving = em.plant.force
+        em.sample_period()
+    zero_from = (em.t_us - 5000) % jp.UINT32      # the period that tripped starts here
+    assert driving == pytest.approx(600 / 56.744, rel=0.01)      # driven until then
+    assert em.plant.force == pytest.approx(0.0, abs=1e-6)        # zero from then on
+    assert 45_000 < zero_from - arrival <= 50_000
 
 
 def test_reset_rezeroes_and_malformed_commands_are_answered(emulator):
@@ -161,3 +184,45 @@ def test_command_line_refuses_bad_options(capsys):
     assert 'probability' in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(['--stall', 'x'])
+
+
+def test_scenario_drop_loses_exactly_the_seeded_samples(tmp_path):
+    # The scenario's drop loses samples on the link: their seq is skipped, so the host sees
+    # the gap; which ones is fixed by the seed (one draw per 5 ms period of the device).
+    from cartpole_sim.plant import Plant, Scenario
+
+    scenario = Scenario(drop=0.25, seed=6)
+    with Emulator(scenario, link=str(tmp_path / 'emu')) as em:
+        c = Client(em.link)
+        c.send(jp.Stream(True))
+        assert c.pump(lambda c: len(c.samples) >= 150)
+    seqs = [s.seq for s in c.samples]
+    reference = Plant(em.params, scenario)
+    lost = [reference.sample_lost() for _ in range(seqs[-1] + 1)]
+    expected = [k for k in range(seqs[0], seqs[-1] + 1) if not lost[k]]
+    assert seqs == expected
+    assert len(expected) < seqs[-1] - seqs[0] + 1  # some were lost
+
+
+def test_command_line_takes_the_scenario_options():
+    from cartpole_hw.emulator import build_parser
+    from cartpole_sim.plant import Push
+    from cartpole_sim.scenario_options import scenario_from_args
+
+    args = build_parser().parse_args([
+        '--delay', '0.01', '--jitter', '0.002', '--drop', '0.1', '--force-noise', '0.5',
+        '--actuator-gain', '0.7', '--actuator-tau', '0.004', '--cart-mass', '5.5',
+        '--tip-mass', '0.2', '--encoder-offset', '0.05', '--push', '12:cart:10:0.1',
+        '--noise', '--seed', '3', '--drop-lines', '0.2'])
+    scenario = scenario_from_args(args)
+    assert (scenario.delay, scenario.jitter, scenario.drop, scenario.force_noise,
+            scenario.actuator_gain, scenario.actuator_tau, scenario.cart_mass,
+            scenario.tip_mass, scenario.encoder_offset, scenario.noise, scenario.seed) == \
+        (0.01, 0.002, 0.1, 0.5, 0.7, 0.004, 5.5, 0.2, 0.05, True, 3)
+    assert scenario.pushes == (Push(12.0, 'cart', 10.0, 0.1),)
+    assert args.drop_lines == 0.2
+
+
+def test_command_line_refuses_a_bad_scenario(capsys):
+    assert main(['--delay', '0.5']) == 2
+    assert '--delay must be <= 0.04' in capsys.readouterr().err

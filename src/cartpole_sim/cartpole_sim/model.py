@@ -259,6 +259,22 @@ def acceleration_function(p: CartPoleParameters):
     return acc
 
 
+def torque_accelerations(theta: float, torque: float,
+                         p: CartPoleParameters) -> tuple[float, float]:
+    """(x_ddot, theta_ddot) added by a torque on the pendulum [N m], M(theta)^-1 [0, torque].
+
+    A torque about the joint is a generalised force on theta in (4.17); by
+    the linearity of (4.18) in the generalised forces it adds the second
+    column of M(theta)^-1 times the torque, with det M = m_p l^2 (m_c + m_p
+    sin^2 theta), the same closed form as :func:`accelerations`.
+    """
+    s = math.sin(theta)
+    c = math.cos(theta)
+    m_p, l = p.m_p, p.l
+    det = m_p * l * l * (p.m_c + m_p * s * s)
+    return m_p * l * c * torque / det, (p.m_c + m_p) * torque / det
+
+
 def dynamics(t: float, x: np.ndarray, u: float, params: CartPoleParameters) -> np.ndarray:
     """x_dot = f(x) + g(x) u, (4.34)/(4.40), in python-control's signature.
 

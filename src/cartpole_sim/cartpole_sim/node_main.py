@@ -3,11 +3,19 @@
 rclpy's own SIGINT handler shuts the context down under the spinning
 executor: a callback in the middle of ``take_message`` then fails with an
 RCLError instead of a clean exit, and ``destroy_node`` can no longer publish
-(the controller manager's last zero force, the bridge's disarm). Here SIGINT
-and SIGTERM raise KeyboardInterrupt in the spinning thread, the executor wakes
-at least every 0.1 s to let it in, and the context is still alive while the
-node shuts down. Bad start-up parameters are reported on one line, exit 2, and
-so is a node whose name is taken on the domain already (:mod:`cartpole_sim.domain_guard`).
+(the controller manager's last zero force, the bridge's disarm). Raising
+KeyboardInterrupt from the handler is no better: raised inside the Python
+code that builds a message for ``take_message``, it turns into pybind11's
+"Unable to convert call argument" TypeError and kills the node. Here SIGINT
+and SIGTERM only note the request; the spin loop, which wakes at least every
+0.1 s, ends after the callback in progress, and the context is still alive
+while the node shuts down. Bad start-up parameters (and a bad
+``CARTPOLE_REALTIME``) are reported on one line, exit 2, and so is a node
+whose name is taken on the domain already (:mod:`cartpole_sim.domain_guard`).
+
+After start-up the process gets the real-time hygiene of
+:mod:`cartpole_sim.realtime` (collector frozen and run between callbacks;
+SCHED_FIFO for the loop's nodes in real time).
 """
 from __future__ import annotations
 
@@ -19,13 +27,22 @@ import rclpy
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from . import realtime
 from .domain_guard import refuse_duplicate_node
 
 
-def _raise_keyboard_interrupt(signum, frame):
-    raise KeyboardInterrupt
+class _StopRequest:
+    """SIGINT/SIGTERM handler: remembers the signal; the spin loop acts on it."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def __call__(self, signum, frame) -> None:  # noqa: ARG002 - signal handler
+        if self.signum is None:
+            self.signum = signum
 
 
 def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
@@ -37,20 +54,23 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     is still valid (e.g. the recorder drains its queues into the bag).
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    previous = {sig: signal.signal(sig, _raise_keyboard_interrupt)
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    stop = _StopRequest()
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     node = None
+    hygiene = None
     executor = make_executor()
     try:
         refuse_duplicate_node(make_node)  # one graph per domain (cartpole_sim.domain_guard)
         node = make_node()
         executor.add_node(node)
-        try:
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
-        except KeyboardInterrupt:
-            for sig in previous:
-                signal.signal(sig, signal.SIG_IGN)  # one signal is enough: finish cleanly
+        hygiene = realtime.node_hygiene(node.get_name(), node.get_logger(),
+                                        node.get_parameter('use_sim_time').value)
+        while rclpy.ok() and stop.signum is None:
+            executor.spin_once(timeout_sec=0.1)
+            realtime.collect_when_idle()
+        if stop.signum is not None:
+            if hygiene is not None:
+                hygiene.leave()  # shutting down is not the loop's work
             if on_interrupt is not None:
                 on_interrupt(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -59,6 +79,8 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
         print(f'{name or "node"}: error: {error}', file=sys.stderr)
         raise SystemExit(2) from None
     finally:
+        if hygiene is not None:
+            hygiene.leave()
         if node is not None:
             node.destroy_node()
         executor.shutdown()
@@ -66,6 +88,12 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
+
+PLANT_RESET_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""QoS of ``/cartpole/plant_reset`` (publishers and subscribers): the last reset is kept
+for late joiners, so a homing announced while the graph is still discovering itself
+reaches the EKF and the controller manager."""
 
 PUBLISH_DEPTH = 100
 """History depth of the 200 Hz publishers: a slow subscriber (the recorder on a

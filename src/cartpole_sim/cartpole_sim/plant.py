@@ -13,6 +13,13 @@ The mechanics (4.18) are integrated with fixed-step RK4 at ``integration_step``
 explicit RK4 unstable at that step, is integrated exactly over each step (it is
 linear), and the force used in the step is the exact mean of the current over it.
 
+The scenario's disturbances (:mod:`cartpole_sim.scenario`) act here too:
+command delay and jitter, the amplifier's gain error and extra lag, force
+noise and pushes inside the sample-and-hold (:meth:`Plant.step` splits a hold
+where a delayed command arrives or a push starts or ends), lost samples at
+the sampling (:meth:`Plant.sample_lost`). With none of them on, a step takes
+the fast path it always took (no per-step cost for them).
+
 Deterministic: the same parameters, scenario (seed included) and inputs give
 the same trajectory bit for bit.
 """
@@ -23,50 +30,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .disturbance import STREAM_DROP, STREAM_FORCE_NOISE, CommandDelayLine, DisturbedHold, \
+    RandomStream
 from .model import CartPoleParameters, acceleration_function, accelerations
+from .scenario import Push, Scenario, parse_push  # noqa: F401 (re-exported: the plant's scenario)
 
 END_STOP_TOLERANCE = 1.0e-6
 """[m] Penetration past an end stop that counts as contact: 1 um, 1 N of stop
 force at the stiffness 1e6 N/m, far below one cart encoder tick (88 um). A
 cart resting at the left stop after reset sits at x = 0 up to round-off
 (e.g. -1.7e-22 m); a sign test on that float is not a contact."""
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """Initial state and uncertainties of one simulated run.
-
-    The default is the thesis procedure (Appendix H, section 10.1): cart at
-    the left end stop, pendulum hanging at rest, encoders reset there.
-    """
-
-    x0: float = 0.0
-    """Initial cart position [m] from the left end stop."""
-    theta0: float = math.pi
-    """Initial pendulum angle [rad]; pi is hanging."""
-    x_dot0: float = 0.0
-    theta_dot0: float = 0.0
-    tip_mass: float | None = None
-    """Tip mass m_p [kg] of the plant; None keeps the parameters' value."""
-    friction_scale: float = 1.0
-    """Multiplies every cart and pendulum friction coefficient of the plant."""
-    encoder_offset: float = 0.0
-    """Pendulum angle minus pi when the encoders were reset [rad] (Appendix H):
-    the measured angle is biased by minus this much."""
-    noise: bool = False
-    """Add Gaussian measurement noise before quantisation."""
-    noise_std_cart: float = 1.0e-4
-    """Cart position noise [m] (about one tick)."""
-    noise_std_pendulum: float = 1.5e-3
-    """Pendulum angle noise [rad] (about half a tick)."""
-    seed: int = 0
-
-    def plant_parameters(self, nominal: CartPoleParameters) -> CartPoleParameters:
-        """The plant's true parameters under this scenario."""
-        return nominal.with_scenario(self.tip_mass, self.friction_scale)
-
-    def initial_state(self) -> tuple[float, float, float, float]:
-        return (float(self.x0), float(self.theta0), float(self.x_dot0), float(self.theta_dot0))
 
 
 @dataclass(frozen=True)
@@ -132,7 +105,7 @@ class CounterUnwrapper:
 
 
 @dataclass
-class Plant:
+class Plant(DisturbedHold):
     """The simulated rig: call :meth:`step` with a force command, read :meth:`measure`.
 
     ``params`` are the nominal parameters; the scenario's tip mass and
@@ -155,7 +128,16 @@ class Plant:
         self._cart_resolution = p.cart_resolution
         self._pendulum_resolution = p.pendulum_resolution
         self._current_gain = tp.actuator_gain / tp.actuator_pole
+        sc = self.scenario
+        if sc.actuator_gain != 1.0:  # amplifier gain error: G times the commanded current
+            self._current_gain *= sc.actuator_gain
         self._default_substeps = self._substeps(p.sample_time)
+        self._disturbed = sc.disturbs_the_hold
+        self._period_ns = int(round(p.sample_time * 1e9))
+        self._hold_factors: dict[int, tuple] = {}
+        self._pushes = [(int(round(q.t * 1e9)), int(round((q.t + q.width) * 1e9)),
+                         q.target, float(q.amplitude)) for q in sc.pushes]
+        self._torque_acc: dict[float, object] = {}
         self.reset()
 
     # -- state -------------------------------------------------------------------
@@ -170,7 +152,16 @@ class Plant:
         self.contact_penetration = 0.0
         """Deepest penetration past a stop during the last step [m]: positive at
         the left stop, negative at the right one, 0.0 within the tolerance."""
-        self._rng = np.random.default_rng(self.scenario.seed)
+        sc = self.scenario
+        self._rng = np.random.default_rng(sc.seed)
+        self.lag_current = 0.0
+        """State of the amplifier's extra lag (``actuator_tau``) [A]."""
+        self.lost_samples = 0
+        """Samples lost on the way to the host since the reset (:meth:`sample_lost`)."""
+        self._delay_line = CommandDelayLine(sc.delay, sc.jitter, sc.seed)
+        self._drop_draws = RandomStream(sc.seed, STREAM_DROP, 'uniform') if sc.drop else None
+        self._force_noise_draws = (RandomStream(sc.seed, STREAM_FORCE_NOISE, 'normal')
+                                   if sc.force_noise else None)
         self._unwrap_cart = CounterUnwrapper(self.params.counter_bits)
         self._unwrap_pend = CounterUnwrapper(self.params.counter_bits)
         # Encoders are zeroed at the left stop and with the pendulum at
@@ -235,8 +226,11 @@ class Plant:
         self.state = [x, th, v, w]
 
     def _rk4_steps(self, x: float, th: float, v: float, w: float, h: float,
-                   forces) -> tuple[float, float, float, float, bool]:
+                   forces, acc=None) -> tuple[float, float, float, float, bool]:
         """RK4 steps of length h of (4.18) with end stops, one per force in ``forces``.
+
+        ``acc`` replaces the plant's acceleration function (a push on the
+        pendulum adds its torque, :meth:`_acc_with_torque`).
 
         Returns the final state and the deepest penetration past a stop after
         any of the steps (positive at the left stop, negative at the right one,
@@ -246,7 +240,8 @@ class Plant:
         calling helpers (about 3x faster in CPython); :meth:`_derivative` is
         the readable reference and a test checks the two agree to the last bit.
         """
-        acc = self._acc
+        if acc is None:
+            acc = self._acc
         travel = self._travel
         stop = self._end_stop_force
         hh = 0.5 * h
@@ -290,9 +285,14 @@ class Plant:
 
         The command is held (ZOH); the current follows it through (4.4)
         exactly; the mechanics advance with RK4 at :attr:`integration_step`.
+        With a scenario delay the command takes effect that much later (the
+        previous one is held until then, :meth:`_step_disturbed`).
         """
         if not math.isfinite(force_command):
             force_command = 0.0
+        if self._disturbed:
+            self._step_disturbed(force_command, duration)
+            return
         if duration is None:
             n, h, decay, mean_factor = self._default_substeps
         else:
@@ -316,6 +316,18 @@ class Plant:
         self.contact_penetration = deepest
         if deepest:
             self.end_stop_contact = True
+
+    def sample_lost(self) -> bool:
+        """Whether the sample taken now is lost on its way to the host (scenario ``drop``).
+
+        Call it once per sample (the closed loop, the simulator and the
+        emulator do); it draws from its own seeded generator and counts
+        :attr:`lost_samples`. Always False without ``drop``.
+        """
+        if self._drop_draws is None or self._drop_draws.next() >= self.scenario.drop:
+            return False
+        self.lost_samples += 1
+        return True
 
     # -- encoders (2.3), (2.4) ----------------------------------------------------------
     def encoder_counts(self) -> tuple[int, int]:

@@ -20,6 +20,14 @@ controller cannot hang the graph. Until the first matching command arrives
 timeout does not apply, so a graph whose controller starts slowly still starts
 from the same sample and runs the same way every time.
 
+Reset (service ``~/reset``): the plant goes back to the scenario's initial
+state with zero force, and the node announces it on ``cartpole/plant_reset``
+(std_msgs/Header, ``stamp`` = the time from which samples show the reset
+plant: the reset sample's stamp in lockstep, the reset's time in real time)
+before the first sample after it, so that the EKF re-initialises and the
+controller manager starts a new swing-up instead of seeing the jump. Force
+commands stamped before the reset (answers to the old run) are ignored.
+
 Topic names are relative (``joint_states`` is ``/joint_states`` without a
 namespace), so a graph can run in a namespace; ``/clock`` stays global.
 """
@@ -37,19 +45,22 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from .model import CartPoleParameters
 from .plant import Scenario
+from .scenario import DELAY_MAX, parse_push
 from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
-from .node_main import PUBLISH_DEPTH, run_node
+from .node_main import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
 
 SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'friction_scale',
                        'encoder_offset', 'noise', 'seed', 'plant_params_file',
-                       'integration_step')
+                       'integration_step', 'cart_mass', 'delay', 'jitter', 'drop',
+                       'force_noise', 'actuator_gain', 'actuator_tau', 'pushes')
 """Parameters that take effect at the next reset (service ``~/reset``)."""
 
 
@@ -95,6 +106,9 @@ class SimNode(Node):
 
         self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
         self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
+        self._pub_reset = self.create_publisher(Header, 'cartpole/plant_reset', PLANT_RESET_QOS)
+        self._reset_stamp_ns = -1
+        """Commands stamped before this [ns] answer the run before the last reset."""
         self._pub_clock = None
         self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -112,7 +126,7 @@ class SimNode(Node):
             if not self._loop_established:
                 self._startup_timer = self.create_timer(
                     STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
-            self._publish(self._runner.sample)
+            self._publish_lockstep(self._runner.sample)
         else:
             self._step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall)
         self.get_logger().info(
@@ -162,11 +176,41 @@ class SimNode(Node):
         declare('seed', 0, ParameterDescriptor(
             description='Seed of the measurement noise.',
             integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)]))
+        self._declare_disturbances()
         declare('plant_params_file', '', ParameterDescriptor(
             description="YAML of CartPoleParameters; '' = the thesis values."))
         declare('integration_step', 0.001, ParameterDescriptor(
             description='RK4 step of the plant [s]; at most the sample time.',
             floating_point_range=_float_range(1e-5, 0.005)))
+
+    def _declare_disturbances(self) -> None:
+        """The scenario's disturbances (cartpole_sim.scenario), at the next reset like the rest."""
+        declare = self.declare_parameter
+        declare('cart_mass', 0.0, ParameterDescriptor(
+            description='Equivalent cart mass of the plant [kg]; 0 keeps the nominal m_c '
+                        '(4.75 kg).', floating_point_range=_float_range(0.0, 100.0)))
+        declare('delay', 0.0, ParameterDescriptor(
+            description='Sensor-to-actuator latency [s]: a command takes effect this long '
+                        'after the sample it was computed from (inside the hold).',
+            floating_point_range=_float_range(0.0, DELAY_MAX)))
+        declare('jitter', 0.0, ParameterDescriptor(
+            description='Extra latency per sample, uniform in [0, jitter] [s].',
+            floating_point_range=_float_range(0.0, DELAY_MAX)))
+        declare('drop', 0.0, ParameterDescriptor(
+            description='Probability that a sample is lost (not published on joint_states) '
+                        'in [0, 1).', floating_point_range=_float_range(0.0, 1.0)))
+        declare('force_noise', 0.0, ParameterDescriptor(
+            description='Std of Gaussian force noise on the cart [N], one draw per sample.',
+            floating_point_range=_float_range(0.0, 100.0)))
+        declare('actuator_gain', 1.0, ParameterDescriptor(
+            description='Amplifier gain error: the current is this times the commanded one.',
+            floating_point_range=_float_range(0.0, 10.0)))
+        declare('actuator_tau', 0.0, ParameterDescriptor(
+            description='Time constant of an extra first-order amplifier lag [s]; 0 = none.',
+            floating_point_range=_float_range(0.0, 1.0)))
+        declare('pushes', '', ParameterDescriptor(
+            description="Pushes 'T:TARGET:AMPLITUDE:WIDTH' separated by commas or spaces, "
+                        "TARGET cart [N] or pendulum [N m]; '' = none."))
 
     @staticmethod
     def _scenario_from(values: dict) -> tuple[CartPoleParameters, Scenario]:
@@ -188,7 +232,14 @@ class SimNode(Node):
             tip_mass=tip_mass if tip_mass > 0.0 else None,
             friction_scale=float(values['friction_scale']),
             encoder_offset=float(values['encoder_offset']),
-            noise=bool(values['noise']), seed=int(values['seed']))
+            noise=bool(values['noise']), seed=int(values['seed']),
+            cart_mass=float(values['cart_mass']) or None, delay=float(values['delay']),
+            jitter=float(values['jitter']), drop=float(values['drop']),
+            force_noise=float(values['force_noise']),
+            actuator_gain=float(values['actuator_gain']),
+            actuator_tau=float(values['actuator_tau']),
+            pushes=tuple(parse_push(text) for text in
+                         str(values['pushes']).replace(',', ' ').split()))
         scenario.plant_parameters(params)  # validates the scenario's plant (e.g. masses)
         return params, scenario
 
@@ -232,12 +283,13 @@ class SimNode(Node):
         stamp = self._stamp(sample)
         if self._pub_clock is not None:
             self._pub_clock.publish(ClockMsg(clock=stamp))
-        meas = sample.measurement
-        joints = JointState()
-        joints.header.stamp = stamp
-        joints.name = [CART_JOINT, PENDULUM_JOINT]
-        joints.position = [meas.x, meas.theta]
-        self._pub_joints.publish(joints)
+        if not sample.lost:  # a lost sample (scenario drop) never reaches the host
+            meas = sample.measurement
+            joints = JointState()
+            joints.header.stamp = stamp
+            joints.name = [CART_JOINT, PENDULUM_JOINT]
+            joints.position = [meas.x, meas.theta]
+            self._pub_joints.publish(joints)
         x, theta, x_dot, theta_dot = sample.true_state
         truth = JointState()
         truth.header.stamp = stamp
@@ -257,8 +309,16 @@ class SimNode(Node):
                                  self._on_lockstep_timeout, clock=self._wall)
 
     def _lockstep_advance(self) -> None:
-        self._publish(self._runner.advance())
+        self._publish_lockstep(self._runner.advance())
         self._timeout_timer.reset()
+
+    def _publish_lockstep(self, sample: Sample) -> None:
+        """Publish ``sample``; past a lost one (no command will answer it) step on at once
+        with the held command, as the real-time clock would."""
+        self._publish(sample)
+        while sample.lost:
+            sample = self._runner.advance()
+            self._publish(sample)
 
     def _on_lockstep_timeout(self) -> None:
         if not self._loop_established:
@@ -286,10 +346,13 @@ class SimNode(Node):
                 f'ignored force command without a finite effort for {CART_JOINT!r} '
                 f'({self.rejected_commands} so far)', throttle_duration_sec=5.0)
             return
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if not self._lockstep:
+            if stamp_ns < self._reset_stamp_ns:
+                self.stale_commands += 1
+                return
             self._runner.command(force)
             return
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if stamp_ns != self._runner.stamp_ns:
             self.stale_commands += 1
             return
@@ -313,8 +376,11 @@ class SimNode(Node):
             response.success = False
             response.message = f'reset refused: {error}'
             return response
+        stamp = self._stamp(sample)
+        self._reset_stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        self._pub_reset.publish(Header(stamp=stamp))
         if self._lockstep:
-            self._publish(sample)
+            self._publish_lockstep(sample)
             self._timeout_timer.reset()
         response.success = True
         response.message = (f'reset: x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad, '

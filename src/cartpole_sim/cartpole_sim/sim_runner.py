@@ -7,6 +7,15 @@ watchdog in simulated time sets zero force when no command has arrived for
 ``command_timeout`` (SPEC section 4: 50 ms). All numerical work stays in the
 plant; this class only counts samples and decides which force is held.
 
+The watchdog keeps its word as SPEC 8 measures it, from the last command's
+arrival to the first sample that shows zero force: a command received while
+sample k is out acts from t_k, and the force held over [t_j, t_j + Ts) shows
+in sample j + 1. So the watchdog zeroes the period whose closing sample would
+otherwise be the first past the deadline: with 50 ms and Ts = 5 ms the command
+is held over 9 periods and sample k + 10, at most 50 ms after the command
+arrived (it came at or after t_k), is the first at zero force. It decides at
+the sample that crosses the deadline, not one period later.
+
 The sample clock never goes backwards: a reset puts the plant back to its
 initial state but the sample index (hence the stamps and ``/clock``) keeps
 counting, so nodes on ``use_sim_time`` see no time jump.
@@ -52,6 +61,9 @@ class Sample:
     end_stop_force: float = 0.0
     """The stops' peak spring force on the cart over the period that ended here
     [N]; 0.0 unless the cart was pressed into a stop (:attr:`Plant.end_stop_force`)."""
+    lost: bool = False
+    """The sample is lost on its way to the host (scenario ``drop``,
+    :meth:`Plant.sample_lost`): not published, and no command is awaited for it."""
 
 
 class SimRunner:
@@ -106,11 +118,18 @@ class SimRunner:
         self._watchdog_tripped = False
 
     def held_force(self) -> float:
-        """The force command applied over the next period, after the watchdog."""
+        """The force command applied over the next period, after the watchdog.
+
+        Zero when the sample closing the *next* period, ``index + 2``, would
+        come later than ``command_timeout`` after the command (which acts from
+        ``t_{command_index}``), i.e. when this period's closing sample is the
+        last one inside the deadline; a command is always held over the
+        period it arrived in.
+        """
         if self._command_index is None:
             return 0.0
-        age = (self.index - self._command_index) * self.params.sample_time
-        if age > self.command_timeout + 1e-12:
+        periods = self.index - self._command_index
+        if periods > 0 and (periods + 2) * self.params.sample_time > self.command_timeout + 1e-12:
             if not self._watchdog_tripped:
                 self._watchdog_tripped = True
                 self.watchdog_trips += 1
@@ -161,4 +180,5 @@ class SimRunner:
                       measurement=self.plant.measure(),
                       true_state=tuple(float(v) for v in self.plant.state),
                       actuator_force=self.plant.force,
-                      end_stop_force=self.plant.end_stop_force)
+                      end_stop_force=self.plant.end_stop_force,
+                      lost=self.plant.sample_lost())

@@ -155,9 +155,33 @@ def test_real_time_applies_command_then_watchdog_zeroes_it(graph, spin_until):
     assert spin_until(executor, lambda: any(abs(m.effort[0]) < 1e-3
                                             for m in probe.truth[pushed:]), timeout=10.0)
     assert sim.runner.watchdog_trips == 1
+    # The command acts from the sample it arrived after (t_k) and shows in samples
+    # k+1..k+9; sample k+10, 50 ms after t_k, shows zero force (SPEC 8).
     pushed_samples = sum(1 for m in probe.truth[pushed:] if m.effort[0] > 1.0)
-    assert 9 <= pushed_samples <= 12  # 50 ms / 5 ms, plus the sample the lag decays in
+    assert pushed_samples == 9
     assert probe.truth[-1].position[0] > 0.3
+
+
+def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(graph,
+                                                                             spin_until):
+    """SPEC 8 by simulated stamps: the last command answers sample 2 (it arrives at t_2);
+    the controller then falls silent and the sim steps on its lockstep timeout."""
+    from rclpy.parameter import Parameter
+
+    sim, probe, executor = graph(echo_force=20.0, lockstep=True, lockstep_timeout=30.0,
+                                 x0=0.3)
+    probe.max_commands = 3
+    assert spin_until(executor, lambda: 3 * TS_NS in probe.stamps(), timeout=30.0)
+    # All three answered in lockstep; from now on the sim steps without commands.
+    assert sim.set_parameters([Parameter('lockstep_timeout', value=0.001)])[0].successful
+    assert spin_until(executor, lambda: len(probe.truth) >= 20, timeout=30.0)
+    last_command_ns = 2 * TS_NS
+    pushed = [m for m in probe.truth if m.effort[0] > 19.0]
+    zero = next(m for m in probe.truth
+                if stamp_ns(m.header.stamp) > last_command_ns and abs(m.effort[0]) < 1e-9)
+    assert stamp_ns(zero.header.stamp) - last_command_ns == 50_000_000
+    assert stamp_ns(pushed[-1].header.stamp) - last_command_ns == 45_000_000
+    assert sim.runner.watchdog_trips == 1
 
 
 # -- lockstep -------------------------------------------------------------------------------------
@@ -311,8 +335,14 @@ def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
     from rclpy.parameter import Parameter
     from std_srvs.srv import Trigger
 
+    from std_msgs.msg import Header
+
     sim, probe, executor = graph(echo_force=15.0, lockstep=True, lockstep_timeout=30.0, x0=0.3,
                                  theta0=3.0)
+    announced = []
+    probe.node.create_subscription(
+        Header, '/cartpole/plant_reset',
+        lambda msg: announced.append((stamp_ns(msg.stamp), len(probe.truth))), 10)
     probe.max_commands = 30
     assert spin_until(executor, lambda: len(probe.stamps()) >= 31, timeout=30.0)
     moved = sim.runner.plant.state
@@ -333,3 +363,59 @@ def test_reset_service_returns_plant_to_initial_state(graph, spin_until):
     after = [m for m in probe.truth if stamp_ns(m.header.stamp) == 31 * TS_NS][0]
     assert list(after.position) == [0.35, 3.0]
     assert list(after.velocity) == [0.0, 0.0]
+    # Announced with the reset sample's stamp.
+    assert spin_until(executor, lambda: announced, timeout=10.0)
+    assert [stamp for stamp, _ in announced] == [31 * TS_NS]
+
+
+# -- scenario disturbances (cartpole_sim.scenario) ------------------------------------------------
+def test_disturbance_parameters_make_the_scenario_and_bad_ones_are_refused(graph):
+    from rclpy.parameter import Parameter
+
+    from cartpole_sim.plant import Push
+
+    sim, _, _ = graph(lockstep=True, lockstep_timeout=30.0, delay=0.0075, jitter=0.002,
+                      drop=0.1, force_noise=0.5, actuator_gain=0.8, actuator_tau=0.003,
+                      cart_mass=5.2, pushes='12:cart:10:0.1, 15:pendulum:-0.3:0.02')
+    scenario = sim.runner.plant.scenario
+    assert (scenario.delay, scenario.jitter, scenario.drop, scenario.force_noise,
+            scenario.actuator_gain, scenario.actuator_tau, scenario.cart_mass) == \
+        (0.0075, 0.002, 0.1, 0.5, 0.8, 0.003, 5.2)
+    assert scenario.pushes == (Push(12.0, 'cart', 10.0, 0.1), Push(15.0, 'pendulum', -0.3, 0.02))
+    assert sim.runner.plant.true_params.m_c == 5.2
+    for parameter, word in [(Parameter('drop', value=1.0), 'drop'),
+                            (Parameter('pushes', value='12:hand:1:1'), 'target'),
+                            (Parameter('pushes', value='12:cart:1'), 'T:TARGET'),
+                            (Parameter('actuator_gain', value=0.0), 'actuator_gain')]:
+        before = sim.get_parameter(parameter.name).value
+        result = sim.set_parameters([parameter])[0]
+        assert not result.successful and word in result.reason, result.reason
+        assert sim.get_parameter(parameter.name).value == before
+
+
+def test_lockstep_skips_lost_samples_without_waiting_for_their_command(graph, spin_until):
+    # drop: a lost sample is not published and lockstep does not wait for a command that
+    # cannot come; the published ones are exactly the SimRunner's samples that are not lost.
+    from cartpole_sim.model import CartPoleParameters
+    from cartpole_sim.plant import Scenario
+    from cartpole_sim.sim_runner import SimRunner
+
+    n = 40
+    sim, probe, executor = graph(echo_force=5.0, lockstep=True, lockstep_timeout=30.0, x0=0.3,
+                                 drop=0.3, seed=4)
+    probe.max_commands = n
+    assert spin_until(executor, lambda: len(probe.stamps()) >= n + 1, timeout=30.0)
+    assert not spin_until(executor, lambda: len(probe.stamps()) > n + 1, timeout=0.3)
+    runner = SimRunner(CartPoleParameters(), Scenario(x0=0.3, drop=0.3, seed=4))
+    delivered = [] if runner.sample.lost else [runner.stamp_ns]
+    while len(delivered) < n + 1:
+        sample = runner.advance()
+        if not sample.lost:
+            delivered.append(sample.stamp_ns)
+    assert probe.stamps() == delivered
+    assert len(delivered) < delivered[-1] // TS_NS  # some were lost
+    assert sim.runner.plant.lost_samples == runner.plant.lost_samples > 0
+    assert sim.lockstep_timeouts == 0
+    # /clock and the ground truth still carry every sample.
+    assert {stamp_ns(m.header.stamp) for m in probe.truth} >= set(range(0, delivered[-1] + 1,
+                                                                        TS_NS))

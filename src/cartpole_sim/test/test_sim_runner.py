@@ -48,7 +48,39 @@ def test_held_command_is_applied_like_the_bare_plant():
     assert runner.sample.actuator_force == pytest.approx(plant.force)
 
 
-def test_watchdog_zeroes_force_after_command_timeout():
+def first_zero_force_sample(runner, limit=100):
+    """Advance until a sample shows zero actuator force; returns (that sample, the one before)."""
+    before = runner.sample
+    for _ in range(limit):
+        sample = runner.advance()
+        if abs(sample.actuator_force) < 1e-9:
+            return sample, before
+        before = sample
+    raise AssertionError('the force never fell to zero')
+
+
+@pytest.mark.parametrize('timeout', [0.05, 0.052, 0.0125, 0.1])
+def test_watchdog_zero_force_sample_within_the_timeout_of_the_command(timeout):
+    """SPEC 8: from the last command's arrival to the first zero-force sample, by stamps.
+
+    The command arrives while sample k is out, i.e. at or after t_k; the first
+    sample whose true actuator force is zero must be stamped at most
+    ``timeout`` after t_k, and it is the last sample inside the deadline (no
+    early trip: the one before it still shows the command).
+    """
+    runner = SimRunner(NOMINAL, MIDDLE, command_timeout=timeout)
+    for _ in range(3):
+        runner.advance()
+    arrival_ns = runner.sample.stamp_ns          # the earliest the command can arrive
+    runner.command(10.0)
+    zero, before = first_zero_force_sample(runner)
+    deadline_ns = round(timeout * 1e9)
+    assert deadline_ns - runner.sample_period_ns < zero.stamp_ns - arrival_ns <= deadline_ns
+    assert before.actuator_force == pytest.approx(10.0, rel=0.01)  # actuator DC gain 1.0066
+    assert runner.watchdog_tripped and runner.watchdog_trips == 1
+
+
+def test_watchdog_holds_then_zeroes_and_the_next_command_clears_it():
     runner = SimRunner(NOMINAL, MIDDLE, command_timeout=0.05)
     assert runner.held_force() == 0.0  # no command yet
     runner.command(10.0)
@@ -56,11 +88,10 @@ def test_watchdog_zeroes_force_after_command_timeout():
     for _ in range(15):
         forces.append(runner.held_force())
         runner.advance()
-    # Held for 50 ms of simulated time (ages 0..50 ms = 11 periods), then zero.
-    assert forces[:11] == [10.0] * 11
-    assert forces[11:] == [0.0] * 4
+    # Held over 9 periods (the 10th sample, 50 ms after t_k, shows zero force), then zero.
+    assert forces[:9] == [10.0] * 9
+    assert forces[9:] == [0.0] * 6
     assert runner.watchdog_tripped and runner.watchdog_trips == 1
-    # The actuator follows: the cart is pushed, then friction stops it.
     assert runner.sample.actuator_force == pytest.approx(0.0, abs=1e-6)
     runner.command(-4.0)
     assert runner.held_force() == -4.0 and not runner.watchdog_tripped

@@ -1,4 +1,4 @@
-"""`cartpole bench control|loop|offline|all`: the benchmarks of SPEC section 6.
+"""`cartpole bench control|robustness|loop|offline|all`: the benchmarks of SPEC sections 6 and 8.
 
 Each benchmark prints a markdown report and writes it (and its figures and raw
 JSON) under ``--out``. No benchmark asserts anything: they measure.
@@ -24,14 +24,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c.add_argument('--swingups', nargs='*', default=None, metavar='NAME', help='default: all registered')
     c.add_argument('--stabilizers', nargs='*', default=None, metavar='NAME', help='default: all registered')
     c.add_argument('--scenarios', nargs='*', default=None, metavar='NAME',
-                   help='default: the whole grid (nominal, mass-20%%, mass-10%%, mass+10%%, friction x0.8, '
-                        'friction x1.2, offset +0.05, offset -0.05)')
+                   help='default: the whole grid (nominal, mass-20%%, mass-10%%, mass+10%%, friction '
+                        'x0.8, x1.2 and x1.5, offset +-0.01, +-0.02, +-0.05 and +-0.1, '
+                        'offset +0.05 mass-20%%)')
     c.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='local process pool size (default: the number of cores; 1 = serial)')
     c.add_argument('--no-bound', action='store_true',
                    help='skip the minimum-time bound (an IPOPT solve of some seconds)')
     c.add_argument('--dask', default=None, metavar='ADDRESS',
                    help='run the sweep on a Dask distributed scheduler instead (tcp://host:8786)')
+
+    r = sub.add_parser('robustness', help='the sim-to-real gap, scored: every disturbance swept '
+                                          'from nominal outwards (SPEC 8)')
+    _common(r)
+    r.add_argument('--pairs', nargs='*', default=None, metavar='SWINGUP:STABILIZER',
+                   help='default: the default pair and every stabiliser with pendulum_energy')
+    r.add_argument('--categories', nargs='*', default=None, metavar='NAME',
+                   help='default: all (model, measurement noise, force noise, actuator gain, '
+                        'actuator lag, delay, lost samples, encoder offset, push)')
+    r.add_argument('--max-levels', type=int, default=None, metavar='N',
+                   help='only the first N levels of each sweep (a quick look; default: all)')
+    r.add_argument('--seeds', type=int, default=3, help='runs per level (default 3)')
+    r.add_argument('--duration', type=float, default=30.0, metavar='S',
+                   help='simulated seconds per run (default 30)')
+    r.add_argument('--all-seeds', action='store_true',
+                   help='run every seed of every level (default: a level stops once its '
+                        'majority is decided; the scores are the same)')
+    r.add_argument('--workers', type=int, default=os.cpu_count() or 1,
+                   help='local process pool size (default: the number of cores; 1 = serial)')
+    r.add_argument('--dask', default=None, metavar='ADDRESS',
+                   help='run the grid on a Dask distributed scheduler instead (tcp://host:8786)')
 
     o = sub.add_parser('offline', help='simulated seconds per wall second of the offline loop, per stage')
     _common(o)
@@ -43,8 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp.add_argument('--duration', type=float, default=60.0, metavar='S', help='wall seconds per mode')
     lp.add_argument('--modes', nargs='*', default=['single', 'processes'],
                     choices=['single', 'processes'])
+    lp.add_argument('--executors', nargs='*', default=['events', 'single'],
+                    choices=['events', 'single'],
+                    help='executors of the one-process graph and its floor (default both; one '
+                         'process a node always spins the SingleThreadedExecutor)')
 
-    a = sub.add_parser('all', help='control, offline and loop with their defaults')
+    a = sub.add_parser('all', help='control, robustness, offline and loop with their defaults')
     _common(a)
 
 
@@ -109,6 +135,92 @@ def bench_control(args: argparse.Namespace, argv: list[str]) -> dict:
     return {'report': report, 'results': results, 'rows': rows, 'bound_s': bound, 'dir': str(out)}
 
 
+def _pairs(args: argparse.Namespace) -> list[tuple[str, str]]:
+    from cartpole_control.controller import STABILIZER, SWINGUP
+    from cartpole_control.manager import DEFAULT_CONTROLLERS
+    from cartpole_control.registry import load_controllers
+
+    from ..bench_robustness import default_pairs
+
+    swingups, stabilizers = load_controllers('swingup'), load_controllers('stabilizer')
+    if not args.pairs:
+        return default_pairs(list(stabilizers),
+                             (DEFAULT_CONTROLLERS[SWINGUP], DEFAULT_CONTROLLERS[STABILIZER]))
+    pairs = []
+    for text in args.pairs:
+        swingup, _, stabilizer = text.partition(':')
+        if swingup not in swingups or stabilizer not in stabilizers:
+            raise SystemExit(f'--pairs {text!r}: expected SWINGUP:STABILIZER with a swing-up in '
+                             f'{sorted(swingups)} and a stabiliser in {sorted(stabilizers)}')
+        pairs.append((swingup, stabilizer))
+    return list(dict.fromkeys(pairs))
+
+
+def bench_robustness(args: argparse.Namespace, argv: list[str]) -> dict:
+    import dataclasses
+    import time
+
+    from .. import bench_control as bc
+    from .. import bench_robustness as br
+    from .. import robustness_report as rr
+
+    if args.seeds < 1 or not args.duration > 0:
+        raise SystemExit('--seeds must be >= 1 and --duration > 0')
+    pairs = _pairs(args)
+    try:
+        sweeps = br.sweeps_of(args.categories)
+    except ValueError as error:
+        raise SystemExit(f'--categories: {error}') from None
+    if args.max_levels is not None:
+        if args.max_levels < 1:
+            raise SystemExit('--max-levels must be >= 1')
+        sweeps = [dataclasses.replace(s, levels=s.levels[:args.max_levels]) for s in sweeps]
+    grid_cells, runs = br.make_grid(pairs, sweeps, args.seeds, args.duration)
+    bc.prepare([su for su, _ in pairs])
+    load = _load()
+    t0 = time.perf_counter()
+    progress = None if args.json else _progress
+    if args.all_seeds:
+        cells = grid_cells
+        results = br.run_grid(runs, workers=args.workers, dask_address=args.dask,
+                              progress=progress)
+    else:
+        cells, results = br.run_by_majority(grid_cells, runs, sweeps, args.seeds,
+                                            workers=args.workers, dask_address=args.dask,
+                                            progress=progress)
+    wall = time.perf_counter() - t0
+    by_name = {s.name: s for s in sweeps}
+    successes = [br.succeeded(by_name[c.sweep], r) for c, r in zip(cells, results)]
+    scores = br.score(cells, successes, sweeps)
+    out = _out_dir(args, 'robustness')
+    run_of = dict(zip(grid_cells, runs))
+    unique = len({run_of[c] for c in cells})
+    report = header('Robustness score (`cartpole bench robustness`)', argv)
+    report += (f'{len(pairs)} pairs x {len(sweeps)} sweeps ({sum(len(s.levels) for s in sweeps)} '
+               f'levels) x {args.seeds} seeds = {len(grid_cells)} cells; '
+               f'{len(cells)} needed ({"every seed" if args.all_seeds else "a level stops once its majority is decided"}), '
+               f'{unique} distinct runs of {args.duration:g} s, measurement noise on. Wall time '
+               f'{wall:.0f} s on {"Dask" if args.dask else f"{args.workers} worker(s)"} '
+               f'(load average at the start: {load}).\n\n')
+    report += rr.markdown_report(scores, sweeps, args.seeds)
+    figure = rr.plot_heatmap(scores, sweeps, out / 'robustness_heatmap.png')
+    report += f'\n![robustness heat map]({Path(figure).name})\n'
+    meta = {'pairs': [list(p) for p in pairs], 'seeds': args.seeds, 'duration_s': args.duration,
+            'wall_s': wall, 'load_average_at_start': load, 'cells': len(grid_cells),
+            'cells_run': len(cells), 'distinct_runs': unique}
+    raw = rr.results_json(cells, results, successes, sweeps, scores, meta)
+    (out / 'robustness.md').write_text(report)
+    (out / 'robustness.json').write_text(json.dumps(raw, separators=(',', ':')))
+    return {'report': report, 'results': raw, 'dir': str(out)}
+
+
+def _load() -> str:
+    try:
+        return ' '.join(f'{v:.2f}' for v in os.getloadavg())
+    except OSError:
+        return 'n/a'
+
+
 def bench_offline(args: argparse.Namespace, argv: list[str]) -> dict:
     import time
 
@@ -146,7 +258,8 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     from ..bench_loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
-    result = run_loop_benchmark(duration=args.duration, modes=args.modes)
+    result = run_loop_benchmark(duration=args.duration, modes=args.modes,
+                                executors=args.executors)
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))
@@ -155,12 +268,13 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
 
 def main(args: argparse.Namespace) -> int:
     argv = sys.argv[1:]
-    benches = {'control': bench_control, 'offline': bench_offline, 'loop': bench_loop}
+    benches = {'control': bench_control, 'robustness': bench_robustness,
+               'offline': bench_offline, 'loop': bench_loop}
     if args.bench == 'all':
         defaults = argparse.ArgumentParser()
         add_arguments(defaults)
         todo = []
-        for name in ('offline', 'control', 'loop'):
+        for name in ('offline', 'control', 'robustness', 'loop'):
             ns = defaults.parse_args([name])
             ns.out, ns.json, ns.bench = args.out, args.json, 'all'
             todo.append((name, ns))

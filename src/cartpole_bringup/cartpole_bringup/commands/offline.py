@@ -27,14 +27,9 @@ def manager_parameters_from_args(args: argparse.Namespace) -> dict:
 
 
 def ekf_config_from_args(args: argparse.Namespace):
-    from cartpole_estimation.ekf import EkfConfig
-    ros = options.load_ros_parameters(args.params, 'ekf')
-    changes = {}
-    if 'q' in ros:
-        changes['q_diag'] = tuple(float(v) for v in ros['q'])
-    if 'r' in ros:
-        changes['r_diag'] = tuple(float(v) for v in ros['r'])
-    return EkfConfig(**changes)
+    """The filter's configuration: the --params file's ``ekf`` section (the node's parameters)."""
+    from cartpole_estimation.ekf_config import EkfConfig, changes_from_parameters
+    return EkfConfig(**changes_from_parameters(options.load_ros_parameters(args.params, 'ekf')))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -46,7 +41,8 @@ def main(args: argparse.Namespace) -> int:
         run = run_closed_loop(options.nominal_parameters(args), options.scenario_from_args(args),
                               duration=args.duration,
                               manager_parameters=manager_parameters_from_args(args),
-                              ekf_config=ekf_config_from_args(args))
+                              ekf_config=ekf_config_from_args(args),
+                              progress=options.progress_printer('cartpole offline'))
     except ValueError as exc:
         raise SystemExit(f'cartpole offline: {exc}') from None
     options.print_summary(run.summary, args.json)

@@ -94,6 +94,15 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         }
         if args.tip_mass is not None:
             sim['tip_mass'] = float(args.tip_mass)
+        if args.cart_mass is not None:
+            sim['cart_mass'] = float(args.cart_mass)
+        for name, default in (('delay', 0.0), ('jitter', 0.0), ('drop', 0.0),
+                              ('force_noise', 0.0), ('actuator_gain', 1.0),
+                              ('actuator_tau', 0.0)):
+            if getattr(args, name) != default:  # the disturbances that are on
+                sim[name] = float(getattr(args, name))
+        if args.push:
+            sim['pushes'] = ' '.join(str(push) for push in args.push)
         out['sim'] = sim
     else:
         out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
@@ -190,6 +199,14 @@ def main(args: argparse.Namespace) -> int:
     nominal = options.nominal_parameters(args)
     file_x_ref = options.load_ros_parameters(args.params, 'controller_manager').get('x_ref')
     x_ref = float(file_x_ref) if file_x_ref is not None else nominal.x_middle
+    parameters = node_parameters(args)
+    if args.lockstep:  # slow plugin work (a time_optimal plan) before the run, not during it
+        from .plan import prepare_for_run
+        try:
+            parameters['controller_manager'].update(prepare_for_run(args, nominal, 'cartpole run'))
+        except ValueError as error:
+            print(f'cartpole run: {error}', file=sys.stderr)
+            return 2
     run_dir = bag = None
     if args.record is not None:
         run_dir = run_directory(args.record, names)
@@ -198,7 +215,7 @@ def main(args: argparse.Namespace) -> int:
     custom = {'x_ref': repr(x_ref), 'lockstep': str(bool(args.lockstep)).lower(),
               'plant': 'sim' if args.sim else 'hw', **names,
               'command': ' '.join(['cartpole', 'run'] + sys.argv[2:])[:1000]}
-    spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=node_parameters(args),
+    spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=parameters,
                      params_file=args.params.resolve() if args.params else None,
                      lockstep=args.lockstep, processes=args.processes, record=bag,
                      custom_data=custom, log_level=args.log_level, executor=args.executor,

@@ -23,9 +23,9 @@ import math
 
 from cartpole_sim.model import CartPoleParameters, force_for_acceleration
 
-from ..controller import ControllerState
+from ..controller import CommandFeedback, ControllerState
 
-__all__ = ['acceleration_to_force', 'saturation', 'StepClock']
+__all__ = ['acceleration_to_force', 'saturation', 'StepClock', 'ConditionalIntegrator']
 
 
 def acceleration_to_force(u: float, state: ControllerState, params: CartPoleParameters) -> float:
@@ -66,3 +66,50 @@ class StepClock:
         if not (0.0 < dt <= self.max_gap):
             return sample_time if dt > self.max_gap else 0.0
         return dt
+
+
+class ConditionalIntegrator:
+    """``value = int e dt`` with anti-windup by conditional integration.
+
+    Each cycle :meth:`step` adds ``e dt`` at once (the law's force of this
+    cycle already contains it, no extra delay) and remembers how much that
+    increment changed the force (``effect``, [N], from the law's gain on the
+    integral). :meth:`feedback`, with the manager's
+    :class:`~cartpole_control.controller.CommandFeedback` of the same cycle,
+    takes the increment back when the command was limited in the direction
+    the increment pushed it, or held by the rail guard (the classic
+    conditional integration, e.g. Astrom & Hagglund, "Advanced PID control",
+    section 3.5). Without feedback (a law used without the manager) it is a
+    plain integrator. :meth:`reset` starts from zero: bumpless activation,
+    the first force equals the law without its integral.
+    """
+
+    __slots__ = ('value', '_previous', '_effect')
+
+    def __init__(self) -> None:
+        self.value = 0.0
+        self._previous = 0.0
+        self._effect = 0.0
+
+    def reset(self) -> None:
+        self.value = self._previous = self._effect = 0.0
+
+    def step(self, error: float, dt: float, force_per_unit: float) -> float:
+        """Add ``error dt``; ``force_per_unit`` is d(force)/d(value) of the law [N per unit]."""
+        self._previous = self.value
+        increment = error * dt
+        self.value += increment
+        self._effect = force_per_unit * increment
+        return self.value
+
+    def hold(self) -> None:
+        """Take back this cycle's increment (the law's own limit was reached)."""
+        self.value = self._previous
+        self._effect = 0.0
+
+    def feedback(self, feedback: CommandFeedback) -> None:
+        """Take back this cycle's increment if ``feedback.blocks`` it."""
+        if feedback.blocks(self._effect):
+            self.value = self._previous
+        self._previous = self.value
+        self._effect = 0.0

@@ -23,16 +23,31 @@ measurement, see below) has the poles -13.0 +- 7.4j, -0.84 +- 1.36j, -0.171,
 Discrete form (Ts from the state stamps): forward-Euler integrators; the
 derivative acts on the measurement, i.e. on the estimated rates
 ``-x_dot`` and ``-theta_dot`` of the EKF (no numerical differentiation, no
-kick when x* changes). Anti-windup (not in the thesis) by conditional
-integration: theta* is limited to ``+-theta_max`` and the force to the
-actuator's range; an integrator stops while its loop is saturated in the
-direction it would push further. Activation resets both integrators
-(bumpless: the first output depends only on the current state).
+kick when x* changes).
+
+Integral action and anti-windup (not in the thesis) by conditional
+integration (:class:`~cartpole_control.controllers.ConditionalIntegrator`):
+the outer integrator stops while theta* is limited to ``+-theta_max`` in the
+direction it would push further; both stop (take back their increment) when
+the manager reports the force command as cut by the saturation or the rail
+guard in the direction their increment pushed it, or held. Their effects on
+the force: ``(m_c + m_p) K_i,p`` per rad s of the inner integral and
+``-(m_c + m_p) K_p,p K_i,c`` per m s of the outer one (through theta*, (7.10)).
+Activation resets both integrators (bumpless: the first output depends only
+on the current state); they do not run during swing-up.
+
+With an encoder offset b (Appendix H) the inner integrator settles at the
+lean that holds the pendulum truly upright (theta* = -b in the encoder's
+frame) and the outer one makes that theta* with x = x*: the cascade is
+offset-free by structure. How fast is set by the outer loop, whose Table 8.1
+gains are slow (K_i,c = 0.03 rad/(m s): the outer integral's time constant is
+tens of seconds, and K_p,c = 0.2 rad/m lets a 0.05 rad offset hold the cart
+25 cm off meanwhile).
 """
 from __future__ import annotations
 
-from ..controller import STABILIZER, Controller, ControllerState, ParameterSpec
-from . import StepClock, acceleration_to_force
+from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
+from . import ConditionalIntegrator, StepClock, acceleration_to_force
 
 
 class PidStabilizer(Controller):
@@ -41,10 +56,11 @@ class PidStabilizer(Controller):
     kind = STABILIZER
     name = 'pid'
     parameters = (
-        ParameterSpec('cart_gains', (0.2, 0.03, 0.15),
-                      '[K_p, K_i, K_d] of the cart position PID C_c (8.8), Table 8.1, from '
-                      'x* - x [m] to the pendulum reference theta* [rad]: rad/m, rad/(m s), rad s/m',
-                      low=0.0, high=100.0, length=3),
+        ParameterSpec('cart_gains', (0.4, 0.1, 0.25),
+                      '[K_p, K_i, K_d] of the cart position PID C_c (8.8), from x* - x [m] to the '
+                      'pendulum reference theta* [rad]: rad/m, rad/(m s), rad s/m; Table 8.1 '
+                      '[0.2, 0.03, 0.15] is slow to take up an offset', low=0.0, high=100.0,
+                      length=3),
         ParameterSpec('pendulum_gains', (112.0, 15.0, 15.0),
                       '[K_p, K_i, K_d] of the pendulum angle PID C_p (8.8), Table 8.1, from '
                       'theta* - theta [rad] to a cart acceleration [m/s^2] (then (7.10)); '
@@ -55,13 +71,31 @@ class PidStabilizer(Controller):
 
     def __init__(self) -> None:
         super().__init__()
-        self.integral_x = 0.0
-        """int (x* - x) dt [m s]."""
-        self.integral_theta = 0.0
-        """int (theta* - theta) dt [rad s]."""
+        self._integral_x = ConditionalIntegrator()
+        self._integral_theta = ConditionalIntegrator()
         self.theta_ref = 0.0
         """theta* of the last update [rad]."""
         self._clock = StepClock()
+
+    @property
+    def integral_x(self) -> float:
+        """int (x* - x) dt [m s]."""
+        return self._integral_x.value
+
+    @integral_x.setter
+    def integral_x(self, value: float) -> None:
+        self._integral_x.reset()
+        self._integral_x.value = float(value)
+
+    @property
+    def integral_theta(self) -> float:
+        """int (theta* - theta) dt [rad s]."""
+        return self._integral_theta.value
+
+    @integral_theta.setter
+    def integral_theta(self, value: float) -> None:
+        self._integral_theta.reset()
+        self._integral_theta.value = float(value)
 
     def on_configure(self) -> None:
         """Refuse an inner loop that cannot hold the pendulum (K_p,p <= g)."""
@@ -74,42 +108,41 @@ class PidStabilizer(Controller):
     def activate(self, state: ControllerState) -> None:
         """Bumpless start: both integrators start from zero at this state."""
         super().activate(state)
-        self.integral_x = 0.0
-        self.integral_theta = 0.0
+        self._integral_x.reset()
+        self._integral_theta.reset()
         self.theta_ref = 0.0
         self._clock.reset(state.t)
 
     def acceleration(self, state: ControllerState) -> float:
-        """The cascade's cart acceleration u [m/s^2]; updates the integrators."""
+        """The cascade's cart acceleration u [m/s^2]; steps the integrators."""
         kpc, kic, kdc = self.gains['cart_gains']
         kpp, kip, kdp = self.gains['pendulum_gains']
         theta_max = self.gains['theta_max']
         p = self.context.plant
+        mass = p.m_c + p.m_p  # d(force)/d(u) of (7.10)
         dt = self._clock.step(state.t, self.context.sample_time)
 
         # Outer loop C_c: theta* = -C_c (x* - x), derivative on -x_dot.
         e_x = self.context.x_ref - state.x
-        integral_x = self.integral_x + e_x * dt
+        integral_x = self._integral_x.step(e_x, dt, -mass * kpp * kic)
         theta_ref = -(kpc * e_x + kic * integral_x - kdc * state.x_dot)
         if abs(theta_ref) > theta_max:
             limited = max(-theta_max, min(theta_max, theta_ref))
             # Hold the integrator if integrating pushed theta* further out.
             if (theta_ref - limited) * (-kic * e_x) > 0.0:
-                integral_x = self.integral_x
+                self._integral_x.hold()
             theta_ref = limited
-        self.integral_x = integral_x
         self.theta_ref = theta_ref
 
         # Inner loop C_p: u = C_p (theta* - theta), derivative on -theta_dot.
         e_theta = theta_ref - state.theta_w
-        integral_theta = self.integral_theta + e_theta * dt
-        u = kpp * e_theta + kip * integral_theta - kdp * state.theta_dot
-        force = acceleration_to_force(u, state, p)
-        if (force > p.force_max and e_theta > 0.0) or (force < p.force_min and e_theta < 0.0):
-            integral_theta = self.integral_theta
-            u = kpp * e_theta + kip * integral_theta - kdp * state.theta_dot
-        self.integral_theta = integral_theta
-        return u
+        integral_theta = self._integral_theta.step(e_theta, dt, mass * kip)
+        return kpp * e_theta + kip * integral_theta - kdp * state.theta_dot
 
     def update(self, state: ControllerState) -> float:
         return acceleration_to_force(self.acceleration(state), state, self.context.plant)
+
+    def command_applied(self, feedback: CommandFeedback) -> None:
+        """Anti-windup: take back this cycle's integration if the command was cut or held."""
+        self._integral_x.feedback(feedback)
+        self._integral_theta.feedback(feedback)

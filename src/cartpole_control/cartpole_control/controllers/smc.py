@@ -12,10 +12,36 @@ has no u. Linearised at the origin (8.36)-(8.38):
 ``A = [[0, 0, 0], [-g/l, 0, 0], [0, l, 0]]``, ``B = [1, v_p/(l^2 m_p), l]^T``.
 
 Manifold (8.35), (8.40). ``phi(eta) = -k eta`` with k from pole placement
-(:func:`scipy.signal.place_poles`) for the poles of ``A - B k``; the thesis's
--1, -4 +- 2.4j give k = [9.77, -1.015, -2.218] (thesis (8.39): k ~ [10, -1, -2])::
+(Ackermann's formula, exact for this single input and repeated poles too) for
+the poles of ``A - B k``; the thesis's -1, -4 +- 2.4j give
+k = [9.77, -1.015, -2.218] (thesis (8.39): k ~ [10, -1, -2])::
 
     s = xi + k eta = theta_dot + k_1 theta_w + k_2 (x_dot cos(theta)/l - theta_dot) + k_3 (x - x*)
+
+Integral action (not in the thesis). On the manifold the motion is
+``eta_dot = (A - B k) eta`` plus whatever constant the sliding variable is
+off by: an encoder offset b (Appendix H) makes the measured s differ from
+the true one by k_1 b, and the cart settles ``k_1 b / k_3`` (4.4 m per rad)
+from x*. The regular form is therefore extended by the integral of the cart
+error, ``eta_4 = int (x - x*) dt`` (``eta_4_dot = eta_3``, no u: still the
+regular form (8.28)), linearised
+
+    A_4 = [[0, 0, 0, 0], [-g/l, 0, 0, 0], [0, l, 0, 0], [0, 0, 1, 0]],  B_4 = [1, v_p/(l^2 m_p), l, 0]^T
+
+and k = [k_1, k_2, k_3, k_4] is placed for four poles (8.36)::
+
+    s = theta_dot + k_1 theta_w + k_2 (x_dot cos(theta)/l - theta_dot) + k_3 (x - x*) + k_4 int (x - x*) dt
+
+On s = 0, eta_4 is constant, so x = x*: the offset is taken up by the
+integral. With the three poles of the thesis (the 6-number ``smc.poles``) k_4
+is 0, the thesis's law; with a fourth pole p_4 (8 numbers) the fourth-order
+characteristic polynomial is the three poles' times (s - p_4). The
+integral's derivative adds ``k_4 (x - x*)`` to Phi below. Anti-windup: it
+integrates only inside the boundary layer (on the manifold; during the
+reaching phase the sliding dynamics it is designed for do not hold), takes
+back its increment when the manager reports the force as cut in its
+direction or held, starts from zero at activation (bumpless) and does not
+run during swing-up.
 
 Derivative of s, derived again from (4.34) (SPEC section 7: the printed (8.41)
 puts the term ``(k_3 - k_2 sin/l) x_dot`` into Gamma and drops the theta_dot
@@ -27,13 +53,16 @@ of ``d/dt cos theta = -theta_dot sin theta``). With ``x_ddot = f_c + g_c u``,
             + k_2 (x_ddot cos/l - x_dot theta_dot sin/l - theta_ddot) + k_3 x_dot
           = Phi + Gamma u
     Phi   = (1 - k_2) f_p + k_2 f_c cos(theta)/l + k_1 theta_dot
-            + (k_3 - k_2 theta_dot sin(theta)/l) x_dot
+            + (k_3 - k_2 theta_dot sin(theta)/l) x_dot + k_4 (x - x*)
     Gamma = (1 - k_2) g_p + k_2 g_c cos(theta)/l = g_p = cos theta / (l d)
 
 (Gamma equals g_p for every k: the u-terms of eta cancel, which is what the
-regular form is for.) f_c and f_p are the model accelerations without
-friction (the cart's Coulomb friction is the feedforward's job (6.12), the
-pendulum's is negligible here).
+regular form is for.) f_c and f_p are the model accelerations with the
+friction of (6.11), ``B = [0, c_p tanh(k theta_dot) + v_p theta_dot]``: the
+cart's Coulomb friction is left to the feedforward (6.12), the pendulum
+joint's is in the model as the thesis has it (k = ``friction_steepness``;
+the joint's 3.8 mN m holds the pendulum like a lean of 0.26 deg, and left
+out it drives a limit cycle of about that amplitude while balancing).
 
 Control law (8.42) with a boundary layer against chattering::
 
@@ -52,34 +81,63 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.signal
 
 from cartpole_sim.model import CartPoleParameters, accelerations
 
-from ..controller import STABILIZER, Controller, ControllerState, ParameterSpec
-from . import saturation
+from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
+from . import ConditionalIntegrator, StepClock, saturation
 
 
-def regular_form_linearisation(params: CartPoleParameters) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of the eta-subsystem linearised at the origin, (8.37)/(8.38)."""
+def regular_form_linearisation(params: CartPoleParameters,
+                               integral: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the eta-subsystem linearised at the origin, (8.37)/(8.38).
+
+    With ``integral`` the subsystem is extended by eta_4 = int (x - x*) dt
+    (eta_4_dot = eta_3).
+    """
     l, g = params.l, params.g
     a = np.array([[0.0, 0.0, 0.0], [-g / l, 0.0, 0.0], [0.0, l, 0.0]])
     b = np.array([[1.0], [params.v_p / (l * l * params.m_p)], [l]])
+    if integral:
+        a = np.pad(a, ((0, 1), (0, 1)))
+        a[3, 2] = 1.0
+        b = np.vstack([b, [[0.0]]])
     return a, b
 
 
+def ackermann(a: np.ndarray, b: np.ndarray, poles) -> np.ndarray:
+    """The single-input gain k with eig(A - B k) = ``poles`` (Ackermann's formula).
+
+    ``k = e_n^T C^-1 phi(A)``, C the controllability matrix and phi the
+    desired characteristic polynomial; exact for repeated poles, which
+    :func:`scipy.signal.place_poles` refuses for a single input.
+    """
+    n = a.shape[0]
+    ctrb = np.hstack([np.linalg.matrix_power(a, i) @ b for i in range(n)])
+    if np.linalg.matrix_rank(ctrb) < n:
+        raise ValueError('the regular form is not controllable')
+    coeffs = np.real(np.poly(np.asarray(poles, dtype=complex)))
+    phi = sum(c * np.linalg.matrix_power(a, n - i) for i, c in enumerate(coeffs))
+    return np.linalg.solve(ctrb.T, np.eye(n)[:, -1]) @ phi
+
+
 def manifold_gain(params: CartPoleParameters, poles: list[complex]) -> np.ndarray:
-    """k of (8.35) placing the eigenvalues of A - B k at ``poles``, (8.36)-(8.39)."""
-    a, b = regular_form_linearisation(params)
-    try:
-        result = scipy.signal.place_poles(a, b, np.asarray(poles))
-    except ValueError as exc:
-        raise ValueError(f'smc: cannot place the poles {poles}: {exc}') from exc
-    return np.asarray(result.gain_matrix, dtype=float)[0]
+    """k of (8.35) placing the eigenvalues of A - B k at ``poles``, (8.36)-(8.39).
+
+    Three poles: the thesis's manifold on [eta_1, eta_2, eta_3]; four: the
+    manifold with the integral eta_4 = int (x - x*) dt (module docstring).
+    """
+    if len(poles) not in (3, 4):
+        raise ValueError(f'smc: 3 poles (the thesis) or 4 (with the integral), got {len(poles)}')
+    a, b = regular_form_linearisation(params, integral=len(poles) == 4)
+    return ackermann(a, b, poles)
 
 
 def poles_from_parameter(values) -> list[complex]:
-    """The poles of ``smc.poles`` = [re_1, im_1, re_2, im_2, re_3, im_3]; ValueError if unusable."""
+    """The poles of ``smc.poles`` = [re_1, im_1, ..., re_n, im_n], n = 3 or 4; ValueError if unusable."""
+    if len(values) not in (6, 8):
+        raise ValueError(f'smc: poles needs 6 numbers (3 poles, the thesis\'s manifold) or 8 '
+                         f'(4 poles, with the integral of the cart error), got {len(values)}')
     poles = [complex(values[i], values[i + 1]) for i in range(0, len(values), 2)]
     if any(p.real >= 0.0 for p in poles):
         raise ValueError(f'smc: every pole must have a negative real part, got {poles}')
@@ -95,52 +153,91 @@ def poles_from_parameter(values) -> list[complex]:
 
 
 class SlidingModeStabilizer(Controller):
-    """Sliding-mode control (8.40)-(8.42) with a boundary layer."""
+    """Sliding-mode control (8.40)-(8.42) with a boundary layer and integral action on x."""
 
     kind = STABILIZER
     name = 'smc'
     parameters = (
-        ParameterSpec('poles', (-1.0, 0.0, -4.0, 2.4, -4.0, -2.4),
-                      'poles of the sliding motion (8.36) as [re1, im1, re2, im2, re3, im3] '
-                      '[1/s]; complex ones in conjugate pairs; thesis -1, -4+-2.4j',
-                      low=-100.0, high=100.0, length=6),
-        ParameterSpec('reaching_gain', 4.0, 'reaching gain lambda_0 of (8.42): s_dot = -lambda_0 '
+        ParameterSpec('poles', (-1.0, 0.0, -4.0, 2.4, -4.0, -2.4, -1.0, 0.0),
+                      'poles of the sliding motion (8.36) as [re1, im1, re2, im2, ...] [1/s], '
+                      'complex ones in conjugate pairs: 3 poles (6 numbers) are the thesis\'s '
+                      'manifold (-1, -4+-2.4j), 4 poles (8 numbers) add the integral of the cart '
+                      'error (not in the thesis)', low=-100.0, high=100.0),
+        ParameterSpec('reaching_gain', 8.0, 'reaching gain lambda_0 of (8.42): s_dot = -lambda_0 '
                       'outside the boundary layer [rad/s^2]', low=1e-6, high=1000.0),
-        ParameterSpec('boundary', 0.2, 'boundary layer width phi_b replacing sgn(s) by '
+        ParameterSpec('boundary', 0.1, 'boundary layer width phi_b replacing sgn(s) by '
                       'sat(s/phi_b) [rad/s] (0.01-0.5 work; not in the thesis)',
                       low=1e-4, high=10.0),
         ParameterSpec('cos_min', 0.2, 'floor of |cos theta| in Gamma = cos theta/(l d) [1], '
                       'keeps the law finite far from upright', low=0.01, high=1.0),
+        ParameterSpec('friction_steepness', 200.0, 'k of the pendulum joint friction '
+                      'c_p tanh(k theta_dot) in the model (6.11) [s/rad]; 0 leaves its Coulomb '
+                      'part out', low=0.0, high=1000.0),
     )
 
     def __init__(self) -> None:
         super().__init__()
-        self.k = np.zeros(3)
-        """Manifold gain k of (8.35)/(8.39)."""
+        self.k = np.zeros(4)
+        """Manifold gain [k_1, k_2, k_3, k_4] of (8.35)/(8.39); k_4 = 0 with three poles."""
         self.s = 0.0
         """The sliding variable (8.40) of the last update [rad/s]."""
+        self._integral = ConditionalIntegrator()
+        self._clock = StepClock()
+
+    @property
+    def integral(self) -> float:
+        """eta_4 = int (x - x*) dt [m s]."""
+        return self._integral.value
 
     def on_configure(self) -> None:
         """Place the manifold's poles (8.36)-(8.39); refuse unusable poles."""
-        self.k = manifold_gain(self.context.plant, poles_from_parameter(self.gains['poles']))
+        p = self.context.plant
+        k = manifold_gain(p, poles_from_parameter(self.gains['poles']))
+        self.k = np.append(k, 0.0) if len(k) == 3 else k
+        # The model of (6.11): the pendulum's friction, not the cart's (the feedforward's).
+        self._model = p.replace(c_c_right=0.0, c_c_left=0.0, v_c=0.0,
+                                friction_steepness_pendulum=max(self.gains['friction_steepness'],
+                                                                1e-9),
+                                c_p=p.c_p if self.gains['friction_steepness'] > 0.0 else 0.0)
+
+    def activate(self, state: ControllerState) -> None:
+        """Bumpless start: the integral starts from zero at this state."""
+        super().activate(state)
+        self._integral.reset()
+        self._clock.reset(state.t)
 
     def sliding_variable(self, state: ControllerState) -> float:
-        """s of (8.40)."""
-        k1, k2, k3 = self.k
+        """s of (8.40), with the integral term k_4 eta_4 as it stands."""
+        k1, k2, k3, k4 = self.k
         l = self.context.plant.l
         eta2 = state.x_dot * math.cos(state.theta) / l - state.theta_dot
-        return state.theta_dot + k1 * state.theta_w + k2 * eta2 + k3 * (state.x - self.context.x_ref)
+        return (state.theta_dot + k1 * state.theta_w + k2 * eta2
+                + k3 * (state.x - self.context.x_ref) + k4 * self._integral.value)
 
     def update(self, state: ControllerState) -> float:
+        """u = -(Phi + lambda_0 sat(s / phi_b)) / Gamma, (8.42) with s-dot derived again."""
         p = self.context.plant
-        k1, k2, k3 = self.k
+        k1, k2, k3, k4 = self.k
+        error_x = state.x - self.context.x_ref
         s_th, c_th = math.sin(state.theta), math.cos(state.theta)
-        f_c, f_p = accelerations(state.x, state.theta, state.x_dot, state.theta_dot, 0.0, p,
-                                 friction=False)
+        f_c, f_p = accelerations(state.x, state.theta, state.x_dot, state.theta_dot, 0.0,
+                                 self._model)
         phi = ((1.0 - k2) * f_p + k2 * f_c * c_th / p.l + k1 * state.theta_dot
-               + (k3 - k2 * state.theta_dot * s_th / p.l) * state.x_dot)
+               + (k3 - k2 * state.theta_dot * s_th / p.l) * state.x_dot + k4 * error_x)
         c_floor = math.copysign(max(abs(c_th), self.gains['cos_min']), c_th)
         gamma = c_floor / (p.l * (p.m_c + p.m_p * s_th * s_th))
+        reaching, boundary = self.gains['reaching_gain'], self.gains['boundary']
+        if k4 != 0.0:
+            dt = self._clock.step(state.t, self.context.sample_time)
+            # d(force)/d(eta_4) inside the layer: -lambda_0 k_4 / (phi_b Gamma).
+            self._integral.step(error_x, dt, -reaching * k4 / (boundary * gamma))
         self.s = self.sliding_variable(state)
-        reach = self.gains['reaching_gain'] * saturation(self.s / self.gains['boundary'])
+        if k4 != 0.0 and abs(self.s) >= boundary:
+            self._integral.hold()  # reaching phase: integrate on the manifold only
+            self.s = self.sliding_variable(state)
+        reach = reaching * saturation(self.s / boundary)
         return -(phi + reach) / gamma
+
+    def command_applied(self, feedback: CommandFeedback) -> None:
+        """Anti-windup: take back this cycle's integration if the command was cut or held."""
+        self._integral.feedback(feedback)

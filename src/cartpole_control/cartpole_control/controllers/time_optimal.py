@@ -25,23 +25,32 @@ over in :attr:`ControlContext.feedforward`), so the actuator gets F_k.
 Fall-back to :class:`~.energy_saturated.EnergySaturatedSwingUp` (its default
 gains) when
 
-- no plan is ready for the start: the activation state is not hanging at
-  rest within the ``start_tolerance_*`` of a planned start, or the plan for it
-  is still being solved (or failed);
+- there is no plan loaded for the start: the activation state is not
+  hanging at rest within the ``start_tolerance_*``, no plan was prepared for
+  this cart position, or the optimiser found none;
 - the tracking error exceeds ``abort_x`` or ``abort_theta`` (the plan is no
   longer valid: a different plant, a push);
 - the plan has ended without the manager's catch.
 
-The loop never waits for IPOPT. Plans are solved in a background thread
-(CasADi releases the GIL while IPOPT runs) and stored in an on-disk cache
-(:class:`~cartpole_control.trajectory_optimization.TrajectoryCache`, key = hash
-of the parameters, the start and the options): on configure for the default
-start (``plan_x0``, hanging at rest) when ``precompute`` is true, and on an
-activation from a hanging rest with no plan (that swing-up uses the
-fall-back; the next one from there uses the plan). A lock file per key keeps
-several instances from solving the same problem twice. A plan that was not
-ready when the swing-up started is never used for it, so a run is
-deterministic given the cache.
+:attr:`law` says which ran (the run summary's ``swingup_law``):
+``time_optimal:plan``, or ``time_optimal:fallback(<why>)`` with why one of
+``not at hanging rest``, ``no plan``, ``no feasible plan``, ``start off the
+plan``, ``tracking error``, ``plan ended``; every fall-back is logged.
+
+Where the work is done. Nothing slow runs in :meth:`activate` or
+:meth:`update`: the plan is read from the cache and its TV-LQR gains are
+built when the plugin is configured (``precompute``: for the default start
+``plan_x0``), so an activation only looks the plan up. Plans come from the
+cache of :mod:`cartpole_control.plan_cache`; a missing one is solved
+
+- before the run, blocking, by :meth:`prepare` (``cartpole offline``,
+  lockstep runs, ``cartpole plan``): the run then tracks it from its first
+  swing-up, deterministically given the cache;
+- in a detached background process when a real-time instance is configured
+  without it (``precompute``) or activated from a hanging rest it has no plan
+  for (``plan_on_activation``): the loop never waits; that swing-up uses the
+  fall-back, and a later one from there the plan, once loaded (a short
+  worker thread loads it and builds its gains, outside the cycle).
 
 Assumptions: no stiction (the Coulomb friction of (4.20) with the level of
 (4.27), smoothed), force limits as given (Appendix C), the nominal plant.
@@ -49,33 +58,41 @@ No ROS import.
 """
 from __future__ import annotations
 
+import logging
 import math
-import os
+import subprocess
 import threading
-import time
-from pathlib import Path
+from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
 
 from cartpole_sim.model import CartPoleParameters
 
 from ..controller import SWINGUP, ControlContext, Controller, ControllerState, ParameterSpec
-from ..trajectory_optimization import (CatchRegion, MinimumTimeProblem, Trajectory,
-                                       TrajectoryCache, solve_minimum_time, tracking_gains)
+from ..plan_cache import (CachedPlan, PlanError, Progress, TrajectoryCache,
+                          cached_tracking_gains, solve_cached, start_background_solve)
+from ..trajectory_optimization import CatchRegion, MinimumTimeProblem, Trajectory
 from .energy_saturated import EnergySaturatedSwingUp
+
+logger = logging.getLogger(__name__)
 
 PLAN = 'plan'
 FALLBACK = 'fallback'
 
-LOCK_STALE_S = 900.0
-"""A lock file older than this is from a solver that died; it is ignored."""
+PLAN_INTERVALS = 70
+"""Shooting intervals of the plan's free-time solves (before the fixed 5 ms grid)."""
+
+
+def plan_start(x0: float, travel: float) -> float:
+    """The planned start for a hanging rest at ``x0``: rounded to 1 cm, on the rail."""
+    return min(max(round(float(x0), 2), 0.0), travel)
 
 
 def plan_problem(params: CartPoleParameters, x_ref: float, x0: float, gains) -> MinimumTimeProblem:
     """The minimum-time problem the plugin plans for a start at rest hanging at ``x0``."""
-    x0 = min(max(round(float(x0), 2), 0.0), params.travel)
     return MinimumTimeProblem(
-        params, (x0, math.pi, 0.0, 0.0),
+        params, (plan_start(x0, params.travel), math.pi, 0.0, 0.0),
         CatchRegion(angle=math.radians(float(gains['terminal_angle_deg'])),
                     energy_tolerance=float(gains['terminal_energy_tolerance'])),
         force_scale=float(gains['force_scale']), rail_margin=float(gains['rail_margin']),
@@ -84,18 +101,47 @@ def plan_problem(params: CartPoleParameters, x_ref: float, x0: float, gains) -> 
         terminal_hold=float(gains['terminal_hold']))
 
 
-def solve_plan(problem: MinimumTimeProblem, cache: TrajectoryCache, grid: float) -> Trajectory:
-    """Solve ``problem`` on ``grid`` (or read it from ``cache``), storing the result.
+def at_hanging_rest(state: ControllerState, gains: Mapping[str, Any]) -> bool:
+    """Hanging (theta within ``start_tolerance_theta`` of pi) and at rest."""
+    return (abs(math.remainder(state.theta - math.pi, 2.0 * math.pi))
+            <= gains['start_tolerance_theta']
+            and abs(state.theta_dot) <= gains['start_tolerance_rate']
+            and abs(state.x_dot) <= gains['start_tolerance_rate'])
 
-    A lock file ``<key>.lock`` marks a solve in progress for other instances.
+
+@dataclass(frozen=True)
+class PreparedPlan:
+    """A plan read from the cache with its TV-LQR gains: all an activation needs."""
+
+    ident: tuple
+    """(problem key, q, r): what it was prepared for."""
+    plan: Trajectory
+    gains: np.ndarray | None
+    """K_k (N, 4); None for an unsuccessful plan."""
+
+
+def solve_plan_for(plant: CartPoleParameters, x_ref: float, sample_time: float,
+                   gains: Mapping[str, Any], x0: float,
+                   progress: Progress | None = None) -> CachedPlan:
+    """The plan the plugin with ``gains`` tracks from hanging rest at ``x0``: cached or solved now.
+
+    Blocks for the solve (about 10 s of CPU); says so to ``progress`` first.
+    Raises :class:`~cartpole_control.plan_cache.PlanError` when the solve raised.
     """
-    key = problem.key(grid)
-    cached = cache.get(key)
-    if cached is not None:
-        return cached
-    traj = solve_minimum_time(problem, n_intervals=70, grid=grid)
-    cache.put(key, traj)
-    return traj
+    problem = plan_problem(plant, x_ref, x0, gains)
+    cache = TrajectoryCache(gains['cache_dir'] or None)
+    if not cache.has(problem.key(sample_time)):
+        _say(progress, f'time_optimal: solving the minimum-time plan from hanging rest at '
+                       f'x = {problem.start[0]:.2f} m (not in the cache {cache.directory}; '
+                       'about 10 s) ...')
+    return solve_cached(problem, sample_time, cache, progress=progress, n_intervals=PLAN_INTERVALS)
+
+
+def _say(progress: Progress | None, text: str) -> None:
+    if progress is not None:
+        progress(text)
+    else:
+        logger.warning(text)
 
 
 class TimeOptimalSwingUp(Controller):
@@ -133,10 +179,12 @@ class TimeOptimalSwingUp(Controller):
                       'angle of pi [rad]', low=0.0, high=0.5),
         ParameterSpec('start_tolerance_rate', 0.15, 'a start counts as at rest below these '
                       'rates [m/s, rad/s]', low=0.0, high=2.0),
-        ParameterSpec('precompute', True, 'on configure, solve (in the background) the plan for '
-                      'the default start plan_x0'),
+        ParameterSpec('precompute', True, 'on configure, load the plan for the default start '
+                      'plan_x0 and build its TV-LQR gains (if it is not cached, solve it in a '
+                      'background process)'),
         ParameterSpec('plan_on_activation', True, 'on an activation from a hanging rest with '
-                      'no plan, solve one in the background for the next swing-up from there'),
+                      'no plan loaded, load it (or solve it in a background process) for the '
+                      'next swing-up from there'),
         ParameterSpec('plan_x0', 0.0, 'default start: cart position of the hanging rest to plan '
                       'for on configure [m] (0: the left stop, the thesis procedure)',
                       low=0.0, high=0.769),
@@ -149,13 +197,27 @@ class TimeOptimalSwingUp(Controller):
         self.fallback = EnergySaturatedSwingUp()
         self.mode = FALLBACK
         self.fallback_reason = ''
+        self._law = self.name
+        self._prepared: dict[float, PreparedPlan] = {}
+        """Plans ready for an activation, by planned start (:func:`plan_start`)."""
+        self._requested: set[str] = set()
+        """Problem keys this instance has started a background solve for (once each)."""
+        self._workers: list[subprocess.Popen] = []
+        self._loading: set[float] = set()
+        """Starts a worker thread is loading a plan for."""
+        self._why: tuple[str, str] = ('', '')
         self._plan: Trajectory | None = None
         self._gains_k: np.ndarray | None = None
         self._t0 = 0.0
         self._theta_offset = 0.0
-        self._threads: list[threading.Thread] = []
 
-    # -- set-up -------------------------------------------------------------------------------
+    @property
+    def law(self) -> str:
+        """``time_optimal`` before the first activation, then ``time_optimal:plan`` or
+        ``time_optimal:fallback(<why>)`` (module docstring)."""
+        return self._law
+
+    # -- preparation (outside the control cycle) ----------------------------------------------
     @property
     def cache(self) -> TrajectoryCache:
         return TrajectoryCache(self.gains['cache_dir'] or None)
@@ -165,6 +227,42 @@ class TimeOptimalSwingUp(Controller):
         c = self.context
         return plan_problem(c.plant, c.x_ref, x0, self.gains)
 
+    @classmethod
+    def prepare(cls, gains: Mapping[str, Any], context: ControlContext, start: ControllerState,
+                progress: Progress | None = None) -> dict[str, Any]:
+        """Solve the plan for a run from ``start`` now if it is not cached (blocks, seconds).
+
+        Returns the gains that make the run's instance load it on configure
+        (``plan_x0`` = the start, ``precompute``) and solve nothing in the
+        background during a run that was prepared (``plan_on_activation`` false).
+        """
+        g = cls.defaults()
+        g.update(cls.validate_gains(gains))
+        if not at_hanging_rest(start, g):
+            _say(progress, f'time_optimal: the start (theta = {start.theta:.3f} rad) is not a '
+                           'hanging rest: no plan; energy_saturated swings up')
+            return {'precompute': False, 'plan_on_activation': False}
+        x0 = plan_start(start.x, context.plant.travel)
+        overrides = {'plan_x0': x0, 'plan_on_activation': False}
+        try:
+            result = solve_plan_for(context.plant, context.x_ref, context.sample_time, g, x0,
+                                    progress)
+        except PlanError as error:
+            _say(progress, f'time_optimal: the plan solve failed ({error}); energy_saturated '
+                           'swings up')
+            return dict(overrides, precompute=False)
+        plan = result.plan
+        if plan.success:  # built now, read by the run's configure
+            problem = plan_problem(context.plant, context.x_ref, x0, g)
+            cached_tracking_gains(problem, plan, problem.key(context.sample_time),
+                                  tuple(g['q']), g['r'], TrajectoryCache(g['cache_dir'] or None))
+        if result.solved or not plan.success:
+            _say(progress, f'time_optimal: plan from x = {x0:.2f} m: ' + (
+                f'T = {plan.final_time:.3f} s (solved in {plan.solve_time:.1f} s, {result.path})'
+                if plan.success else f'the optimiser found none ({result.path}); '
+                'energy_saturated swings up'))
+        return dict(overrides, precompute=True)
+
     def on_configure(self) -> None:
         c: ControlContext = self.context
         self.fallback.configure({}, c)
@@ -173,95 +271,128 @@ class TimeOptimalSwingUp(Controller):
         if self.gains['plan_x0'] > c.plant.travel:
             raise ValueError(f'plan_x0 {self.gains["plan_x0"]:g} is beyond the travel '
                              f'{c.plant.travel:g} m')
-        if self.gains['precompute'] and not c.validation_only:
-            self.request_plan(self.gains['plan_x0'])
+        if c.validation_only:
+            return
+        self._workers = [w for w in self._workers if w.poll() is None]
+        # Plans prepared for other gains or another context are no longer valid.
+        self._prepared = {x0: p for x0, p in self._prepared.items()
+                          if p.ident == self._ident(x0, self.gains, c)}
+        if self.gains['precompute']:
+            self.load_plan(self.gains['plan_x0'], solve_missing=True)
 
-    def request_plan(self, x0: float) -> bool:
-        """Start a background solve for the hanging rest at ``x0`` unless cached or running.
+    @staticmethod
+    def _ident(x0: float, gains: Mapping[str, Any], context: ControlContext) -> tuple:
+        problem = plan_problem(context.plant, context.x_ref, x0, gains)
+        return (problem.key(context.sample_time), tuple(gains['q']), gains['r'])
 
-        Returns True if a solve was started.
+    def load_plan(self, x0: float, solve_missing: bool) -> PreparedPlan | None:
+        """Read the plan for a hanging rest at ``x0`` and build its gains (milliseconds).
+
+        A plan not in the cache is solved in a background process if
+        ``solve_missing`` (announced); None then.
         """
-        problem = self.problem_for(x0)
-        cache = self.cache
-        grid = self.context.sample_time
+        gains, context = self.gains, self.context  # a worker thread: the values at its start
+        x0 = plan_start(x0, context.plant.travel)
+        ident = self._ident(x0, gains, context)
+        have = self._prepared.get(x0)
+        if have is not None and have.ident == ident:
+            return have
+        problem = plan_problem(context.plant, context.x_ref, x0, gains)
+        cache = TrajectoryCache(gains['cache_dir'] or None)
+        plan = cache.get(ident[0])
+        if plan is None:
+            if solve_missing:
+                self._solve_in_background(problem, cache, x0, context.sample_time,
+                                          (ident[1], ident[2]))
+            return None
+        if plan.success:
+            k_gains = cached_tracking_gains(problem, plan, *ident, cache)
+            prepared = PreparedPlan(ident, plan, k_gains)
+        else:
+            prepared = PreparedPlan(ident, plan, None)
+            logger.warning('time_optimal: the optimiser found no plan from x = %.2f m (%s); '
+                           'swing-ups from there use energy_saturated', x0, cache.path(ident[0]))
+        if self.gains is gains:  # not reconfigured meanwhile (a worker thread)
+            self._prepared[x0] = prepared
+        return prepared
+
+    def _solve_in_background(self, problem: MinimumTimeProblem, cache: TrajectoryCache,
+                             x0: float, grid: float, tvlqr: tuple) -> None:
         key = problem.key(grid)
-        if cache.path(key).is_file():
-            return False
-        lock = cache.path(key).with_suffix('.lock')
+        if key in self._requested:
+            return  # once per instance: a failing solve is not started again and again
+        self._requested.add(key)
+        previous = cache.failure(key)
         try:
-            lock.parent.mkdir(parents=True, exist_ok=True)
-            if lock.exists() and time.time() - lock.stat().st_mtime > LOCK_STALE_S:
-                lock.unlink(missing_ok=True)
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            os.close(fd)
-        except FileExistsError:
-            return False
-        except OSError:
-            return False  # no writable cache: the fall-back runs, nothing else breaks
+            worker = start_background_solve(problem, grid, cache, tvlqr,
+                                            n_intervals=PLAN_INTERVALS)
+        except OSError as error:
+            logger.warning('time_optimal: cannot start the plan solve for x = %.2f m (%s); '
+                           'swing-ups from there use energy_saturated', x0, error)
+            return
+        if worker is None:
+            logger.warning('time_optimal: no plan for hanging rest at x = %.2f m yet; another '
+                           'process is solving it (%s)', x0, cache.lock(key).path)
+            return
+        self._workers.append(worker)
+        logger.warning('time_optimal: no plan for hanging rest at x = %.2f m yet: solving it in '
+                       'background process %d (log %s); swing-ups from there use '
+                       'energy_saturated until it is loaded%s', x0, worker.pid,
+                       cache.log_path(key), f' (the last solve failed: {previous})'
+                       if previous else '')
+
+    def _load_later(self, x0: float) -> None:
+        """After an activation without a plan: load it (or solve it) off the cycle."""
+        if x0 in self._loading:
+            return
+        self._loading.add(x0)
 
         def work() -> None:
             try:
-                solve_plan(problem, cache, grid)
-            except Exception:  # a failed solve leaves no plan; the fall-back covers it
-                pass
+                self.load_plan(x0, solve_missing=True)
+            except Exception:  # a damaged cache must not go unnoticed, nor break the loop
+                logger.exception('time_optimal: loading the plan for x = %.2f m failed', x0)
             finally:
-                Path(lock).unlink(missing_ok=True)
+                self._loading.discard(x0)
 
-        thread = threading.Thread(target=work, name=f'time_optimal-{key[:8]}', daemon=True)
-        self._threads = [t for t in self._threads if t.is_alive()] + [thread]
-        thread.start()
-        return True
-
-    def wait_for_plans(self, timeout: float | None = None) -> bool:
-        """Block until this instance's background solves end (for batch use and tests)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        for thread in list(self._threads):
-            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
-            thread.join(remaining)
-        return not any(t.is_alive() for t in self._threads)
+        # Not a daemon: milliseconds of work, joined before the interpreter exits.
+        threading.Thread(target=work, name=f'time_optimal-load-{x0:.2f}').start()
 
     # -- lifecycle ---------------------------------------------------------------------------------
-    def _at_hanging_rest(self, state: ControllerState) -> bool:
-        g = self.gains
-        return (abs(math.remainder(state.theta - math.pi, 2.0 * math.pi)) <= g['start_tolerance_theta']
-                and abs(state.theta_dot) <= g['start_tolerance_rate']
-                and abs(state.x_dot) <= g['start_tolerance_rate'])
-
     def activate(self, state: ControllerState) -> None:
-        """Use the cached plan for this start if there is one, else the fall-back (and plan)."""
+        """Track the plan prepared for this start, else the fall-back (module docstring)."""
         super().activate(state)
-        self._plan = None
-        self._gains_k = None
-        reason = ''
-        if not self._at_hanging_rest(state):
-            reason = 'start is not a hanging rest'
-        else:
-            problem = self.problem_for(state.x)
-            plan = self.cache.get(problem.key(self.context.sample_time))
-            if plan is None:
-                reason = 'no plan for this start yet'
-                if self.gains['plan_on_activation'] and self.request_plan(state.x):
-                    reason += ' (solving in the background)'
-            elif not plan.success:
-                reason = 'the optimiser found no plan for this start'
-            elif abs(plan.states[0, 0] - state.x) > self.gains['start_tolerance_x']:
-                reason = 'start too far from the planned one'
-            else:
-                self._plan = plan
-                self._gains_k = tracking_gains(problem, plan, self.gains['q'], self.gains['r'])
-                # The plan's theta runs from pi; follow the unwrapped angle of this start.
-                self._theta_offset = state.theta - math.remainder(state.theta - math.pi,
-                                                                  2.0 * math.pi) - math.pi
+        self._plan = self._gains_k = None
         self._t0 = state.t
-        if self._plan is not None:
-            self.mode, self.fallback_reason = PLAN, ''
+        if not at_hanging_rest(state, self.gains):
+            self._fall_back(state, 'not at hanging rest')
+            return
+        x0 = plan_start(state.x, self.context.plant.travel)
+        prepared = self._prepared.get(x0)
+        if prepared is None:
+            self._fall_back(state, 'no plan', f'none loaded for x = {x0:.2f} m')
+            if self.gains['plan_on_activation']:
+                self._load_later(x0)
+        elif prepared.gains is None:
+            self._fall_back(state, 'no feasible plan',
+                            f'the optimiser found none from x = {x0:.2f} m')
+        elif abs(prepared.plan.states[0, 0] - state.x) > self.gains['start_tolerance_x']:
+            self._fall_back(state, 'start off the plan')
         else:
-            self._fall_back(state, reason)
+            self._plan, self._gains_k = prepared.plan, prepared.gains
+            # The plan's theta runs from pi; follow the unwrapped angle of this start.
+            self._theta_offset = state.theta - math.remainder(state.theta - math.pi,
+                                                              2.0 * math.pi) - math.pi
+            self.mode, self.fallback_reason = PLAN, ''
+            self._law = f'{self.name}:{PLAN}'
 
-    def _fall_back(self, state: ControllerState, reason: str) -> None:
+    def _fall_back(self, state: ControllerState, why: str, detail: str = '') -> None:
         self.mode = FALLBACK
-        self.fallback_reason = reason
+        self.fallback_reason = f'{why}: {detail}' if detail else why
+        self._law = f'{self.name}:{FALLBACK}({why})'
         self._plan = None
+        logger.warning('time_optimal: swing-up at t = %.3f s from x = %.3f m falls back to '
+                       'energy_saturated: %s', state.t, state.x, self.fallback_reason)
         self.fallback.activate(state)
 
     def deactivate(self) -> None:
@@ -275,15 +406,15 @@ class TimeOptimalSwingUp(Controller):
         plan, gains_k = self._plan, self._gains_k
         k = int(round((state.t - self._t0) / plan.dt))
         if k >= len(plan.forces):
-            self.fallback_reason = 'plan ended before the catch'
+            self._why = 'plan ended', 'before the catch'
             return None
         k = max(k, 0)
         ref = plan.states[k]
         dev = np.array([state.x - ref[0], state.theta - self._theta_offset - ref[1],
                         state.x_dot - ref[2], state.theta_dot - ref[3]])
         if abs(dev[0]) > self.gains['abort_x'] or abs(dev[1]) > self.gains['abort_theta']:
-            self.fallback_reason = (f'tracking error x {dev[0]:+.3f} m, theta {dev[1]:+.3f} rad '
-                                    f'at {k * plan.dt:.3f} s')
+            self._why = 'tracking error', (f'x {dev[0]:+.3f} m, theta {dev[1]:+.3f} rad at '
+                                           f'{k * plan.dt:.3f} s')
             return None
         return float(plan.forces[k] - gains_k[k] @ dev)
 
@@ -293,5 +424,5 @@ class TimeOptimalSwingUp(Controller):
             force = self.planned_force(state)
             if force is not None:
                 return force - self.context.feedforward(state.x_dot, force)
-            self._fall_back(state, self.fallback_reason)
+            self._fall_back(state, *self._why)
         return self.fallback.update(state)

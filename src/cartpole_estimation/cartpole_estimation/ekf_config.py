@@ -1,0 +1,184 @@
+"""Tuning and safety limits of the EKF (section 5.2, 9.2.1): :class:`EkfConfig`.
+
+No ROS import.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+__all__ = ['EkfConfig', 'DISCRETISATIONS', 'ROS_PARAMETERS', 'changes_from_parameters',
+           'q_parameter']
+
+DISCRETISATIONS = ('midpoint', 'euler')
+"""The prediction's f_k: the explicit midpoint rule, or forward Euler (5.8)."""
+
+
+def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in value)
+    except TypeError as exc:
+        raise ValueError(f'{name} must be a sequence of {length} numbers, got {value!r}') from exc
+    if len(values) != length:
+        raise ValueError(f'{name} must have {length} entries, got {len(values)}')
+    if not all(math.isfinite(v) and v > 0.0 for v in values):
+        raise ValueError(f'{name} entries must be finite and > 0, got {values}')
+    return values
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Tuning and safety limits of the EKF (section 5.2, 9.2.1).
+
+    Every field is validated on construction; a bad value raises
+    :class:`ValueError` naming it.
+    """
+
+    q_diag: tuple[float, float, float, float] = (1.0e-5, 1.0e-5, 0.01, 0.01)
+    """Diagonal of Q_k (9.2): covariance added to the state per nominal sample
+    period Ts, in m^2, rad^2, (m/s)^2, (rad/s)^2. A step of length h adds
+    Q h / Ts."""
+    q_force: float = 1.0e6
+    """Variance of a random force on the cart per sample period [N^2, on the
+    scale of P]; added to Q as ``q_force b b^T`` with b the force's effect on
+    the velocities over a step, ``h [1, cos(theta)/l] / (m_c + m_p sin^2 theta)``
+    (4.40): the process noise of a friction or force error, which moves the
+    cart and the pendulum together as the model couples them. 0 is the
+    thesis's diagonal Q (9.2)."""
+    r_diag: tuple[float, float] = (0.01, 0.1)
+    """Diagonal of R_k (9.1): measurement covariance of x [m^2] and theta [rad^2]."""
+    p0_diag: tuple[float, float, float, float] = (1.0e-6, 1.0e-5, 1.0e3, 1.0e5)
+    """Diagonal of P_0|0 after an (re)initialisation from a measurement:
+    positions about one encoder tick; velocities practically unknown (the
+    state is initialised with zero velocities, possibly mid-swing), so that
+    the next few samples set them: with Q and R of the thesis a prior of
+    (1 rad/s)^2 takes about 0.4 s to recover from a reset at 10 rad/s, this
+    one about 0.05 s."""
+    angle_offset_p0: float = 100.0
+    """Variance of the prior of the encoder's angle offset b (Appendix H), on
+    the scale of P; 0 leaves the offset state out: the thesis's 4-state filter.
+    The filter runs on the scale of the thesis's R (9.1), where R_theta =
+    0.1 rad^2 stands for the pendulum encoder's quantisation and noise (about
+    3e-6 rad^2 in fact): only ratios matter. 100 is 1000 R_theta, a prior wide
+    enough for offsets of 0.1 rad, which the model's gravity then resolves
+    within about 0.3 s of a hanging or swinging pendulum."""
+    angle_offset_q: float = 1.0e-5
+    """Random walk of the offset added per sample period, on the scale of P
+    (ignored without the offset state). Small: the offset is a constant of the
+    encoder reset; this keeps the estimate from freezing once P_b is small."""
+    discretisation: str = 'midpoint'
+    """f_k of the prediction (5.15): 'midpoint', the explicit midpoint rule
+    (second order, one more model evaluation), or 'euler', forward Euler as in
+    the thesis (5.8). Euler's error over a 5 ms step of a swinging pendulum is
+    the largest model error the filter sees: its velocities lag and the offset
+    state takes up a few mrad of it (free swing: theta_dot RMSE 0.071 rad/s
+    with Euler, 0.0055 with the midpoint rule). The covariance (5.16) uses the
+    Jacobian of the Euler step (5.19) either way."""
+    jacobian_step: float = 1.0e-6
+    """epsilon of the forward difference (5.21)."""
+    friction_steepness: float = 200.0
+    """k of tanh(k v) in the filter's Coulomb friction of cart [s/m] and
+    pendulum [s/rad], (4.20)/(4.21); replaces the plant's near-step 1000,
+    with which forward Euler at Ts is unstable near rest (see the module
+    docstring)."""
+    sample_time: float | None = None
+    """Nominal Ts [s]; None takes ``params.sample_time`` (5 ms)."""
+    max_dt: float = 0.25
+    """Largest gap between two samples that is bridged by prediction [s];
+    a longer gap (or a clock jump backwards by more than this) re-initialises
+    the filter from the measurement."""
+    innovation_sigma: float = 6.0
+    """N: an innovation beyond N standard deviations of (5.12)'s
+    H P H^T + R counts as an outlier."""
+    innovation_count: int = 5
+    """M: this many consecutive outlier samples re-initialise the filter."""
+    max_innovation: tuple[float, float] = (0.05, 1.0)
+    """An innovation of x [m] / wrapped theta [rad] larger than this in one
+    sample (10 m/s resp. 200 rad/s over Ts) is an outlier whatever P says."""
+    max_covariance: float = 1.0e9
+    """Any diagonal entry of P above this (or non-finite) re-initialises;
+    must exceed every entry of ``p0_diag``."""
+    max_speed: tuple[float, float] = (20.0, 200.0)
+    """|x_dot| [m/s] / |theta_dot| [rad/s] above which the estimate is
+    considered diverged and re-initialised."""
+    max_position_excursion: float = 1.0
+    """The estimate of x may leave [0, travel] by at most this [m]."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'q_diag', _positive_tuple('q_diag', self.q_diag, 4))
+        object.__setattr__(self, 'r_diag', _positive_tuple('r_diag', self.r_diag, 2))
+        object.__setattr__(self, 'p0_diag', _positive_tuple('p0_diag', self.p0_diag, 4))
+        object.__setattr__(self, 'max_innovation',
+                           _positive_tuple('max_innovation', self.max_innovation, 2))
+        object.__setattr__(self, 'max_speed', _positive_tuple('max_speed', self.max_speed, 2))
+        if self.discretisation not in DISCRETISATIONS:
+            raise ValueError(f'discretisation must be one of {list(DISCRETISATIONS)}, '
+                             f'got {self.discretisation!r}')
+        for name in ('q_force', 'angle_offset_p0', 'angle_offset_q'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value) or value < 0.0:
+                raise ValueError(f'{name} must be a finite number >= 0, got {value!r}')
+        for name in ('jacobian_step', 'friction_steepness', 'max_dt', 'innovation_sigma',
+                     'max_covariance', 'max_position_excursion'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value) or value <= 0.0:
+                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+        if self.sample_time is not None and not (
+                isinstance(self.sample_time, (int, float)) and math.isfinite(self.sample_time)
+                and self.sample_time > 0.0):
+            raise ValueError(f'sample_time must be None or a finite number > 0, '
+                             f'got {self.sample_time!r}')
+        if self.max_covariance <= max(*self.p0_diag, self.angle_offset_p0):
+            raise ValueError(f'max_covariance ({self.max_covariance}) must exceed every '
+                             f'p0_diag entry {self.p0_diag} and angle_offset_p0')
+        if not isinstance(self.innovation_count, int) or self.innovation_count < 1:
+            raise ValueError(f'innovation_count must be an integer >= 1, '
+                             f'got {self.innovation_count!r}')
+
+    @property
+    def estimates_angle_offset(self) -> bool:
+        """The filter carries the encoder's angle offset as a fifth state."""
+        return self.angle_offset_p0 > 0.0
+
+    def replace(self, **changes) -> 'EkfConfig':
+        """Return a copy with ``changes`` applied (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+ROS_PARAMETERS = ('q', 'r', 'friction_steepness', 'angle_offset_p0', 'angle_offset_q',
+                  'discretisation')
+"""The ``ekf`` node's parameters that configure the filter (the same names in a
+``--params`` file's ``ekf`` section for ``cartpole offline``)."""
+
+
+def q_parameter(config: EkfConfig) -> list[float]:
+    """The ROS parameter ``q``: the diagonal of Q and, as a fifth entry, ``q_force``."""
+    return [*config.q_diag, config.q_force]
+
+
+def changes_from_parameters(values) -> dict:
+    """EkfConfig changes from ROS parameter values by name (:data:`ROS_PARAMETERS`).
+
+    ``q`` takes 4 entries, the diagonal of Q with no force noise (the
+    thesis's (9.2) is ``q: [1, 1, 50, 50]``), or 5, the fifth being
+    ``q_force``. Raises ValueError with the reason on a bad value.
+    """
+    changes = {}
+    for name, value in dict(values).items():
+        if name == 'q':
+            q = [float(v) for v in value]
+            if len(q) not in (4, 5):
+                raise ValueError(f'q needs 4 entries (the diagonal of Q) or 5 (and q_force), '
+                                 f'got {len(q)}')
+            changes['q_diag'] = tuple(q[:4])
+            changes['q_force'] = q[4] if len(q) == 5 else 0.0
+        elif name == 'r':
+            changes['r_diag'] = tuple(float(v) for v in value)
+        elif name == 'discretisation':
+            changes['discretisation'] = str(value)
+        elif name in ROS_PARAMETERS:
+            changes[name] = float(value)
+    return changes
