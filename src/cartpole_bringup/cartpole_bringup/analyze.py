@@ -33,6 +33,8 @@ What is taken from where:
   once the controller is off) is not summarised;
 - ``controllers``: the controller status's ``mode``, ``swingup`` and
   ``stabilizer`` cycle by cycle (:mod:`cartpole_bringup.timeline`);
+- ``recorder_missed``: ``recorder_missed`` of the bag's custom_data (the
+  recorder counts by stamp what it missed, :mod:`cartpole_bringup.record_ledger`);
 - ``fault``: ``fault`` of the bag's custom_data (``cartpole run``: a node
   that died), else the first ``fault:<reason>`` event of the controller
   status, else the first fault the hardware bridge counted (its
@@ -65,7 +67,7 @@ JOINTS = '/joint_states'
 CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
-TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s')
+TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
 """Summary keys of SPEC 8 that the comparison table shows besides SPEC 5's."""
 HW_LIMIT_KEYS = ('limit_left', 'limit_right')
 """Keys of the limit-switch flags in the hw bridge's health status."""
@@ -328,8 +330,17 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
                                         label=label or run_label(path),
                                         end_ns=run_end_ns(custom),
                                         fault=custom.get('fault') or None)
+    summary['recorder_missed'] = recorder_missed(custom)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
                        topics=topics, controllers=dict(builder.controllers))
+
+
+def recorder_missed(custom: Mapping[str, str]) -> int | None:
+    """Messages the recorder missed (custom_data ``recorder_missed``, SPEC 8); None if not counted."""
+    try:
+        return int(custom['recorder_missed'])
+    except (KeyError, ValueError):
+        return None
 
 
 def run_label(path: Path) -> str:

@@ -46,13 +46,11 @@ import subprocess
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable
 
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from std_srvs.srv import Trigger
@@ -62,6 +60,7 @@ from cartpole_sim.domain_guard import (ALLOW_PARAMETER, DuplicateNodeError, Node
                                        claim_unique_names, domain_id, probe_node)
 
 from .analyze import FORCE, STATE, TRUE_STATE
+from .graph_spec import EXECUTORS, RECORDER_WINDOW, GraphSpec, make_executor  # noqa: F401
 from .node_processes import (NODES, NodeStartError, describe_exit, executable,  # noqa: F401
                              node_command, ros_value_text, start_node_process, stop_node_process)
 from .run_monitor import NODE_NAME as MONITOR_NAME
@@ -93,88 +92,8 @@ IN_PROCESS_STOP_ORDER = ('sim', 'hw_bridge', 'ekf', 'controller_manager', 'recor
 executor would still run that callback of a destroyed node); nothing spins in between,
 so nothing goes stale."""
 
-EXECUTORS = ('single', 'events')
-
-
-def make_executor(kind: str, context):
-    """The executor of the one-process graph (see :data:`EXECUTORS`)."""
-    if kind == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    if kind == 'single':
-        return SingleThreadedExecutor(context=context)
-    raise ValueError(f'executor must be one of {EXECUTORS}, got {kind!r}')
-
-
 class GraphError(RuntimeError):
     """The graph could not be started (a node failed, a timeout)."""
-
-
-@dataclass
-class GraphSpec:
-    """What to start.
-
-    Attributes
-    ----------
-    plant
-        ``'sim'`` or ``'hw_bridge'``.
-    parameters
-        Node name -> ROS parameters set explicitly (they override the file).
-    params_file
-        ROS 2 parameters YAML given to every node, or None.
-    lockstep
-        Simulator in lockstep; every node then uses sim time (``/clock``),
-        and the EKF waits for the command of the previous sample.
-    processes
-        One OS process a node instead of one executor.
-    record
-        Directory of the bag to write (it must not exist), or None.
-    custom_data
-        Strings stored in the bag's ``custom_data``.
-    log_level
-        ROS log level of the nodes.
-    executor
-        One-process executor: ``'single'`` (rclpy's SingleThreadedExecutor) or
-        ``'events'`` (rclpy.experimental's EventsExecutor, C++).
-    allow_duplicates
-        Start even when the graph's node names are taken on the domain.
-    """
-
-    plant: str
-    parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
-    params_file: Path | None = None
-    lockstep: bool = False
-    processes: bool = False
-    record: Path | None = None
-    custom_data: dict[str, str] = field(default_factory=dict)
-    log_level: str = 'warn'
-    executor: str = 'events'
-    allow_duplicates: bool = False
-
-    def __post_init__(self) -> None:
-        if self.plant not in ('sim', 'hw_bridge'):
-            raise ValueError(f"plant must be 'sim' or 'hw_bridge', got {self.plant!r}")
-        if self.lockstep and self.plant != 'sim':
-            raise ValueError('lockstep needs the simulator')
-
-    @property
-    def nodes(self) -> list[str]:
-        """Start order: recorder, ekf, controller manager, then the plant."""
-        return (['recorder'] if self.record else []) + ['ekf', 'controller_manager', self.plant]
-
-    def node_parameters(self, name: str) -> dict[str, Any]:
-        """The explicit parameters of one node (incl. ``use_sim_time``, recorder output)."""
-        out = dict(self.parameters.get(name, {}))
-        if name == 'sim':
-            out['lockstep'] = self.lockstep
-        if name == 'ekf' and self.lockstep:
-            out['lockstep'] = True
-        if name == 'recorder':
-            out['output'] = str(self.record)
-            out['custom_data'] = [f'{k}={v}' for k, v in self.custom_data.items()] or ['']
-        if self.lockstep:
-            out['use_sim_time'] = True
-        return out
 
 
 def command_line(spec: GraphSpec, name: str) -> list[str]:

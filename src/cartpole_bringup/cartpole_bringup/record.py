@@ -15,6 +15,14 @@ on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
 chunks at most ``flush_period`` old (also while no message arrives: a
 thread writes an idle chunk on the wall clock), so a recorder killed with SIGKILL loses at most
 that much; ``cartpole bag repair BAG`` makes the rest readable.
+
+Complete bags (:mod:`cartpole_bringup.record_ledger`): with ``lockstep:=true``
+the recorder publishes on ``/cartpole/recorder/progress`` (std_msgs/Header)
+the stamp up to which it holds every sample topic, and the simulator does not
+step more than ``recorder_window`` samples ahead of it; a sample re-published
+while the graph starts is written once. In real time the messages it missed
+are counted by stamp and stored as ``recorder_missed`` in the bag's
+custom_data when it closes.
 """
 from __future__ import annotations
 
@@ -28,10 +36,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Header
 
 from cartpole_sim.node_main import run_node
 
-from .bag import FLUSH_PERIOD, TOPICS, BagWriter
+from .bag import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from .record_ledger import RecordLedger
+
+PROGRESS_TOPIC = '/cartpole/recorder/progress'
 
 
 WRITE_PERIOD = 0.01
@@ -83,6 +95,10 @@ class RecorderNode(Node):
             description='Longest time [s] a received message waits in memory before it is '
                         'written to the file (what a SIGKILL can lose).', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
+        self.declare_parameter('lockstep', False, ParameterDescriptor(
+            description='Lockstep: publish the progress the simulator waits for on '
+                        f'{PROGRESS_TOPIC} and write a re-published sample once.',
+            read_only=True))
         self.declare_parameter('queue_depth', 200, ParameterDescriptor(
             description='Subscription queue depth (reliable QoS).', read_only=True,
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
@@ -99,6 +115,11 @@ class RecorderNode(Node):
                               flush_period=flush_period)
         qos = QoSProfile(depth=int(self.get_parameter('queue_depth').value),
                          reliability=ReliabilityPolicy.RELIABLE)
+        lockstep = bool(self.get_parameter('lockstep').value)
+        self.ledger = RecordLedger(topics, skip_repeats=lockstep)
+        self._progress_ns = -1
+        self._progress_pub = self.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.RELIABLE)) if lockstep else None
         for topic in topics:
             self.create_subscription(_import_type(TOPICS[topic]), topic,
                                      self._writer_for(topic), qos, raw=True)
@@ -115,9 +136,23 @@ class RecorderNode(Node):
         self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
 
     def _writer_for(self, topic: str):
-        def queue(data: bytes) -> None:
+        if topic not in self.ledger.topics:
+            def queue(data: bytes) -> None:
+                self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+            return queue
+
+        def book_and_queue(data: bytes) -> None:
+            if not self.ledger.take(topic, cdr_stamp_ns(data)):
+                return  # a sample re-published while the graph started: written once
             self._queue.append((topic, data, self.get_clock().now().nanoseconds))
-        return queue
+            if self._progress_pub is not None:
+                progress = self.ledger.progress_ns()
+                if progress is not None and progress > self._progress_ns:
+                    self._progress_ns = progress
+                    msg = Header()
+                    msg.stamp.sec, msg.stamp.nanosec = divmod(progress, 1_000_000_000)
+                    self._progress_pub.publish(msg)
+        return book_and_queue
 
     def _write_queued(self) -> None:
         queue, bag = self._queue, self._bag
@@ -149,6 +184,10 @@ class RecorderNode(Node):
         self._writer.join()
         self._write_queued()
         self._bag.close()
+        missed = self.ledger.finish()
+        update_custom_data(self._bag.path, {'recorder_missed': str(missed)})
+        if missed:
+            self.get_logger().warning(f'the recorder missed {missed} messages (by stamp)')
 
     def destroy_node(self) -> None:
         self.close()
