@@ -31,7 +31,8 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
              '--hw-arm', '--duration', '17', '--json'],
             capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stderr[-3000:]
-        summary = json.loads(run.stdout.strip().splitlines()[-1])
+        lines = [line for line in run.stdout.splitlines() if line.startswith('{')]
+        summary = json.loads(lines[-1])
         why = (summary, run.stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
         assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, why
         assert summary['theta_amp_deg'] < 2.0, why

@@ -41,7 +41,7 @@ _spec.loader.exec_module(_processes)
 def _cartpole(*args, timeout=120):
     code, out, err = _processes.run([str(a) for a in args], timeout)
     assert code == 0, err
-    return json.loads(out.strip().splitlines()[-1])
+    return json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
 
 
 def test_lockstep_bag_agrees_with_offline(tmp_path):

@@ -85,6 +85,17 @@ def test_switch_stabilizer_while_balancing(graph):
         assert _max_tilt_deg(graph, start) < UP_DEG, f'pendulum fell after switching to {name}'
     # Still the first catch only: no fall happened.
     assert graph.monitor.builder.catch_ns == b.catch_ns
+    # The summary names every stabiliser that ran, each from its switch on (SPEC 8).
+    from cartpole_bringup.plots import run_title
+    from cartpole_sim.model import CartPoleParameters
+    _, summary = b.summarize(params=CartPoleParameters(), x_ref=0.3845, lockstep=True)
+    spans = summary['controllers']
+    assert [(c['kind'], c['name']) for c in spans] == [
+        ('swingup', 'pendulum_energy'), ('stabilizer', 'lqg'), ('stabilizer', 'smc'),
+        ('stabilizer', 'pid')]
+    assert spans[1]['start_s'] == pytest.approx(b.catch_ns * 1e-9)
+    assert all(a['end_s'] == b_['start_s'] for a, b_ in zip(spans, spans[1:]))
+    assert run_title(spans) == 'pendulum_energy + lqg -> smc -> pid'
 
     # Refusals: a gain out of its range and an unknown controller, each with a reason.
     (bad_gain,) = _set(graph, set_client, lqg__r=1.0e9)

@@ -56,10 +56,17 @@ def test_cartpole_offline_json_prints_the_summary_keys():
                          capture_output=True, text=True, timeout=300, check=True)
     summary = json.loads(out.stdout)
     assert list(summary) == ['catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
-                             'mse_x', 'mse_theta', 'end_stop_contact', 'success',
-                             'swingup_law', 'force_rms_n', 'force_p2p_n']
+                             'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'fault',
+                             'controllers', 'longest_cycle_gap_s', 'swingup_law',
+                             'force_rms_n', 'force_p2p_n']
     assert 0.0 < summary['force_rms_n'] <= summary['force_p2p_n']
     assert summary['catch_time_s'] < 10.0 and summary['theta_amp_deg'] < 2.0
+    # SPEC 8: the controllers that ran with their spans (from the manager's events), no fault.
+    catch = summary['catch_time_s']
+    assert summary['controllers'] == [
+        {'kind': 'swingup', 'name': 'sign_based', 'start_s': 0.0, 'end_s': catch},
+        {'kind': 'stabilizer', 'name': 'smc', 'start_s': catch, 'end_s': 20.0}]
+    assert summary['fault'] is None and summary['longest_cycle_gap_s'] is None
     assert summary['swingup_law'] == 'sign_based'  # the law that swung up (SPEC 8)
 
 

@@ -26,11 +26,24 @@ What is taken from where:
   ``/cartpole/hw/health`` closing after it was seen open (the cart starts on
   the left switch); with neither, the estimate outside [0, travel];
 - x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
-  the travel.
+  the travel;
+- the end of the run: ``run_end_ns`` of the bag's custom_data (written by
+  ``cartpole run``: its ``--duration``, or the moment its stop began), else
+  the last sample; what the stop records after it (the pendulum falling
+  once the controller is off) is not summarised;
+- ``controllers``: the controller status's ``mode``, ``swingup`` and
+  ``stabilizer`` cycle by cycle (:mod:`cartpole_bringup.timeline`);
+- ``recorder_missed``: ``recorder_missed`` of the bag's custom_data (the
+  recorder counts by stamp what it missed, :mod:`cartpole_bringup.record_ledger`);
+- ``fault``: ``fault`` of the bag's custom_data (``cartpole run``: a node
+  that died), else the first ``fault:<reason>`` event of the controller
+  status, else the first fault the hardware bridge counted (its
+  ``last_error``), before the end of the run;
+- ``longest_cycle_gap_s``: the largest ``longest_cycle_gap_s`` of the
+  controller status (null when the manager does not report it).
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -41,7 +54,9 @@ from cartpole_sim.model import CartPoleParameters
 
 from . import metrics
 from .bag import bag_custom_data
+from .cdr_parse import parse_diagnostic_array, parse_joint_state  # noqa: F401 (re-exported)
 from .plots import RunSeries
+from .timeline import ControllerTimeline
 
 TRUE_STATE = '/cartpole/true_state'
 STATE = '/cartpole/state'
@@ -52,6 +67,8 @@ JOINTS = '/joint_states'
 CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
+TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
+"""Summary keys of SPEC 8 that the comparison table shows besides SPEC 5's."""
 HW_LIMIT_KEYS = ('limit_left', 'limit_right')
 """Keys of the limit-switch flags in the hw bridge's health status."""
 
@@ -94,7 +111,14 @@ class SeriesBuilder:
     status_count: int = 0
     t0_ns: int = 0
     """The stamp of t = 0 of the last :meth:`build` [ns] (0 in lockstep, else the first sample)."""
+    timeline: ControllerTimeline = field(default_factory=ControllerTimeline)
+    """The active controller cycle by cycle (stamps in ns)."""
+    faults: list[tuple[int, str]] = field(default_factory=list)
+    """(stamp [ns], reason) of each fault the manager or the bridge reported."""
+    cycle_gaps: list[tuple[int, float]] = field(default_factory=list)
+    """(stamp [ns], longest_cycle_gap_s) whenever the reported value grew."""
     _limit_open: dict[str, bool] = field(default_factory=dict)
+    _hw_faults: int = 0
 
     def joint_state(self, topic: str, stamp_ns: int, position: Sequence[float],
                     velocity: Sequence[float], effort: Sequence[float]) -> None:
@@ -111,13 +135,22 @@ class SeriesBuilder:
         for key in ('swingup', 'stabilizer'):
             if values.get(key):
                 self.controllers[key] = values[key]
-        if self.catch_ns is not None:
-            return
-        if values.get('swingup_law'):
+        cycle_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
+        mode = values.get('mode', '')
+        self.timeline.update(cycle_ns, mode, values.get('swingup', ''),
+                             values.get('stabilizer', ''))
+        event = values.get('event', '')
+        events = event.split(';') if event else []
+        for e in events:
+            if e.startswith('fault:'):
+                self.faults.append((cycle_ns, e[len('fault:'):]))
+        gap = _float_or_none(values.get('longest_cycle_gap_s'))
+        if gap is not None and (not self.cycle_gaps or gap > self.cycle_gaps[-1][1]):
+            self.cycle_gaps.append((cycle_ns, gap))
+        if self.catch_ns is None and values.get('swingup_law'):
             self.swingup_law = values['swingup_law']
-        events = values.get('event', '').split(';')
-        if CATCH_EVENT in events or is_stabilising(values.get('mode', '')):
-            self.catch_ns = _stamp_value_ns(values.get('state_stamp'), stamp_ns)
+        if self.catch_ns is None and (CATCH_EVENT in events or is_stabilising(mode)):
+            self.catch_ns = cycle_ns
 
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
         """Limit switches: a flag closing after it was seen open is a contact.
@@ -126,6 +159,10 @@ class SeriesBuilder:
         be closed; that is the starting position, not a contact.
         """
         self.hw_health_seen = True
+        faults = _float_or_none(values.get('faults'))
+        if faults is not None and faults > self._hw_faults:
+            self._hw_faults = int(faults)
+            self.faults.append((stamp_ns, f'hw_bridge: {values.get("last_error") or "fault"}'))
         for key in HW_LIMIT_KEYS:
             if key not in values:
                 continue
@@ -144,25 +181,33 @@ class SeriesBuilder:
         return None
 
     def build(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
-              label: str = '') -> tuple[RunSeries, bool]:
-        """The run's series and its end-stop contact flag.
+              label: str = '', end_ns: int | None = None) -> tuple[RunSeries, bool]:
+        """The run's series (up to ``end_ns``, the stamp where the run ended) and its contact flag.
 
         Raises ValueError when no state was recorded.
         """
         source = self.source
         if source is None:
             raise ValueError(f'no {TRUE_STATE} or {STATE} messages: nothing to analyse')
-        rows = np.array(sorted(self.states[source]), dtype=float)
-        # A sample delivered twice (lockstep re-publishes sample 0 until the loop answers).
-        rows = rows[np.concatenate(([True], np.diff(rows[:, 0]) > 0))]
-        t0 = 0.0 if lockstep else rows[0, 0]
-        self.t0_ns = int(t0)
-        t = (rows[:, 0] - t0) * 1e-9
-        forces = np.array(sorted(self.forces), dtype=float).reshape(-1, 2)
-        catch = None if self.catch_ns is None else (self.catch_ns - t0) * 1e-9
-        series = RunSeries.from_states(t, rows[:, 1:], forces[:, 1], params=params, x_ref=x_ref,
-                                       catch_time=catch, t_force=(forces[:, 0] - t0) * 1e-9,
-                                       label=label)
+        # Stamps stay integers (ns) until the origin is subtracted: float64 cannot hold
+        # an epoch in ns exactly.
+        rows = sorted(r for r in self.states[source] if end_ns is None or r[0] <= end_ns)
+        if not rows:
+            raise ValueError(f'no state up to the end of the run: nothing to analyse')
+        stamps = np.array([r[0] for r in rows], dtype=np.int64)
+        keep = np.concatenate(([True], np.diff(stamps) > 0))  # a sample delivered twice
+        t0 = 0 if lockstep else int(stamps[0])
+        self.t0_ns = t0
+        t = (stamps[keep] - t0) * 1e-9
+        states = np.array([r[1:] for r in rows], dtype=float).reshape(-1, 4)[keep]
+        forces = sorted(f for f in self.forces if end_ns is None or f[0] <= end_ns)
+        t_force = (np.array([f[0] for f in forces], dtype=np.int64) - t0) * 1e-9
+        catch = None if self.catch_ns is None or (end_ns is not None and self.catch_ns > end_ns) \
+            else (self.catch_ns - t0) * 1e-9
+        spans = self.timeline.spans(origin=t0, scale=1e-9, end=end_ns)
+        series = RunSeries.from_states(t, states, [f[1] for f in forces], params=params,
+                                       x_ref=x_ref, catch_time=catch, t_force=t_force,
+                                       label=label, controllers=spans)
         if source == TRUE_STATE:
             contact = self.truth_contact or metrics.end_stop_touched(series.x, params.travel)
         elif self.hw_health_seen:
@@ -170,6 +215,38 @@ class SeriesBuilder:
         else:
             contact = metrics.end_stop_touched(series.x, params.travel)
         return series, contact
+
+    def first_fault(self, end_ns: int | None = None) -> str | None:
+        """The first fault reported up to ``end_ns``, None if none."""
+        faults = sorted(f for f in self.faults if end_ns is None or f[0] <= end_ns)
+        return faults[0][1] if faults else None
+
+    def longest_cycle_gap(self, end_ns: int | None = None) -> float | None:
+        """The largest ``longest_cycle_gap_s`` reported up to ``end_ns`` (None if never)."""
+        gaps = [g for ns, g in self.cycle_gaps if end_ns is None or ns <= end_ns]
+        return max(gaps) if gaps else None
+
+    def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
+                  label: str = '', end_ns: int | None = None,
+                  fault: str | None = None) -> tuple[RunSeries, dict[str, Any]]:
+        """The series and the run summary (SPEC 5 and 8); ``fault`` overrides the reported one."""
+        series, contact = self.build(params=params, x_ref=x_ref, lockstep=lockstep, label=label,
+                                     end_ns=end_ns)
+        summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
+                                    catch_time=series.catch_time, end_stop_contact=contact,
+                                    fault=fault or self.first_fault(end_ns),
+                                    controllers=series.controllers,
+                                    longest_cycle_gap_s=self.longest_cycle_gap(end_ns),
+                                    swingup_law=self.swingup_law,
+                                    force=series.force, t_force=series.t_force)
+        return series, summary
+
+
+def _float_or_none(text: str | None) -> float | None:
+    try:
+        return float(text) if text not in (None, '') else None
+    except ValueError:
+        return None
 
 
 def _stamp_value_ns(text: str | None, fallback_ns: int) -> int:
@@ -180,59 +257,6 @@ def _stamp_value_ns(text: str | None, fallback_ns: int) -> int:
         except ValueError:
             pass
     return fallback_ns
-
-
-def _stamp_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def parse_joint_state(data: bytes | memoryview) -> tuple[int, list[str], np.ndarray, np.ndarray,
-                                                         np.ndarray]:
-    """(stamp [ns], name, position, velocity, effort) of a CDR sensor_msgs/JointState.
-
-    A direct reader of the XCDR1 layout (4-byte encapsulation header, then
-    fields aligned to their size relative to the payload start), about ten
-    times faster than a generic deserialiser on long bags.
-    """
-    buf = memoryview(data)
-    little = bool(buf[1] & 1)
-    order = '<' if little else '>'
-    base = 4
-    pos = 0
-
-    def align(n: int) -> None:
-        nonlocal pos
-        pos += (-pos) % n
-
-    def u32() -> int:
-        nonlocal pos
-        align(4)
-        (v,) = struct.unpack_from(order + 'I', buf, base + pos)
-        pos += 4
-        return v
-
-    def string() -> str:
-        nonlocal pos
-        n = u32()
-        text = bytes(buf[base + pos:base + pos + max(n - 1, 0)]).decode('utf-8')
-        pos += n
-        return text
-
-    def doubles() -> np.ndarray:
-        nonlocal pos
-        n = u32()
-        if n:
-            align(8)
-        arr = np.frombuffer(buf, dtype=order + 'f8', count=n, offset=base + pos)
-        pos += 8 * n
-        return arr
-
-    sec, nanosec = struct.unpack_from(order + 'iI', buf, base)
-    pos = 8
-    string()  # frame_id
-    names = [string() for _ in range(u32())]
-    position, velocity, effort = doubles(), doubles(), doubles()
-    return sec * 1_000_000_000 + nanosec, names, position, velocity, effort
 
 
 @dataclass
@@ -258,37 +282,33 @@ def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
 
     path = Path(path)
     if not (path / 'metadata.yaml').is_file() and not path.is_file():
-        raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml)')
+        raise FileNotFoundError(f'{path} is not a rosbag2 bag (no metadata.yaml); if its '
+                                f'recording was cut short, run `cartpole bag repair {path}`')
     builder = SeriesBuilder()
     wanted = {TRUE_STATE, STATE, FORCE, STATUS, HW_HEALTH}
-    last_status = None
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         topics = {c.topic: c.msgcount for c in reader.connections}
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, _, raw in reader.messages(connections=connections):
-            if connection.topic in (STATUS, HW_HEALTH):
-                if connection.topic == STATUS and builder.catch_ns is not None:
-                    last_status = (connection, raw)  # only the controller names are left
-                    continue
-                _feed_diagnostics(builder, connection.topic,
-                                  reader.deserialize(raw, connection.msgtype))
+            if connection.msgtype == 'diagnostic_msgs/msg/DiagnosticArray':
+                stamp, statuses = parse_diagnostic_array(raw)
+                for _, values in statuses:
+                    if connection.topic == STATUS:
+                        builder.status(stamp, values)
+                    else:
+                        builder.hw_health(stamp, values)
             elif connection.msgtype == 'sensor_msgs/msg/JointState':
                 stamp, _, position, velocity, effort = parse_joint_state(raw)
                 builder.joint_state(connection.topic, stamp, position, velocity, effort)
-        if last_status is not None:
-            _feed_diagnostics(builder, STATUS,
-                              reader.deserialize(last_status[1], last_status[0].msgtype))
     return builder, topics
 
 
-def _feed_diagnostics(builder: SeriesBuilder, topic: str, msg) -> None:
-    stamp = _stamp_ns(msg.header.stamp)
-    for status in msg.status:
-        values = {kv.key: kv.value for kv in status.values}
-        if topic == STATUS:
-            builder.status(stamp, values)
-        else:
-            builder.hw_health(stamp, values)
+def run_end_ns(custom: Mapping[str, str]) -> int | None:
+    """The stamp [ns] where the recorded run ended (custom_data ``run_end_ns``), None if unknown."""
+    try:
+        return int(custom['run_end_ns'])
+    except (KeyError, ValueError):
+        return None
 
 
 def analyze_bag(path: str | Path, *, x_ref: float | None = None,
@@ -311,15 +331,22 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
         x_ref = float(custom['x_ref']) if 'x_ref' in custom else params.x_middle
     builder, topics = read_bag(path)
     lockstep = CLOCK in topics or custom.get('lockstep', '').lower() == 'true'
-    series, contact = builder.build(params=params, x_ref=x_ref, lockstep=lockstep,
-                                    label=label or run_label(path))
-    summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
-                                catch_time=series.catch_time, end_stop_contact=contact,
-                                swingup_law=builder.swingup_law,
-                                force=series.force, t_force=series.t_force)
+    series, summary = builder.summarize(params=params, x_ref=x_ref, lockstep=lockstep,
+                                        label=label or run_label(path),
+                                        end_ns=run_end_ns(custom),
+                                        fault=custom.get('fault') or None)
+    summary['recorder_missed'] = recorder_missed(custom)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
                        topics=topics, controllers=dict(builder.controllers),
                        t0_ns=builder.t0_ns)
+
+
+def recorder_missed(custom: Mapping[str, str]) -> int | None:
+    """Messages the recorder missed (custom_data ``recorder_missed``, SPEC 8); None if not counted."""
+    try:
+        return int(custom['recorder_missed'])
+    except (KeyError, ValueError):
+        return None
 
 
 def run_label(path: Path) -> str:
@@ -332,7 +359,8 @@ def comparison_table(analyses: Iterable[BagAnalysis]) -> list[str]:
     """Rows of a side-by-side table: one row a summary key, one column a bag."""
     analyses = list(analyses)
     labels = [a.series.label for a in analyses]
-    key_width = max(len(k) for k in metrics.SUMMARY_KEYS)
+    keys = metrics.SUMMARY_KEYS + TABLE_EXTRA_KEYS
+    key_width = max(len(k) for k in keys)
     widths = [max(len(label), 10) for label in labels]
 
     def cell(value) -> str:
@@ -343,7 +371,7 @@ def comparison_table(analyses: Iterable[BagAnalysis]) -> list[str]:
         return str(value)
 
     rows = [' '.join([f'{"":<{key_width}}'] + [f'{lb:>{w}}' for lb, w in zip(labels, widths)])]
-    for key in metrics.SUMMARY_KEYS:
+    for key in keys:
         cells = [f'{cell(a.summary.get(key)):>{w}}' for a, w in zip(analyses, widths)]
         rows.append(' '.join([f'{key:<{key_width}}'] + cells))
     return rows

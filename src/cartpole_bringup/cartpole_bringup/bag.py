@@ -1,8 +1,9 @@
 """Writing rosbag2 bags (MCAP storage) from serialized messages, without ROS.
 
 The ROS-free half of the recorder (:mod:`cartpole_bringup.record`): the table
-of the graph's topics (docs/architecture.md), the log-time rule and a thin
-wrapper around :class:`rosbags.rosbag2.Writer`. Messages arrive already
+of the graph's topics (docs/architecture.md), the log-time rule and a writer
+on top of :class:`cartpole_bringup.bag_storage.McapBagFile` (an MCAP file
+that survives a kill). Messages arrive already
 serialized (ROS 2 CDR, as rclpy hands them to a ``raw=True`` subscription)
 and are written as they are, never deserialized.
 
@@ -21,6 +22,9 @@ from typing import Mapping
 
 import yaml
 
+from .bag_storage import (BAG_FORMAT_VERSION, FLUSH_PERIOD, McapBagFile, TopicInfo,  # noqa: F401
+                          bagfile_information, write_metadata)
+
 TOPICS: dict[str, str] = {
     '/joint_states': 'sensor_msgs/msg/JointState',
     '/cartpole/state': 'sensor_msgs/msg/JointState',
@@ -35,9 +39,6 @@ TOPICS: dict[str, str] = {
 
 LOG_TIMES = ('stamp', 'receive')
 """Choices of the log time of a recorded message."""
-
-BAG_FORMAT_VERSION = 9
-"""rosbag2 metadata version written by ROS 2 Jazzy."""
 
 _STAMP_LE = struct.Struct('<iI')
 _STAMP_BE = struct.Struct('>iI')
@@ -62,8 +63,12 @@ class BagWriter:
 
     Connections are added on a topic's first message, so the bag lists the
     topics that carried data. Use as a context manager, or call
-    :meth:`close`; closing twice is harmless, and :meth:`close` writes
-    ``metadata.yaml`` (without it ``ros2 bag info`` cannot read the bag).
+    :meth:`close`; closing twice is harmless, and :meth:`close` writes the
+    MCAP summary and ``metadata.yaml`` (without it ``ros2 bag info`` cannot
+    read the bag). Until then the file is written in chunks of at most
+    ``flush_period`` (:mod:`cartpole_bringup.bag_storage`), so a killed
+    recorder loses at most that much and ``cartpole bag repair`` recovers
+    the rest.
 
     Parameters
     ----------
@@ -77,11 +82,13 @@ class BagWriter:
         controllers, scenario).
     log_time
         ``'stamp'`` (the message's stamp) or ``'receive'`` (the receive time).
+    flush_period
+        Longest time [s] a message waits in memory before it is in the file.
     """
 
     def __init__(self, path: str | Path, topics: Mapping[str, str] = TOPICS,
-                 custom_data: Mapping[str, str] | None = None, log_time: str = 'stamp') -> None:
-        from rosbags.rosbag2 import StoragePlugin, Writer
+                 custom_data: Mapping[str, str] | None = None, log_time: str = 'stamp',
+                 flush_period: float = FLUSH_PERIOD) -> None:
         from rosbags.typesys import Stores, get_typestore
 
         if log_time not in LOG_TIMES:
@@ -90,43 +97,49 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise FileExistsError(f'bag {self.path} already exists; choose a new directory')
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._typestore = get_typestore(Stores.ROS2_JAZZY)
         unknown = [t for t in topics.values() if t not in self._typestore.types]
         if unknown:
             raise ValueError(f'unknown message types {unknown}')
         self._topics = dict(topics)
-        self._writer = Writer(self.path, version=BAG_FORMAT_VERSION,
-                              storage_plugin=StoragePlugin.MCAP)
-        for key, value in (custom_data or {}).items():
-            self._writer.set_custom_data(str(key), str(value))
-        self._writer.open()
-        self._connections: dict = {}
+        self.path.mkdir(parents=True)
+        self._file = McapBagFile(self.path / f'{self.path.name}.mcap', custom_data,
+                                 flush_period=flush_period)
         self.counts: dict[str, int] = {}
         """Messages written per topic."""
         self.closed = False
+
+    def _add_topic(self, topic: str) -> None:
+        if topic not in self._topics:
+            raise KeyError(f'topic {topic!r} is not recorded')
+        msgtype = self._topics[topic]
+        msgdef, _ = self._typestore.generate_msgdef(msgtype, ros_version=2)
+        self._file.add_topic(TopicInfo(topic, msgtype, self._typestore.hash_rihs01(msgtype)),
+                             msgdef.encode())
 
     def write(self, topic: str, data: bytes | memoryview, receive_time_ns: int) -> int:
         """Write one serialized message; returns the log time used [ns]."""
         if self.closed:
             raise RuntimeError(f'bag {self.path} is closed')
-        connection = self._connections.get(topic)
-        if connection is None:
-            if topic not in self._topics:
-                raise KeyError(f'topic {topic!r} is not recorded')
-            connection = self._writer.add_connection(topic, self._topics[topic],
-                                                     typestore=self._typestore)
-            self._connections[topic] = connection
+        if not self._file.has_topic(topic):
+            self._add_topic(topic)
         stamp = cdr_stamp_ns(data) if self._use_stamp else int(receive_time_ns)
-        self._writer.write(connection, stamp, bytes(data))
+        self._file.write(topic, stamp, bytes(data), int(receive_time_ns))
         self.counts[topic] = self.counts.get(topic, 0) + 1
         return stamp
 
+    def flush_if_due(self) -> bool:
+        """Write the open chunk if it is ``flush_period`` old (call when idle)."""
+        return self._file.flush_if_due()
+
     def close(self) -> None:
-        """Finish the storage file and write ``metadata.yaml``."""
+        """Finish the MCAP file and write ``metadata.yaml``."""
         if not self.closed:
             self.closed = True
-            self._writer.close()
+            info = bagfile_information(self._file.path.name, self._file.stats,
+                                       self._file.custom_data)
+            self._file.close(info)
+            write_metadata(self.path, info)
 
     def __enter__(self) -> 'BagWriter':
         return self
@@ -142,3 +155,24 @@ def bag_custom_data(path: str | Path) -> dict[str, str]:
         return {}
     info = (yaml.safe_load(meta.read_text()) or {}).get('rosbag2_bagfile_information', {})
     return {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
+
+
+def update_custom_data(path: str | Path, values: Mapping[str, str | None]) -> dict[str, str]:
+    """Add (or, with None, remove) entries of a closed bag's ``custom_data``; returns the new one.
+
+    ``cartpole run`` stores there what is known only at the end of a run
+    (why it stopped, when), so that ``cartpole analyze`` of the bag reports
+    what the run reported. Raises FileNotFoundError without ``metadata.yaml``.
+    """
+    meta = Path(path) / 'metadata.yaml'
+    doc = yaml.safe_load(meta.read_text()) or {}
+    info = doc.setdefault('rosbag2_bagfile_information', {})
+    custom = {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
+    for key, value in values.items():
+        if value is None:
+            custom.pop(key, None)
+        else:
+            custom[str(key)] = str(value)
+    info['custom_data'] = custom or None
+    write_metadata(path, info)
+    return custom

@@ -15,6 +15,7 @@ SUBCOMMANDS = {
     'run': 'start the node graph on the simulator or the rig (optionally recorded)',
     'offline': 'the same closed loop without ROS, far faster than real time',
     'analyze': 'run summary and plots from recorded bags',
+    'bag': 'bags: repair one whose recording was killed, show what is in one',
     'bench': 'benchmarks: controller comparison, loop latency, offline speed',
     'emulate': 'device emulator (the plant behind the Joint protocol) on a new pseudo-terminal',
     'identify': 'fit plant parameters to a recorded test',

@@ -20,6 +20,7 @@ from cartpole_sim.model import CartPoleParameters, pendulum_energy
 from cartpole_sim.plant import Measurement, Plant, Scenario
 
 from . import metrics
+from .timeline import spans_from_modes
 
 
 @dataclass
@@ -104,6 +105,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     plant = Plant(nominal, scenario, integration_step=integration_step)
     ekf = ExtendedKalmanFilter(nominal, ekf_config or EkfConfig())
     manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
+    started_with = manager.get_parameters()  # the plugins before any switch
     if manager_parameters:
         result = manager.set_parameters(dict(manager_parameters))
         if not result.successful:
@@ -191,13 +193,24 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     upright_energy=true_params.upright_energy,
                     lost_samples=plant.lost_samples, lost_at=tuple(lost_at),
                     ekf_missed_samples=ekf.missed_samples_total)
-    run.summary = metrics.summarize(run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
-                                    end_stop_contact=plant.end_stop_contact,
-                                    swingup_law=out.swingup_law if law is None else law,
-                                    force=run.force)
+    run.summary = metrics.summarize(
+        run.t, run.x, run.theta, x_ref=x_ref, catch_time=catch_time,
+        end_stop_contact=plant.end_stop_contact, fault=first_fault(events),
+        controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
+                                     started_with['stabilizer']),
+        swingup_law=out.swingup_law if law is None else law, force=run.force)
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)
     if stopped_at is not None:
         run.summary.update(success=False, stopped_at_s=stopped_at)
     return run
+
+
+def first_fault(events: list[tuple[float, str]]) -> str | None:
+    """The reason of the manager's first ``fault:<reason>`` event, None if it never faulted."""
+    for _, text in events:
+        for event in text.split(';'):
+            if event.startswith('fault:'):
+                return event[len('fault:'):]
+    return None

@@ -2,23 +2,38 @@
 
 The graph is ``sim`` (or ``hw_bridge``) + ``ekf`` + ``controller_manager``
 (+ ``recorder``), wired by the topics of docs/architecture.md, plus a light
-monitor node ``cartpole_run`` that watches the run: it keeps the time series
-for the summary (:class:`cartpole_bringup.analyze.SeriesBuilder`), measures
-the run's duration (simulated time in lockstep) and, at the end, switches the
-controller manager off (``enabled:=false``) and waits for the zero force it
-then publishes, disarms the hardware bridge, and only then stops the nodes,
-plant first and recorder last, so the bag holds the zero force.
+monitor node ``cartpole_run`` (:mod:`cartpole_bringup.run_monitor`) that
+watches the run: the time series for the summary, the run's duration
+(simulated time in lockstep), the force commands.
 
-- One process (default): the node classes are instantiated on one
-  :class:`~rclpy.executors.SingleThreadedExecutor` (as in
-  ``examples_rclpy_executors/composed.py``); one DDS participant, the
-  lowest latency.
-- ``processes=True``: the installed executables
-  ``install/<pkg>/lib/<pkg>/<exe>`` are started with ``--ros-args -p
-  name:=value`` (and ``--params-file``), each in its own session so that a
-  Ctrl-C reaches only ``cartpole run``, which then stops them in order
-  (SIGINT, then SIGTERM and SIGKILL after a timeout). They also die with it
-  (``PR_SET_PDEATHSIG``).
+- One process (default): the node classes are instantiated on one executor
+  (as in ``examples_rclpy_executors/composed.py``); one DDS participant,
+  the lowest latency.
+- ``processes=True``: the installed executables, one process a node
+  (:mod:`cartpole_bringup.node_processes`).
+
+**One graph per domain.** Before any node exists, the graph's node names are
+claimed on the domain (:mod:`cartpole_sim.domain_guard`); a name taken
+already refuses the start (:class:`~cartpole_sim.domain_guard.DuplicateNodeError`)
+unless ``allow_duplicates``. A duplicate that shows up later is reported.
+
+**A fault stops the run.** A node process that dies (or, in one process, a
+callback that raises) is noticed within one spin of the monitor: the run
+records the fault (``controller_manager died (SIGKILL)``) and stops.
+
+**Stopping** (:meth:`Graph.stop`), orderly or after a fault: zero force
+first, through whoever is still alive: after a fault the monitor's own zero
+force command at once, then the controller manager's ``enabled:=false``
+(and the zero force it then publishes); on the rig also the bridge's
+``armed:=false`` (``U,0``, ``E,0``); on the simulator until a sample shows
+the zero force applied. Then the
+nodes stop one by one, the controller manager first (so that nothing it
+watches goes stale while it still runs: no ``stale state`` fault for an
+orderly stop), the plant, the EKF, and the recorder last, so that the bag
+holds the zero force and is closed (in one process the plant goes first:
+nothing spins between two nodes' ends there). A process gets SIGINT and time to shut
+down properly (:data:`EXIT_TIMEOUT`, the recorder :data:`RECORDER_EXIT_TIMEOUT`)
+before SIGTERM and, last, SIGKILL.
 
 The parameters file (``--params``) is given to every node as
 ``--params-file`` (node sections and ``/**`` apply as in ROS); the explicit
@@ -26,230 +41,75 @@ options (scenario, controllers, ``lockstep``, ``use_sim_time``) override it.
 """
 from __future__ import annotations
 
-import os
-import signal
+import importlib
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
+import traceback
 from typing import Any, Callable
 
-from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from cartpole_sim import realtime
+from cartpole_sim.domain_guard import (ALLOW_PARAMETER, DuplicateNodeError, NodeClaim,
+                                       claim_unique_names, domain_id, probe_node)
 
-from .analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
-
-NODES: dict[str, tuple[str, str, str, str]] = {
-    'sim': ('cartpole_sim', 'sim_node', 'cartpole_sim.sim_node', 'SimNode'),
-    'hw_bridge': ('cartpole_hw', 'hw_bridge', 'cartpole_hw.hw_node', 'HwBridgeNode'),
-    'ekf': ('cartpole_estimation', 'ekf_node', 'cartpole_estimation.ekf_node', 'EkfNode'),
-    'controller_manager': ('cartpole_control', 'controller_manager',
-                           'cartpole_control.manager_node', 'ControllerManagerNode'),
-    'recorder': ('cartpole_bringup', 'recorder', 'cartpole_bringup.record', 'RecorderNode'),
-}
-"""Node name -> (package, installed executable, module, class)."""
+from .analyze import FORCE, STATE, TRUE_STATE
+from .graph_spec import EXECUTORS, RECORDER_WINDOW, GraphSpec, make_executor  # noqa: F401
+from .node_processes import (NODES, NodeStartError, describe_exit, executable,  # noqa: F401
+                             node_command, ros_value_text, start_node_process, stop_node_process)
+from .run_monitor import NODE_NAME as MONITOR_NAME
+from .run_monitor import RunMonitor
 
 STARTUP_TIMEOUT = 30.0
 """Wall seconds for the graph to come up (processes import rclpy and numpy first)."""
 ZERO_FORCE_TIMEOUT = 2.0
 """Wall seconds to wait for the zero force command after disabling the controllers."""
-LOOP_START_TIMEOUT = 3.0
-"""Lockstep: wall seconds for the loop to answer its first sample before the remedy."""
+LOOP_START_TIMEOUT = 10.0
+"""Lockstep: wall seconds for the loop to answer its first sample before the remedy.
+
+Longer than the discovery of one process by another (up to about 3 s: Fast DDS's
+participant announcement period): until then the EKF's re-published estimate and the
+manager's answer to it reach the simulator without a reset, and a reset (which starts
+the run one period later) would make the run differ from the same run without one."""
 LOOP_START_ATTEMPTS = 3
 EXIT_TIMEOUT = 5.0
-"""Wall seconds a child process gets after SIGINT (then SIGTERM, then SIGKILL)."""
-
-
-EXECUTORS = ('single', 'events')
-
-
-def make_executor(kind: str, context):
-    """The executor of the one-process graph (see :data:`EXECUTORS`)."""
-    if kind == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    if kind == 'single':
-        return SingleThreadedExecutor(context=context)
-    raise ValueError(f'executor must be one of {EXECUTORS}, got {kind!r}')
-
+"""Wall seconds a child process gets after SIGINT (then SIGTERM, and SIGKILL 2 s later)."""
+RECORDER_EXIT_TIMEOUT = 15.0
+"""The recorder's SIGINT grace: it writes what it had received and closes the bag."""
+CHECK_PERIOD = 0.01
+"""Wall seconds between two looks at the child processes (a death is noticed this fast)."""
+DUPLICATE_CHECK_PERIOD = 1.0
+STOP_ORDER = ('controller_manager', 'sim', 'hw_bridge', 'ekf', 'recorder')
+"""Processes: the manager first, so that nothing it watches goes stale while it runs."""
+IN_PROCESS_STOP_ORDER = ('sim', 'hw_bridge', 'ekf', 'controller_manager', 'recorder')
+"""One process: the plant first, before the manager's last zero force reaches it (the
+executor would still run that callback of a destroyed node); nothing spins in between,
+so nothing goes stale."""
 
 class GraphError(RuntimeError):
-    """The graph could not be started or driven (a node failed, a timeout)."""
-
-
-@dataclass
-class GraphSpec:
-    """What to start.
-
-    Attributes
-    ----------
-    plant
-        ``'sim'`` or ``'hw_bridge'``.
-    parameters
-        Node name -> ROS parameters set explicitly (they override the file).
-    params_file
-        ROS 2 parameters YAML given to every node, or None.
-    lockstep
-        Simulator in lockstep; every node then uses sim time (``/clock``).
-    processes
-        One OS process a node instead of one executor.
-    record
-        Directory of the bag to write (it must not exist), or None.
-    custom_data
-        Strings stored in the bag's ``custom_data``.
-    log_level
-        ROS log level of the nodes.
-    executor
-        One-process executor: ``'single'`` (rclpy's SingleThreadedExecutor) or
-        ``'events'`` (rclpy.experimental's EventsExecutor, C++).
-    """
-
-    plant: str
-    parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
-    params_file: Path | None = None
-    lockstep: bool = False
-    processes: bool = False
-    record: Path | None = None
-    custom_data: dict[str, str] = field(default_factory=dict)
-    log_level: str = 'warn'
-    executor: str = 'events'
-
-    def __post_init__(self) -> None:
-        if self.plant not in ('sim', 'hw_bridge'):
-            raise ValueError(f"plant must be 'sim' or 'hw_bridge', got {self.plant!r}")
-        if self.lockstep and self.plant != 'sim':
-            raise ValueError('lockstep needs the simulator')
-
-    @property
-    def nodes(self) -> list[str]:
-        """Start order: recorder, ekf, controller manager, then the plant."""
-        return (['recorder'] if self.record else []) + ['ekf', 'controller_manager', self.plant]
-
-    def node_parameters(self, name: str) -> dict[str, Any]:
-        """The explicit parameters of one node (incl. ``use_sim_time``, recorder output)."""
-        out = dict(self.parameters.get(name, {}))
-        if name == 'sim':
-            out['lockstep'] = self.lockstep
-        if name == 'recorder':
-            out['output'] = str(self.record)
-            out['custom_data'] = [f'{k}={v}' for k, v in self.custom_data.items()] or ['']
-        if self.lockstep:
-            out['use_sim_time'] = True
-        return out
-
-
-def ros_value_text(value: Any) -> str:
-    """A parameter value as ``-p name:=value`` text (YAML)."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        return '[' + ', '.join(ros_value_text(v) for v in value) + ']'
-    if isinstance(value, str):
-        return "'" + value.replace("'", "''") + "'"
-    return repr(value)
-
-
-def executable(name: str) -> Path:
-    """The installed executable of node ``name`` (``install/<pkg>/lib/<pkg>/<exe>``)."""
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-    package, exe = NODES[name][:2]
-    try:
-        path = Path(get_package_prefix(package)) / 'lib' / package / exe
-    except PackageNotFoundError as error:
-        raise GraphError(f'package {package} is not installed (run `make build`)') from error
-    if not os.access(path, os.X_OK):
-        raise GraphError(f'{path} is missing; run `make build`')
-    return path
+    """The graph could not be started (a node failed, a timeout)."""
 
 
 def command_line(spec: GraphSpec, name: str) -> list[str]:
-    """The command starting node ``name`` as a process."""
-    cmd = [str(executable(name)), '--ros-args', '--log-level', spec.log_level]
-    if spec.params_file:
-        cmd += ['--params-file', str(spec.params_file)]
-    for key, value in spec.node_parameters(name).items():
-        cmd += ['-p', f'{key}:={ros_value_text(value)}']
-    return cmd
-
-
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child
+    """The command starting node ``name`` of ``spec`` as a process."""
+    parameters = spec.node_parameters(name)
+    if spec.allow_duplicates:
+        parameters[ALLOW_PARAMETER] = True
     try:
-        import ctypes
-        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
+        return node_command(name, parameters, log_level=spec.log_level,
+                            params_file=spec.params_file)
+    except NodeStartError as error:
+        raise GraphError(str(error)) from error
 
 
-def _stamp_ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-class RunMonitor(Node):
-    """Watches a run (node ``cartpole_run``): series, sim time, forces.
-
-    Parameters
-    ----------
-    state_topic
-        The state it times the run by (``/cartpole/true_state`` on the
-        simulator, ``/cartpole/state`` on the rig).
-    collect
-        Also subscribe the controller status (and the hw health) for the
-        in-memory summary; not needed when a bag is recorded.
-    """
-
-    def __init__(self, state_topic: str = TRUE_STATE, collect: bool = True, **kwargs) -> None:
-        super().__init__('cartpole_run', **kwargs)
-        self.builder = SeriesBuilder()
-        self.last_stamp_ns: int | None = None
-        """Stamp of the latest state sample (simulated time in lockstep)."""
-        self.forces = 0
-        self.last_force: float | None = None
-        self.zero_forces = 0
-        qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
-        self.create_subscription(JointState, FORCE, self._on_force, qos)
-        if collect:
-            self.create_subscription(DiagnosticArray, STATUS, self._diag_cb(STATUS), qos)
-            if state_topic == STATE:
-                self.create_subscription(DiagnosticArray, HW_HEALTH, self._diag_cb(HW_HEALTH), qos)
-
-    def _state_cb(self, topic: str) -> Callable[[JointState], None]:
-        def callback(msg: JointState) -> None:
-            stamp = _stamp_ns(msg.header.stamp)
-            self.builder.joint_state(topic, stamp, msg.position, msg.velocity, msg.effort)
-            if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
-                self.last_stamp_ns = stamp
-        return callback
-
-    def _on_force(self, msg: JointState) -> None:
-        self.builder.joint_state(FORCE, _stamp_ns(msg.header.stamp), msg.position,
-                                 msg.velocity, msg.effort)
-        if len(msg.effort):
-            self.forces += 1
-            self.last_force = float(msg.effort[0])
-            if self.last_force == 0.0:
-                self.zero_forces += 1
-
-    def _diag_cb(self, topic: str) -> Callable[[DiagnosticArray], None]:
-        def callback(msg: DiagnosticArray) -> None:
-            stamp = _stamp_ns(msg.header.stamp)
-            for status in msg.status:
-                values = {kv.key: kv.value for kv in status.values}
-                if topic == STATUS:
-                    self.builder.status(stamp, values)
-                else:
-                    self.builder.hw_health(stamp, values)
-        return callback
+def _report(text: str) -> None:
+    print(f'cartpole run: {text}', file=sys.stderr, flush=True)
 
 
 class Graph:
@@ -264,16 +124,19 @@ class Graph:
         and the log level for the in-process nodes).
     should_stop
         Polled while waiting; True ends waits early (Ctrl-C).
+    report
+        Called with a line of text when something goes wrong during the run
+        (a fault, a duplicate node); default: stderr.
+
+    Raises DuplicateNodeError when a node name of the graph is taken on the domain.
     """
 
-    def __init__(self, spec: GraphSpec, context, should_stop: Callable[[], bool] = lambda: False):
+    def __init__(self, spec: GraphSpec, context, should_stop: Callable[[], bool] = lambda: False,
+                 report: Callable[[str], None] = _report):
         self.spec = spec
         self.context = context
         self.should_stop = should_stop
-        self.executor = make_executor(spec.executor, context)
-        self.monitor = RunMonitor(state_topic=TRUE_STATE if spec.plant == 'sim' else STATE,
-                                  collect=spec.record is None, context=context)
-        self.executor.add_node(self.monitor)
+        self.report = report
         self.nodes: dict[str, Node] = {}
         self._clients: dict = {}
         self.processes: dict[str, subprocess.Popen] = {}
@@ -281,10 +144,98 @@ class Graph:
         self.stopped = False
         self.closed = False
         self.warnings: list[str] = []
-        """Things that went other than planned while starting (reported at the end)."""
+        """Things that went other than planned (reported at the end)."""
+        self.fault: str | None = None
+        """Why the run stopped early: a node that died, a callback that raised."""
+        self.stop_stamp_ns: int | None = None
+        """Stamp of the latest state when the stop began (where the run's summary ends)."""
+        self._stopping = False
+        self._asked_to_stop: set[str] = set()
+        self._exits: dict[str, int] = {}
+        self._next_check = 0.0
+        self._next_duplicate_check = time.monotonic() + DUPLICATE_CHECK_PERIOD
+        self._duplicates_reported: set[str] = set()
         self.realtime: realtime.LoopHygiene | None = None
+        self._claim = None if spec.allow_duplicates else self._claim_names()
+        try:
+            self.executor = make_executor(spec.executor, context)
+            self.monitor = RunMonitor(state_topic=TRUE_STATE if spec.plant == 'sim' else STATE,
+                                      collect=spec.record is None, context=context)
+        except BaseException:
+            self._release_claim()
+            raise
+        self.executor.add_node(self.monitor)
 
-    # -- start ---------------------------------------------------------------------------
+    # -- one graph per domain -------------------------------------------------------------
+    def _claim_names(self) -> NodeClaim:
+        """Claim the graph's names on the domain (cartpole_sim.domain_guard) before any node exists.
+
+        One process holds every name for its life; with one process a node
+        this one holds ``cartpole_run`` and each child claims its own name.
+        """
+        names = [MONITOR_NAME] + self.spec.nodes
+        probe = probe_node(self.context)
+        try:
+            return claim_unique_names(probe, names,
+                                      held=[MONITOR_NAME] if self.spec.processes else names)
+        finally:
+            probe.destroy_node()
+
+    def _release_claim(self) -> None:
+        if self._claim is not None:
+            self._claim.release()
+            self._claim = None
+
+    def _check_duplicates(self) -> None:
+        names = [MONITOR_NAME] + self.spec.nodes
+        for name in self.monitor.duplicated_names(names):
+            if name not in self._duplicates_reported:
+                self._duplicates_reported.add(name)
+                text = (f'a second node /{name} appeared on ROS_DOMAIN_ID={domain_id()}: another '
+                        f'graph shares this domain, and the two drive each other\'s nodes')
+                self.warnings.append(text)
+                self.report(f'warning: {text}')
+
+    # -- faults ---------------------------------------------------------------------------------
+    def _set_fault(self, reason: str) -> None:
+        if self._stopping:
+            self.warnings.append(f'{reason} (while the graph was stopping)')
+        elif self.fault is None:
+            self.fault = reason
+            self.stop_stamp_ns = self.monitor.last_stamp_ns
+            self.report(f'fault: {reason}; stopping the graph (zero force first)')
+
+    def _check_processes(self) -> None:
+        for name, proc in self.processes.items():
+            if name in self._exits:
+                continue
+            code = proc.poll()
+            if code is None:
+                continue
+            self._exits[name] = code
+            if name not in self._asked_to_stop:
+                self._set_fault(f'{name} {describe_exit(code)}')
+
+    def _callback_failed(self, error: Exception) -> None:
+        """A callback of an in-process node raised: that node's fault, the traceback on stderr."""
+        name = 'a callback'
+        tb = error.__traceback__
+        while tb is not None:
+            owner = tb.tb_frame.f_locals.get('self')
+            for node_name, node in self.nodes.items():
+                if owner is node:
+                    name = node_name
+            tb = tb.tb_next
+        print(''.join(traceback.format_exception(error)), file=sys.stderr, end='', flush=True)
+        self._set_fault(f'{name} raised {type(error).__name__}: {error}')
+
+    def _alive(self, name: str) -> bool:
+        if name in self.nodes:
+            return True
+        proc = self.processes.get(name)
+        return proc is not None and proc.poll() is None
+
+    # -- start -----------------------------------------------------------------------------------
     def start(self) -> None:
         """Start every node (plant last) and wait until the loop is wired."""
         if self.spec.processes:
@@ -307,8 +258,8 @@ class Graph:
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
             if self.should_stop():
                 return
-            raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
-                             f'{self._process_report()}')
+            raise GraphError(self.fault or f'no state arrived within {STARTUP_TIMEOUT:g} s; '
+                                           f'{self._process_report()}')
         if self.spec.lockstep:
             self._ensure_loop_started()
         self.wall_start = time.monotonic()
@@ -326,7 +277,7 @@ class Graph:
         first = self.monitor.last_stamp_ns
         moved = lambda: self.monitor.last_stamp_ns > first  # noqa: E731
         for _ in range(LOOP_START_ATTEMPTS):
-            if self.spin_until(moved, LOOP_START_TIMEOUT) or self.should_stop():
+            if self.spin_until(moved, LOOP_START_TIMEOUT) or self.should_stop() or self.fault:
                 return
             self.warnings.append('lockstep loop did not answer the first sample; '
                                  'reset the simulator (the run starts one period later)')
@@ -336,10 +287,10 @@ class Graph:
                 self.spin_until(future.done, 5.0)
             first = self.monitor.last_stamp_ns
         if not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop():
-            raise GraphError('the lockstep loop does not start; ' + self._process_report())
+            raise GraphError(self.fault or 'the lockstep loop does not start; '
+                                           + self._process_report())
 
     def _start_in_process(self) -> None:
-        import importlib
         for name in self.spec.nodes:
             package, _, module, cls = NODES[name]
             try:
@@ -355,14 +306,10 @@ class Graph:
             self.executor.add_node(node)
 
     def _start_processes(self) -> None:
-        env = dict(os.environ)
         for name in self.spec.nodes:
             if name == self.spec.plant:
                 self._wait_for_subscribers()
-            cmd = command_line(self.spec, name)
-            self.processes[name] = subprocess.Popen(
-                cmd, env=env, stdin=subprocess.DEVNULL, start_new_session=True,
-                preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None)
+            self.processes[name] = start_node_process(command_line(self.spec, name))
 
     def _wait_for_subscribers(self) -> None:
         """Processes: wait until EKF, controller manager (and recorder) are in the graph."""
@@ -370,39 +317,45 @@ class Graph:
         m = self.monitor
 
         def ready() -> bool:
-            self._check_processes()
+            # The monitor itself publishes on FORCE too (its zero force in a fault).
             return (m.count_subscribers('/joint_states') >= 1 + rec
                     and m.count_subscribers(STATE) >= 1 + rec
-                    and m.count_publishers(FORCE) >= 1)
+                    and m.count_publishers(FORCE) >= 2)
         if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
-            raise GraphError(f'the nodes did not come up within {STARTUP_TIMEOUT:g} s; '
-                             f'{self._process_report()}')
-
-    def _check_processes(self) -> None:
-        for name, proc in self.processes.items():
-            if proc.poll() is not None and not self.stopped:
-                raise GraphError(f'node {name} exited with code {proc.returncode}')
+            raise GraphError(self.fault or f'the nodes did not come up within '
+                                           f'{STARTUP_TIMEOUT:g} s; {self._process_report()}')
 
     def _process_report(self) -> str:
         if not self.processes:
             return 'in-process nodes: ' + ', '.join(self.nodes)
-        return ', '.join(f'{n}: {"running" if p.poll() is None else f"exit {p.returncode}"}'
+        return ', '.join(f'{n}: {"running" if p.poll() is None else describe_exit(p.returncode)}'
                          for n, p in self.processes.items())
 
     # -- running -------------------------------------------------------------------------
+    def _spin_once(self, timeout: float) -> None:
+        try:
+            self.executor.spin_once(timeout_sec=timeout)
+        except ExternalShutdownException:
+            raise
+        except Exception as error:  # a callback of an in-process node raised
+            self._callback_failed(error)
+        now = time.monotonic()
+        if self.processes and now >= self._next_check:
+            self._next_check = now + CHECK_PERIOD
+            self._check_processes()
+        if now >= self._next_duplicate_check and not self.spec.allow_duplicates:
+            self._next_duplicate_check = now + DUPLICATE_CHECK_PERIOD
+            self._check_duplicates()
+
     def spin_until(self, predicate: Callable[[], bool], timeout: float | None) -> bool:
-        """Spin the executor until ``predicate()``; False on timeout or stop request."""
+        """Spin until ``predicate()``; False on timeout, and (until the stop) on Ctrl-C or a fault."""
         deadline = None if timeout is None else time.monotonic() + timeout
-        checks = 0
         while not predicate():
-            if self.should_stop():
+            if not self._stopping and (self.should_stop() or self.fault is not None):
                 return False
             if deadline is not None and time.monotonic() >= deadline:
                 return False
-            self.executor.spin_once(timeout_sec=0.05)
-            checks += 1
-            if self.processes and checks % 20 == 0:
-                self._check_processes()
+            self._spin_once(0.05)
         return True
 
     def elapsed(self) -> float:
@@ -413,7 +366,7 @@ class Graph:
         return 0.0 if self.wall_start is None else time.monotonic() - self.wall_start
 
     def run_for(self, duration: float | None) -> None:
-        """Spin until ``duration`` has elapsed (None: until ``should_stop``)."""
+        """Spin until ``duration`` has elapsed (None: until ``should_stop``) or a fault."""
         if duration is None:
             self.spin_until(lambda: False, None)
         else:
@@ -467,96 +420,113 @@ class Graph:
 
     # -- stop ----------------------------------------------------------------------------
     def stop(self) -> list[str]:
-        """Zero force last, then stop the nodes (plant first, recorder last).
+        """Zero force first, then stop the nodes in order (see the module docstring).
 
-        Returns warnings (empty when everything went as planned).
+        Returns warnings (empty when everything went as planned). Waits here
+        are not cut short by Ctrl-C or the fault: the stop always completes.
         """
         if self.stopped:
             return []
-        warnings: list[str] = []
-        m = self.monitor
-        zeros_before = m.zero_forces
-        for (ok, reason) in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
-            if not ok:
-                warnings.append(f'controller_manager enabled:=false refused: {reason}')
-        if self.spec.plant == 'hw_bridge':
-            for (ok, reason) in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
-                if not ok:
-                    warnings.append(f'hw_bridge armed:=false refused: {reason}')
-        if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
-            warnings.append('no zero force command seen after disabling the controller '
-                            '(the plant watchdog zeroes the force)')
+        self._stopping = True
+        if self.stop_stamp_ns is None:
+            self.stop_stamp_ns = self.monitor.last_stamp_ns
+        warnings = self._command_zero_force()
         self.stopped = True
-        order = [self.spec.plant, 'ekf', 'controller_manager', 'recorder']
         if self.processes:
-            for name in order:
+            for name in STOP_ORDER:
                 if name in self.processes:
                     warnings += self._stop_process(name)
         else:
-            forces_seen = m.forces
-            recorder = self.nodes.get('recorder')
-            for name in order:
-                node = self.nodes.pop(name, None)
-                if node is None:
-                    continue
-                if name == 'recorder':
-                    # Let the recorder take every command the monitor took, then close the bag.
-                    self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
-                self.executor.remove_node(node)
-                node.destroy_node()
+            self._destroy_in_order([n for n in IN_PROCESS_STOP_ORDER if n in self.nodes])
         return warnings
+
+    def _command_zero_force(self) -> list[str]:
+        """Zero force through whoever is alive; returns warnings.
+
+        After a fault the monitor commands zero at once too (the manager may be
+        dead, or alive without states to run its next cycle on). On the
+        simulator the stop waits until a sample shows the zero force applied.
+        """
+        warnings: list[str] = []
+        m = self.monitor
+        zeros_before, applied_before = m.zero_forces, m.zero_force_samples
+        plant_alive = self._alive(self.spec.plant)
+        if plant_alive and (self.fault is not None or not self._alive('controller_manager')):
+            m.publish_zero_force(sample_stamp=self.spec.lockstep)
+        if self._alive('controller_manager'):
+            for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
+                if not ok:
+                    warnings.append(f'controller_manager enabled:=false refused: {reason}')
+        if self.spec.plant == 'hw_bridge' and plant_alive:
+            for ok, reason in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
+                if not ok:
+                    warnings.append(f'hw_bridge armed:=false refused: {reason}')
+        if not plant_alive:
+            return warnings
+        if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
+            warnings.append('no zero force command seen after disabling the controller '
+                            '(the plant watchdog zeroes the force)')
+        elif self.spec.plant == 'sim':
+            self._wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
+        return warnings
+
+    def _destroy_in_order(self, order: list[str]) -> None:
+        forces_seen = self.monitor.forces
+        recorder = self.nodes.get('recorder')
+        for name in order:
+            node = self.nodes.pop(name, None)
+            if node is None:
+                continue
+            if name == 'recorder':
+                # Let the recorder take every command the monitor took, then close the bag.
+                self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
+            self.executor.remove_node(node)
+            node.destroy_node()
 
     def _wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
         while not predicate():
             if time.monotonic() >= deadline:
                 return False
-            self.executor.spin_once(timeout_sec=0.02)
+            self._spin_once(0.02)
         return True
 
     def _stop_process(self, name: str) -> list[str]:
-        proc = self.processes[name]
-        if proc.poll() is not None:
-            return [] if proc.returncode == 0 else [f'{name} had exited with code {proc.returncode}']
-        for sig, grace in ((signal.SIGINT, EXIT_TIMEOUT), (signal.SIGTERM, 2.0),
-                           (signal.SIGKILL, 2.0)):
-            proc.send_signal(sig)
-            try:
-                # Keep the monitor spinning while a node shuts down (it may still publish).
-                self._wait(lambda: proc.poll() is not None, grace)
-                proc.wait(timeout=0.1)
-            except subprocess.TimeoutExpired:
-                continue
-            if sig == signal.SIGINT:
-                return [] if proc.returncode in (0, -signal.SIGINT) else \
-                    [f'{name} exited with code {proc.returncode}']
-            return [f'{name} did not stop on SIGINT; sent {sig.name}']
-        return [f'{name} could not be stopped']
+        self._asked_to_stop.add(name)
+        if self.processes[name].poll() is not None:
+            return []  # it had died: that is the fault, reported already
+        # Keep the monitor spinning while a node shuts down (it may still publish).
+        return stop_node_process(self.processes[name], name, self._wait,
+                                 RECORDER_EXIT_TIMEOUT if name == 'recorder' else EXIT_TIMEOUT)
 
     def close(self) -> list[str]:
-        """Stop (if not yet), destroy the monitor, make sure no child is left."""
+        """Stop (if not yet), destroy the monitor, make sure no child is left; all warnings."""
         if self.closed:
             return []
-        warnings: list[str] = list(self.warnings)
         try:
-            warnings += self.stop()
+            self.warnings += self.stop()
         finally:
             self.closed = True
             for node in list(self.nodes.values()):
                 node.destroy_node()
             self.nodes.clear()
-            for name, proc in self.processes.items():
-                if proc.poll() is None:
+            for proc in self.processes.values():
+                if proc.poll() is None:  # only when the stop itself failed
                     proc.kill()
                     proc.wait()
             self.monitor.destroy_node()
             self.executor.shutdown(timeout_sec=1.0)
             if self.realtime is not None:
                 self.realtime.leave()
-        return warnings
+            self._release_claim()
+        return list(self.warnings)
 
     def __enter__(self) -> 'Graph':
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+__all__ = ['Graph', 'GraphError', 'GraphSpec', 'DuplicateNodeError', 'command_line',
+           'executable', 'ros_value_text', 'make_executor', 'NODES']

@@ -36,7 +36,9 @@ def wrap(theta: np.ndarray) -> np.ndarray:
 
 def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
               x_ref: float, catch_time: float | None, end_stop_contact: bool,
-              window: float = WINDOW_S, swingup_law: str | None = None,
+              window: float = WINDOW_S, fault: str | None = None,
+              controllers: Sequence[dict[str, Any]] | None = None,
+              longest_cycle_gap_s: float | None = None, swingup_law: str | None = None,
               force: Sequence[float] | None = None,
               t_force: Sequence[float] | None = None) -> dict[str, Any]:
     """The SPEC section 5 summary of one run from hanging rest.
@@ -54,6 +56,16 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         Whether the cart touched an end stop.
     window
         Length of the final window for the amplitude, error, MSE and force figures.
+    fault
+        Why the run stopped early or lost control (SPEC 8): a node that
+        died, the controller manager's first fault; None when nothing went
+        wrong. A run with a fault is not a success.
+    controllers
+        Each swing-up and stabiliser that ran, with its time span
+        (:mod:`cartpole_bringup.timeline`).
+    longest_cycle_gap_s
+        The longest gap between two control cycles the controller manager
+        reported [s]; None when not reported (offline).
     swingup_law
         What produced the swing-up (SPEC 8): the swing-up plugin's law at the
         first catch (else at the end), e.g. ``pendulum_energy``,
@@ -75,7 +87,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     x_err_max = float(np.max(np.abs(x_err)))
     long_enough = t[-1] - t[0] >= window
     success = bool(catch_time is not None and long_enough and theta_amp < THETA_AMP_LIMIT_DEG
-                   and x_err_max <= X_ERR_LIMIT_M and not end_stop_contact)
+                   and x_err_max <= X_ERR_LIMIT_M and not end_stop_contact and fault is None)
     return {
         'catch_time_s': None if catch_time is None else float(catch_time),
         'upright_time_s': float(t[upright[0]]) if upright.size else None,
@@ -85,6 +97,9 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         'mse_theta': float(np.mean(theta_w[last] ** 2)),
         'end_stop_contact': bool(end_stop_contact),
         'success': success,
+        'fault': fault,
+        'controllers': [dict(c) for c in controllers or ()],
+        'longest_cycle_gap_s': None if longest_cycle_gap_s is None else float(longest_cycle_gap_s),
         'swingup_law': swingup_law,
         **control_effort(force, t if t_force is None else t_force, t[-1] - window),
     }

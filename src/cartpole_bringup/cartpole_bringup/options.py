@@ -88,6 +88,9 @@ def print_summary(summary: dict[str, Any], as_json: bool) -> None:
     for key, value in summary.items():
         if isinstance(value, float):
             text = f'{value:.6g}'
+        elif key == 'controllers' and isinstance(value, list):
+            from .timeline import describe
+            text = describe(value)
         else:
             text = 'null' if value is None else str(value)
         print(f'{key:<{width}}  {text}')

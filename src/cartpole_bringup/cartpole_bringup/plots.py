@@ -2,7 +2,9 @@
 
 - :func:`plot_run`: the layout of the thesis's Figure 10.1 (cart position with
   x* and the +/-10 cm band, pendulum angle theta_w, force command, pendulum
-  energy E_p (7.3) with E* (6.8)); the catch is a vertical line on each panel.
+  energy E_p (7.3) with E* (6.8)); the catch is a red vertical line on each
+  panel, every start of a controller (a catch, a fall, a switch by
+  ``ros2 param set``) a grey dotted one, named at the top.
 - :func:`plot_phase`: the phase portrait theta_w vs theta_dot with the
   heteroclinic orbits (6.10).
 - :func:`plot_overlay`: several runs on shared axes, for comparisons.
@@ -13,7 +15,7 @@ canvas only (no pyplot, no global state, no display needed).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -49,6 +51,9 @@ class RunSeries:
         l [m] and g [m/s^2] of the heteroclinic orbits (6.10).
     label
         Name of the run in titles and legends.
+    controllers
+        The controllers that ran, ``[{'kind', 'name', 'start_s', 'end_s'}]``
+        (:mod:`cartpole_bringup.timeline`); their starts are marked.
     """
 
     t: np.ndarray
@@ -64,6 +69,7 @@ class RunSeries:
     pendulum_length: float = CartPoleParameters.l
     gravity: float = CartPoleParameters.g
     label: str = ''
+    controllers: list[dict] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         for name in ('t', 'x', 'theta', 'theta_dot', 'force', 'energy'):
@@ -80,7 +86,8 @@ class RunSeries:
     @classmethod
     def from_states(cls, t: Sequence[float], states: np.ndarray, force: Sequence[float], *,
                     params: CartPoleParameters, x_ref: float, catch_time: float | None,
-                    t_force: Sequence[float] | None = None, label: str = '') -> 'RunSeries':
+                    t_force: Sequence[float] | None = None, label: str = '',
+                    controllers: Sequence[dict] = ()) -> 'RunSeries':
         """Build from states ``[x, theta, x_dot, theta_dot]`` (shape (N, 4)) and forces.
 
         E_p (7.3) and E* (6.8) are computed with ``params`` (the controller's
@@ -93,7 +100,8 @@ class RunSeries:
                    energy=np.asarray(energy), x_ref=float(x_ref),
                    upright_energy=params.upright_energy, catch_time=catch_time,
                    t_force=None if t_force is None else np.asarray(t_force, dtype=float),
-                   pendulum_length=params.l, gravity=params.g, label=label)
+                   pendulum_length=params.l, gravity=params.g, label=label,
+                   controllers=[dict(c) for c in controllers])
 
     @property
     def force_times(self) -> np.ndarray:
@@ -133,13 +141,32 @@ def _mark_catch(axes, catch_time: float | None) -> None:
         ax.axvline(catch_time, color='tab:red', linewidth=1.0, linestyle='-', alpha=0.7)
 
 
+def _mark_controllers(axes, spans: Sequence[dict]) -> None:
+    """A dotted line where each controller started, its name at the top of the first panel."""
+    top = axes[0]
+    for span in spans:
+        for ax in axes:
+            ax.axvline(span['start_s'], color='0.4', linewidth=0.8, linestyle=':')
+        top.annotate(span['name'], xy=(span['start_s'], 1.0), xycoords=('data', 'axes fraction'),
+                     xytext=(2, -2), textcoords='offset points', va='top', fontsize='x-small',
+                     color='0.25', rotation=90)
+
+
+def run_title(spans: Sequence[dict], fallback: str = '') -> str:
+    """``swing-up + stabiliser`` of a run, every one that ran (``lqg -> smc``)."""
+    from .timeline import names_that_ran
+    parts = [' -> '.join(names_that_ran(spans, kind)) for kind in ('swingup', 'stabilizer')]
+    parts = [p for p in parts if p]
+    return ' + '.join(parts) if parts else fallback
+
+
 def plot_run(series: RunSeries, path: str | Path, title: str = '') -> Path:
     """Figure 10.1 layout of one run into a PNG file; returns its path.
 
     Panels top to bottom: cart position x with x* (dashed) and the
     +/-10 cm band of requirement 3.1.2-4; theta_w [deg]; force command [N];
     pendulum energy E_p (7.3) with E* (6.8) dashed. A red vertical line marks
-    the catch on each.
+    the catch on each, a grey dotted one the start of each controller.
     """
     fig, (ax_x, ax_th, ax_f, ax_e) = _figure(4, 9.0)
     s = series
@@ -162,6 +189,7 @@ def plot_run(series: RunSeries, path: str | Path, title: str = '') -> Path:
     ax_e.set_xlabel('time [s]')
     ax_e.legend(loc='lower right', fontsize='small')
     axes = (ax_x, ax_th, ax_f, ax_e)
+    _mark_controllers(axes, s.controllers)
     _mark_catch(axes, s.catch_time)
     for ax in axes:
         ax.grid(True, alpha=0.3)
@@ -254,5 +282,6 @@ def plot_offline_run(run, path: str | Path, title: str = '') -> Path:
     series = RunSeries(t=run.t, x=run.x, theta=run.theta, theta_dot=run.theta_dot,
                        force=run.force, energy=run.energy, x_ref=run.x_ref,
                        upright_energy=run.upright_energy, catch_time=run.catch_time,
-                       label=title or 'offline run')
-    return plot_run(series, path, title)
+                       label=title or 'offline run',
+                       controllers=list(run.summary.get('controllers') or ()))
+    return plot_run(series, path, title or run_title(series.controllers))

@@ -56,11 +56,15 @@ def trajectory(duration=DURATION, x_offset=0.0):
 
 
 def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset=0.0,
-              t_origin=0.0, clock=True, custom_data=None, swingup_laws=None):
+              t_origin=0.0, clock=True, custom_data=None, switch=None, events=None,
+              cycle_gap=None, swingup_laws=None):
     """Write the known trajectory as a bag; returns the arrays.
 
-    ``swingup_laws``: (before the catch, from the catch on) values of the status's
-    ``swingup_law``; None leaves the key out (a bag from before it existed).
+    ``switch=(t, name)``: the stabiliser is ``name`` from ``t`` on (a ``ros2 param
+    set``); ``events={t: 'fault:...'}``: extra status events; ``cycle_gap(t)``: the
+    status key ``longest_cycle_gap_s``; ``swingup_laws``: (before the catch, from the
+    catch on) values of the status's ``swingup_law``; None leaves the key out (a bag
+    from before it existed).
     """
     ts = _types()
     t, x, theta, x_dot, theta_dot, force = trajectory(x_offset=x_offset)
@@ -81,9 +85,15 @@ def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset
             bag.write('/cartpole/force_command',
                       joint_state(ts, tk, [], [], [force[k]], names=('cart',)), 0)
             mode = 'stabilising' if t[k] >= CATCH_TIME else 'swing-up'
-            values = {'mode': mode, 'swingup': 'pendulum_energy', 'stabilizer': 'lqg',
-                      'event': 'catch' if abs(t[k] - CATCH_TIME) < TS / 2 else '',
-                      'state_stamp': repr(float(tk))}
+            stabilizer = switch[1] if switch and t[k] >= switch[0] - TS / 2 else 'lqg'
+            event = 'catch' if abs(t[k] - CATCH_TIME) < TS / 2 else ''
+            for when, text in (events or {}).items():
+                if abs(t[k] - when) < TS / 2:
+                    event = ';'.join(e for e in (event, text) if e)
+            values = {'mode': mode, 'swingup': 'pendulum_energy', 'stabilizer': stabilizer,
+                      'event': event, 'state_stamp': repr(float(tk))}
+            if cycle_gap is not None:
+                values['longest_cycle_gap_s'] = repr(float(cycle_gap(t[k])))
             if swingup_laws is not None:
                 values['swingup_law'] = swingup_laws[int(t[k] >= CATCH_TIME + TS / 2)]
             bag.write('/cartpole/controller_status',

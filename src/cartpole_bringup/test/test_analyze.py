@@ -194,6 +194,93 @@ def test_cli_reports_a_missing_bag(tmp_path, capsys):
     assert 'not a rosbag2 bag' in capsys.readouterr().err
 
 
+def test_summary_lists_every_controller_that_ran_and_the_plot_marks_the_switch(tmp_path, capsys):
+    """`ros2 param set /controller_manager stabilizer smc` at 12 s: lqg, then smc."""
+    path = tmp_path / 'switched' / 'bag'
+    bag_synth.write_run(path, switch=(12.0, 'smc'), custom_data={'lockstep': 'true'})
+    s = analyze_bag(path).summary
+    assert s['controllers'] == [
+        {'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0,
+         'end_s': pytest.approx(bag_synth.CATCH_TIME)},
+        {'kind': 'stabilizer', 'name': 'lqg', 'start_s': pytest.approx(bag_synth.CATCH_TIME),
+         'end_s': pytest.approx(12.0)},
+        {'kind': 'stabilizer', 'name': 'smc', 'start_s': pytest.approx(12.0),
+         'end_s': pytest.approx(20.0)}]
+    assert s['fault'] is None and s['longest_cycle_gap_s'] is None and s['success'] is True
+    assert cli.main(['analyze', str(path), '--json', '--plots', str(tmp_path / 'fig')]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['stabilizer'] == 'lqg -> smc' and out['swingup'] == 'pendulum_energy'
+
+
+def test_the_plot_marks_each_controller_start_and_names_it():
+    from matplotlib.figure import Figure
+
+    from cartpole_bringup.plots import _mark_controllers, run_title
+    spans = [{'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0, 'end_s': 5.0},
+             {'kind': 'stabilizer', 'name': 'lqg', 'start_s': 5.0, 'end_s': 12.0},
+             {'kind': 'stabilizer', 'name': 'smc', 'start_s': 12.0, 'end_s': 20.0}]
+    axes = Figure().subplots(2, 1)
+    _mark_controllers(axes, spans)
+    assert [t.get_text() for t in axes[0].texts] == ['pendulum_energy', 'lqg', 'smc']
+    assert sorted(line.get_xdata()[0] for line in axes[1].lines) == [0.0, 5.0, 12.0]
+    assert run_title(spans) == 'pendulum_energy + lqg -> smc'
+
+
+def test_fault_and_longest_cycle_gap_come_from_the_controller_status(tmp_path):
+    path = tmp_path / 'faulted'
+    bag_synth.write_run(path, events={8.0: 'fault:stale state', 9.0: 'fault:rail guard'},
+                        cycle_gap=lambda t: 0.005 + 0.001 * min(t, 14.0))
+    s = analyze_bag(path).summary
+    assert s['fault'] == 'stale state'  # the first one
+    assert s['longest_cycle_gap_s'] == pytest.approx(0.019)
+    assert s['success'] is False  # balanced, but a run with a fault is no success
+
+
+def test_the_summary_ends_where_the_run_ended_and_keeps_its_fault(tmp_path):
+    """cartpole run writes run_end_ns and fault into the bag: analyze reports the same."""
+    from cartpole_bringup.bag import bag_custom_data, update_custom_data
+
+    path = tmp_path / 'cut'
+    bag_synth.write_run(path, custom_data={'lockstep': 'true', 'x_ref': repr(bag_synth.X_REF)})
+    update_custom_data(path, {'run_end_ns': str(16_000_000_000),
+                              'fault': 'controller_manager died (SIGKILL)'})
+    assert bag_custom_data(path)['x_ref'] == repr(bag_synth.X_REF)  # the rest is kept
+    a = analyze_bag(path)
+    assert a.series.t[-1] == pytest.approx(16.0)
+    assert a.summary['controllers'][-1]['end_s'] == pytest.approx(16.0)
+    assert a.summary['fault'] == 'controller_manager died (SIGKILL)'
+    assert a.summary['success'] is False
+    # The window is [6, 16] s: theta = 0.01 sin(2 pi t) there, its peak 0.01 rad.
+    assert a.summary['theta_amp_deg'] == pytest.approx(math.degrees(0.01), rel=1e-6)
+
+
+@pytest.mark.parametrize('little_endian', [True, False])
+def test_diagnostic_parser_matches_the_generic_deserialiser(little_endian):
+    from rosbags.typesys import Stores, get_typestore
+
+    from cartpole_bringup.cdr_parse import parse_diagnostic_array
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    raw = bag_synth.diagnostic(ts, 1.25, 'controller_manager',
+                               {'mode': 'swingup', 'event': 'fault:stale state', 'é': 'ü'}, 'x')
+    if not little_endian:
+        msg = ts.deserialize_cdr(raw, 'diagnostic_msgs/msg/DiagnosticArray')
+        raw = ts.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray', little_endian=False)
+    stamp, statuses = parse_diagnostic_array(raw)
+    assert stamp == 1_250_000_000
+    assert statuses == [('controller_manager', {'mode': 'swingup', 'event': 'fault:stale state',
+                                                'é': 'ü'})]
+
+
+def test_offline_spans_follow_modes_and_switch_events():
+    from cartpole_bringup.timeline import spans_from_modes
+    t = [0.0, 0.005, 0.01, 0.015, 0.02, 0.025]
+    modes = ['swingup', 'swingup', 'stabilizing', 'stabilizing', 'fault', 'fault']
+    events = [(0.0, 'switch:stabilizer=smc'), (0.01, 'catch'), (0.02, 'fault:rail guard')]
+    assert spans_from_modes(t, modes, events, 'pendulum_energy', 'lqg') == [
+        {'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0, 'end_s': 0.01},
+        {'kind': 'stabilizer', 'name': 'smc', 'start_s': 0.01, 'end_s': 0.02}]
+
+
 def test_force_keys_are_null_without_commands_and_a_length_mismatch_is_refused():
     from cartpole_bringup import metrics
     t = np.arange(0.0, 20.0, 0.01)

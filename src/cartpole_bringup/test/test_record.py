@@ -30,11 +30,14 @@ class Publisher:
         from sensor_msgs.msg import JointState
 
         self.node = Node('synthetic_graph', context=context)
-        self.pubs = {t: self.node.create_publisher(JointState, t, 10)
+        # Depth 100 (the graph's PUBLISH_DEPTH): a reader that matches the writer late is
+        # still sent every message of a burst (a depth of 10 lost the first 40 of 50).
+        depth = 100
+        self.pubs = {t: self.node.create_publisher(JointState, t, depth)
                      for t in ('/joint_states', '/cartpole/true_state', '/cartpole/force_command')}
         self.pubs['/cartpole/controller_status'] = self.node.create_publisher(
-            DiagnosticArray, '/cartpole/controller_status', 10)
-        self.pubs['/clock'] = self.node.create_publisher(Clock, '/clock', 10)
+            DiagnosticArray, '/cartpole/controller_status', depth)
+        self.pubs['/clock'] = self.node.create_publisher(Clock, '/clock', depth)
 
     def matched(self, recording: int = 1) -> bool:
         return all(p.get_subscription_count() >= recording for p in self.pubs.values())
@@ -112,7 +115,9 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
                       '/clock': n}
     forces = [m.effort[0] for t, _, m in messages if t == '/cartpole/force_command']
     assert forces == [float(k) for k in range(n)]
-    assert bag_custom_data(bag) == {'x_ref': '0.3845', 'swingup': 'pendulum_energy'}
+    # recorder_missed (SPEC 8): every status's force command and every sample's truth is there.
+    assert bag_custom_data(bag) == {'x_ref': '0.3845', 'swingup': 'pendulum_energy',
+                                    'recorder_missed': '0'}
     # metadata.yaml: version 9, MCAP, the right counts (what `ros2 bag info` reads).
     import yaml
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
@@ -152,7 +157,9 @@ def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, sp
 
     exe = str(installed('cartpole_bringup', 'recorder'))
     bags = {sig: tmp_path / sig.name for sig in (signal.SIGINT, signal.SIGTERM)}
-    procs = {sig: subprocess.Popen([exe, '--ros-args', '-p', f'output:={bag}'],
+    # Two nodes named recorder on one domain: allowed explicitly (one graph per domain).
+    procs = {sig: subprocess.Popen([exe, '--ros-args', '-p', f'output:={bag}',
+                                    '-p', 'allow_duplicates:=true'],
                                    stderr=subprocess.PIPE, text=True)
              for sig, bag in bags.items()}
     source = Publisher(ros_context)
@@ -160,6 +167,12 @@ def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, sp
     executor.add_node(source.node)
     try:
         assert spin_until(executor, lambda: source.matched(2), 20.0), 'recorders did not subscribe'
+        # Warm-up (stamp -0.05 s, not counted): acknowledged by both recorders once their
+        # readers have matched our writers too, so none of the 50 below is dropped as coming
+        # from a writer not yet matched.
+        source.publish(-10)
+        for pub in source.pubs.values():
+            assert pub.wait_for_all_acked(Duration(seconds=10))
         for k in range(50):
             source.publish(k)
             executor.spin_once(timeout_sec=0.0)
@@ -181,9 +194,12 @@ def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, sp
     for sig, bag in bags.items():
         assert (bag / 'metadata.yaml').is_file(), f'{sig.name}: bag not closed'
         types, messages = read_bag(bag)
+        messages = [(t, lt, m) for t, lt, m in messages
+                    if (m.clock if t == '/clock' else m.header.stamp).sec >= 0]  # no warm-up
         counts = {}
         for topic, _, _ in messages:
             counts[topic] = counts.get(topic, 0) + 1
+        forces = [m.effort[0] for t, _, m in messages if t == '/cartpole/force_command']
         assert counts == {'/joint_states': 50, '/cartpole/true_state': 50,
                           '/cartpole/force_command': 50, '/cartpole/controller_status': 5,
-                          '/clock': 50}, sig.name
+                          '/clock': 50}, (sig.name, forces)

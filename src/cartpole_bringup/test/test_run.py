@@ -59,8 +59,10 @@ def test_graph_spec_and_process_command_lines(tmp_path):
     assert cmd[0].endswith('/lib/cartpole_sim/sim_node') and os.access(cmd[0], os.X_OK)
     assert cmd[1:] == ['--ros-args', '--log-level', 'warn', '--params-file',
                        str(tmp_path / 'p.yaml'), '-p', 'theta0:=3.0', '-p', 'noise:=true',
-                       '-p', 'lockstep:=true', '-p', 'use_sim_time:=true']
+                       '-p', 'lockstep:=true', '-p', 'recorder_window:=10',
+                       '-p', 'use_sim_time:=true']  # lockstep with a recorder: it waits for it
     rec = command_line(spec, 'recorder')
+    assert 'lockstep:=true' in rec  # the recorder reports its progress
     assert f'output:={ros_value_text(str(tmp_path / "bag"))}' in rec
     assert "custom_data:=['x_ref=0.3845']" in rec
     assert ros_value_text("it's") == "'it''s'"
@@ -130,7 +132,7 @@ def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until,
             proc.communicate()
         node.destroy_node()
     assert proc.returncode == 0, err
-    result = json.loads(out.strip().splitlines()[-1])
+    result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
     assert result['lockstep'] is False and result['elapsed_s'] > 0.4
     assert result['catch_time_s'] is None and result['success'] is False  # far too short
     bag = Path(result['bag'])

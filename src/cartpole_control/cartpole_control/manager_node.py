@@ -7,7 +7,10 @@ Wiring only; every decision is the manager's.
   publishes ``/cartpole/force_command`` (JointState ``name=['cart']``,
   ``effort=[F]``, ``header.stamp`` = the state's stamp) -- this callback is
   the loop's latency path -- and then ``/cartpole/controller_status``
-  (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``);
+  (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``).
+  A state with the stamp of the previous one (the lockstep simulator re-publishes
+  its first sample until it is answered) is answered with the same command
+  again, not with a second control cycle;
 - parameters: every entry of :meth:`ControllerManager.parameter_specs` (the
   manager's and every plugin's as ``<plugin>.<param>``) with a descriptor;
   validated in the on-set callback (a refused value keeps the old one and says
@@ -183,6 +186,7 @@ class ControllerManagerNode(Node):
         """The longest control cycle since start [s]."""
         self._last_state_ns: int | None = None
         self._last_stamp = None
+        self._last_command: JointState | None = None
         self._stale = False
         self.bad_states = 0
         """State messages without the cart/pendulum positions and velocities (ignored)."""
@@ -214,6 +218,12 @@ class ControllerManagerNode(Node):
 
     # -- the control cycle (latency path) ------------------------------------------------------
     def _on_state(self, msg: JointState) -> None:
+        last = self._last_stamp
+        if last is not None and self._last_command is not None and \
+                msg.header.stamp.sec == last.sec and msg.header.stamp.nanosec == last.nanosec:
+            self._pub_force.publish(self._last_command)  # the same sample: the same answer
+            self._last_state_ns = self.get_clock().now().nanoseconds
+            return
         try:
             c = msg.name.index(CART_JOINT)
             p = msg.name.index(PENDULUM_JOINT)
@@ -240,6 +250,7 @@ class ControllerManagerNode(Node):
         force.name = [CART_JOINT]
         force.effort = [out.force]
         self._pub_force.publish(force)
+        self._last_command = force
         self._last_state_ns = self.get_clock().now().nanoseconds
         self._last_stamp = msg.header.stamp
         self._stale = False

@@ -8,6 +8,15 @@ the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
 is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
 wires it to ROS.
 
+With ``lockstep:=true`` (``cartpole run --lockstep`` sets it) a sample is
+estimated only once the force command computed from the previous sample has
+arrived: the simulator published the sample only after it received that
+command, so it exists, and waiting for it makes the estimate independent of
+the order in which DDS delivers the two (with one process a node the sample
+can overtake the command). A command that does not come within
+``lockstep_wait`` wall seconds (the simulator stepped on its own timeout) is
+not waited for any longer.
+
 A ``/cartpole/plant_reset`` (std_msgs/Header, the simulator's ``~/reset``)
 re-initialises the filter from the first sample stamped at or after its
 ``stamp`` (reset reason ``plant reset``): the jump of the plant back to its
@@ -20,6 +29,7 @@ import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
@@ -98,6 +108,14 @@ class EkfNode(Node):
                         'as zero in the prediction, as the plant and the bridge do.',
             floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
 
+        self.declare_parameter('lockstep', False, ParameterDescriptor(
+            description='Lockstep simulation: estimate a sample only once the force command of '
+                        'the previous sample has arrived (deterministic whatever the delivery '
+                        'order).', read_only=True))
+        self.declare_parameter('lockstep_wait', 0.5, ParameterDescriptor(
+            description='Lockstep: longest wait for that command [wall s].', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)]))
+
         names = ('q', 'r', 'friction_steepness', 'angle_offset_p0', 'angle_offset_q',
                  'discretisation')
         reason = self._validate([self.get_parameter(n) for n in names])
@@ -143,6 +161,14 @@ class EkfNode(Node):
         self.create_service(Trigger, '~/reset', self._on_reset)
         self._health_timer = self.create_timer(self.get_parameter('health_period').value,
                                                self._publish_health)
+        self._lockstep = bool(self.get_parameter('lockstep').value)
+        self._pending_sample: tuple[JointState, float, float, float] | None = None
+        self._pending_timer = None
+        if self._lockstep:
+            self._pending_timer = self.create_timer(
+                float(self.get_parameter('lockstep_wait').value), self._on_pending_timeout,
+                clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._pending_timer.cancel()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._on_parameters_set)
 
@@ -212,6 +238,19 @@ class EkfNode(Node):
         if len(self._force_by_stamp) > 64:
             for old in sorted(self._force_by_stamp)[:32]:
                 del self._force_by_stamp[old]
+        if self._pending_sample is not None and stamp == self._last_sample_stamp:
+            self._estimate_pending()
+
+    def _estimate_pending(self) -> None:
+        sample, self._pending_sample = self._pending_sample, None
+        self._pending_timer.cancel()
+        self._estimate(*sample)
+
+    def _on_pending_timeout(self) -> None:
+        if self._pending_sample is not None:
+            self._estimate_pending()
+        else:
+            self._pending_timer.cancel()
 
     def _prediction_force(self) -> float:
         """The command held over the interval that ends at this sample, as the plant holds it.
@@ -247,6 +286,19 @@ class EkfNode(Node):
             self._drop(msg, 'non-finite position')
             return
         t = _stamp_seconds(msg.header.stamp)
+        if self._lockstep and t != self._last_sample_t:
+            if self._pending_sample is not None:  # a newer sample: stop waiting for the old one
+                self._estimate_pending()
+            if (self._last_sample_stamp is not None
+                    and self._last_sample_stamp not in self._force_by_stamp):
+                # The previous command is still on its way.
+                self._pending_sample = (msg, x, theta, t)
+                self._pending_timer.reset()
+                return
+        self._estimate(msg, x, theta, t)
+
+    def _estimate(self, msg: JointState, x: float, theta: float, t: float) -> None:
+        """One EKF update for a sample (its positions and time checked by the caller)."""
         if t == self._last_sample_t:
             # A repeated sample (the simulator re-publishes sample 0 until a
             # controller answers): already estimated; publish the same estimate

@@ -20,7 +20,8 @@ code that builds a message for ``take_message``, it turns into pybind11's
 and SIGTERM only note the request; the spin loop, which wakes at least every
 0.1 s, ends after the callback in progress, and the context is still alive
 while the node shuts down. Bad start-up parameters (and a bad
-``CARTPOLE_REALTIME``) are reported on one line, exit 2.
+``CARTPOLE_REALTIME``) are reported on one line, exit 2, and so is a node
+whose name is taken on the domain already (:mod:`cartpole_sim.domain_guard`).
 
 After start-up the process gets the real-time hygiene of
 :mod:`cartpole_sim.realtime` (collector frozen and run between callbacks;
@@ -40,6 +41,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from . import realtime
+from .domain_guard import refuse_duplicate_node
 
 
 class _StopRequest:
@@ -68,6 +70,7 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     hygiene = None
     executor = make_executor()
     try:
+        refuse_duplicate_node(make_node)  # one graph per domain (cartpole_sim.domain_guard)
         node = make_node()
         executor.add_node(node)
         hygiene = realtime.node_hygiene(node.get_name(), node.get_logger(),

@@ -20,6 +20,14 @@ controller cannot hang the graph. Until the first matching command arrives
 timeout does not apply, so a graph whose controller starts slowly still starts
 from the same sample and runs the same way every time.
 
+With a recorder in the loop (``recorder_window`` > 0; ``cartpole run
+--lockstep --record`` sets it) the node also does not step past sample k
+until the recorder reports (``/cartpole/recorder/progress``, std_msgs/Header)
+that it holds every sample topic up to k - ``recorder_window``: so the bag is
+complete however slow the recorder is (see ``cartpole_bringup.record_ledger``).
+A recorder silent for ``lockstep_timeout`` (at sample 0:
+:data:`STARTUP_RECORDER_WAIT`) is not waited for any longer.
+
 Reset (service ``~/reset``): the plant goes back to the scenario's initial
 state with zero force, and the node announces it on ``cartpole/plant_reset``
 (std_msgs/Header, ``stamp`` = the time from which samples show the reset
@@ -56,6 +64,10 @@ from .node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
+
+STARTUP_RECORDER_WAIT = 10.0
+"""Lockstep: wall seconds sample 0 waits for the recorder (it may still be discovering the
+graph: up to about 3 s with Fast DDS); later samples wait ``lockstep_timeout``."""
 
 SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'friction_scale',
                        'encoder_offset', 'noise', 'seed', 'plant_params_file',
@@ -110,6 +122,16 @@ class SimNode(Node):
         self._reset_stamp_ns = -1
         """Commands stamped before this [ns] answer the run before the last reset."""
         self._pub_clock = None
+        self._answered = False
+        """Lockstep: the command for the current sample has arrived."""
+        self._recorder_window_ns = None
+        self._recorder_ns: int | None = None
+        self._waiting_since_ns: int | None = None
+        window = int(self.get_parameter('recorder_window').value)
+        if self._lockstep and window > 0:
+            self._recorder_window_ns = window * int(round(params.sample_time * 1e9))
+            self.create_subscription(Header, '/cartpole/recorder/progress', self._on_progress,
+                                     QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -142,6 +164,10 @@ class SimNode(Node):
         declare('lockstep_startup_wait', True, ParameterDescriptor(
             description='Lockstep: until the first matching command, re-publish sample 0 every '
                         '0.1 s wall and do not apply lockstep_timeout.', read_only=True))
+        declare('recorder_window', 0, ParameterDescriptor(
+            description='Lockstep: step past sample k only once the recorder holds every sample '
+                        'topic up to sample k - recorder_window; 0 = do not wait for a recorder.',
+            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=90, step=1)]))
         declare('lockstep_timeout', 1.0, ParameterDescriptor(
             description='Lockstep: wall seconds to wait for the awaited command before stepping '
                         'with the held one [s]; takes effect at once.',
@@ -312,8 +338,45 @@ class SimNode(Node):
                                  self._on_lockstep_timeout, clock=self._wall)
 
     def _lockstep_advance(self) -> None:
+        self._answered = False
+        self._waiting_since_ns = None
         self._publish_lockstep(self._runner.advance())
         self._timeout_timer.reset()
+
+    def _recorder_has_it(self) -> bool:
+        """No recorder to wait for, or it holds the samples up to the window."""
+        if self._recorder_window_ns is None:
+            return True
+        if self._recorder_ns is not None and \
+                self._recorder_ns >= self._runner.stamp_ns - self._recorder_window_ns:
+            return True
+        now = self._wall.now().nanoseconds
+        if self._waiting_since_ns is None:
+            self._waiting_since_ns = now
+        else:
+            wait = STARTUP_RECORDER_WAIT if not self._loop_established else \
+                self.get_parameter('lockstep_timeout').value
+            if now - self._waiting_since_ns > wait * 1e9:
+                self.get_logger().warn(
+                    f'lockstep: the recorder did not confirm sample {self._runner.index} within '
+                    f'{wait:g} s; stepping without it', throttle_duration_sec=5.0)
+                return True
+        return False
+
+    def _try_advance(self) -> None:
+        """Lockstep: step once the current sample is answered (and recorded, with a recorder)."""
+        if not self._answered or not self._recorder_has_it():
+            return
+        if not self._loop_established:
+            self._loop_established = True
+            if self._startup_timer is not None:
+                self.destroy_timer(self._startup_timer)
+                self._startup_timer = None
+        self._lockstep_advance()
+
+    def _on_progress(self, msg: Header) -> None:
+        self._recorder_ns = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
+        self._try_advance()
 
     def _publish_lockstep(self, sample: Sample) -> None:
         """Publish ``sample``; past a lost one (no command will answer it) step on at once
@@ -327,8 +390,9 @@ class SimNode(Node):
         if not self._loop_established:
             return
         self.lockstep_timeouts += 1
+        what = 'no confirmation from the recorder' if self._answered else 'no force command'
         self.get_logger().warn(
-            f'lockstep: no force command for sample {self._runner.index} within '
+            f'lockstep: {what} for sample {self._runner.index} within '
             f'{self.get_parameter("lockstep_timeout").value:g} s; stepping with the held one',
             throttle_duration_sec=5.0)
         self._lockstep_advance()
@@ -340,6 +404,7 @@ class SimNode(Node):
             self._startup_timer = None
             return
         self._publish(self._runner.sample)
+        self._try_advance()  # the recorder's wait may have timed out
 
     def _on_command(self, msg: JointState) -> None:
         force = force_from_command(msg.name, msg.effort)
@@ -360,12 +425,8 @@ class SimNode(Node):
             self.stale_commands += 1
             return
         self._runner.command(force)
-        if not self._loop_established:
-            self._loop_established = True
-            if self._startup_timer is not None:
-                self.destroy_timer(self._startup_timer)
-                self._startup_timer = None
-        self._lockstep_advance()
+        self._answered = True
+        self._try_advance()
 
     # -- reset service --------------------------------------------------------------------------
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -383,6 +444,7 @@ class SimNode(Node):
         self._reset_stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
         self._pub_reset.publish(Header(stamp=stamp))
         if self._lockstep:
+            self._answered = False
             self._publish_lockstep(sample)
             self._timeout_timer.reset()
         response.success = True

@@ -423,3 +423,31 @@ def test_lockstep_skips_lost_samples_without_waiting_for_their_command(graph, sp
     # /clock and the ground truth still carry every sample.
     assert {stamp_ns(m.header.stamp) for m in probe.truth} >= set(range(0, delivered[-1] + 1,
                                                                         TS_NS))
+
+
+def test_lockstep_with_a_recorder_waits_for_its_progress(graph, spin_until):
+    """recorder_window (issue 12): sample k + 1 only once the recorder holds sample k - window."""
+    from builtin_interfaces.msg import Time
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Header
+
+    sim, probe, executor = graph(echo_force=1.0, lockstep=True, lockstep_timeout=30.0,
+                                 recorder_window=2)
+    progress = probe.node.create_publisher(
+        Header, '/cartpole/recorder/progress',
+        QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    assert spin_until(executor, lambda: probe.commands_sent >= 1, timeout=10.0)
+    # Answered, but no recorder progress yet: sample 0 is not left.
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 2, timeout=0.5)
+    assert sim.runner.steps == 0
+    assert spin_until(executor, lambda: progress.get_subscription_count() >= 1, timeout=10.0)
+    progress.publish(Header(stamp=Time(sec=0)))
+    # The recorder holds sample 0: the simulator steps past samples 0, 1, 2 (up to 2
+    # ahead of it) and waits at sample 3.
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 4, timeout=10.0)
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 5, timeout=0.5)
+    assert probe.stamps() == [k * TS_NS for k in range(4)] and sim.lockstep_timeouts == 0
+    progress.publish(Header(stamp=Time(nanosec=3 * TS_NS)))
+    assert spin_until(executor, lambda: len(probe.stamps()) >= 7, timeout=10.0)
+    assert not spin_until(executor, lambda: len(probe.stamps()) >= 8, timeout=0.5)
+    assert probe.stamps()[-1] == 6 * TS_NS

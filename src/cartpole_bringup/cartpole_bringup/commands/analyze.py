@@ -51,7 +51,7 @@ def write_animation(analysis, args: argparse.Namespace) -> dict:
 
 def write_figures(analyses, directory: Path) -> list[Path]:
     """Per-run figures and, for several runs, the overlay; returns the paths."""
-    from ..plots import plot_overlay, write_plots
+    from ..plots import plot_overlay, run_title, write_plots
 
     paths: list[Path] = []
     stems: set[str] = set()
@@ -60,10 +60,23 @@ def write_figures(analyses, directory: Path) -> list[Path]:
         if stem in stems:
             stem = f'{stem}_{i + 1}'
         stems.add(stem)
-        paths += write_plots(analysis.series, directory, stem, title=stem)
+        title = f'{stem}: {run_title(analysis.series.controllers)}'.rstrip(': ')
+        paths += write_plots(analysis.series, directory, stem, title=title)
     if len(analyses) > 1:
         paths.append(plot_overlay([a.series for a in analyses], directory / 'comparison.png'))
     return paths
+
+
+def controllers_that_ran(analysis) -> dict[str, str]:
+    """``swingup`` / ``stabilizer``: every one that ran, in order (``lqg -> smc``)."""
+    from ..timeline import names_that_ran
+    spans = analysis.summary.get('controllers') or []
+    out = {}
+    for kind in ('swingup', 'stabilizer'):
+        ran = ' -> '.join(names_that_ran(spans, kind)) or analysis.controllers.get(kind)
+        if ran:
+            out[kind] = ran
+    return out
 
 
 def main(args: argparse.Namespace) -> int:
@@ -93,7 +106,7 @@ def main(args: argparse.Namespace) -> int:
             print(f'cartpole analyze: --animate: {error}', file=sys.stderr)
             return 2
     if args.json:
-        runs = [dict(a.summary, bag=str(a.path), source=a.source, **a.controllers)
+        runs = [dict(a.summary, bag=str(a.path), source=a.source, **controllers_that_ran(a))
                 for a in analyses]
         out = dict(runs[0]) if len(runs) == 1 else {'runs': runs}
         out['plots'] = [str(p) for p in plots]
@@ -102,7 +115,7 @@ def main(args: argparse.Namespace) -> int:
         print(json.dumps(out))
         return 0
     for a in analyses:
-        controllers = ', '.join(f'{k} {v}' for k, v in a.controllers.items())
+        controllers = ', '.join(f'{k} {v}' for k, v in controllers_that_ran(a).items())
         print(f'== {a.path} ({a.source}{"; " + controllers if controllers else ""})')
         print_summary(a.summary, as_json=False)
         print()

@@ -56,6 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument('--view', nargs='?', const='', default=None, metavar='HOST:PORT',
                    help='serve a live view for Foxglove / Lichtblick (the viewer node in its '
                         'own process; default 127.0.0.1:8765; port 0: any free port)')
+    g.add_argument('--allow-duplicates', action='store_true',
+                   help='start even when nodes of the same names are on the domain already '
+                        '(another graph: the two then drive each other\'s nodes); default: '
+                        'refuse, naming the domain')
     g.add_argument('--log-level', default='warn',
                    choices=('debug', 'info', 'warn', 'error', 'fatal'),
                    help='ROS log level of the nodes (default warn)')
@@ -198,9 +202,8 @@ def main(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from .. import metrics
-    from ..analyze import JOINTS, TRUE_STATE, analyze_bag
-    from ..graph import Graph, GraphError, GraphSpec
+    from ..analyze import JOINTS, TRUE_STATE
+    from ..graph import DuplicateNodeError, Graph, GraphError, GraphSpec
 
     names = controller_names(args)
     nominal = options.nominal_parameters(args)
@@ -225,7 +228,8 @@ def main(args: argparse.Namespace) -> int:
     spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=parameters,
                      params_file=args.params.resolve() if args.params else None,
                      lockstep=args.lockstep, processes=args.processes, record=bag,
-                     custom_data=custom, log_level=args.log_level, executor=args.executor)
+                     custom_data=custom, log_level=args.log_level, executor=args.executor,
+                     allow_duplicates=args.allow_duplicates)
 
     viewer = None
     if args.view is not None:
@@ -253,14 +257,7 @@ def main(args: argparse.Namespace) -> int:
         if viewer is not None:
             viewer.attach(graph.executor, context, TRUE_STATE if args.sim else JOINTS)
         if not args.json:
-            where = f' recording into {bag}' if bag else ''
-            print(f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
-                  f'{"lockstep" if args.lockstep else "real time"}, '
-                  f'{"one process a node" if args.processes else "one process"}, '
-                  f'{names["swingup"]} + {names["stabilizer"]}, ROS_DOMAIN_ID='
-                  f'{os.environ.get("ROS_DOMAIN_ID", "0")}{where}; '
-                  f'{"for %g s" % args.duration if args.duration else "Ctrl-C stops"}',
-                  file=sys.stderr, flush=True)
+            print(_banner(args, names, bag), file=sys.stderr, flush=True)
         graph.start()
         queried = graph.get_parameter('controller_manager', 'x_ref', timeout=2.0)
         if isinstance(queried, (int, float)) and math.isfinite(queried):
@@ -268,6 +265,9 @@ def main(args: argparse.Namespace) -> int:
         graph.run_for(args.duration)
         elapsed = graph.elapsed()
         warnings += graph.close()
+    except DuplicateNodeError as exc:
+        print(f'cartpole run: refused: {exc}', file=sys.stderr)
+        return 2
     except GraphError as exc:
         print(f'cartpole run: {exc}', file=sys.stderr)
         return 1
@@ -280,34 +280,86 @@ def main(args: argparse.Namespace) -> int:
         rclpy.try_shutdown(context=context)
     for w in warnings:
         print(f'cartpole run: warning: {w}', file=sys.stderr)
+    end_ns = run_end_ns(graph.stop_stamp_ns, args.duration if args.lockstep else None)
+    series, summary = summarize_run(graph, bag, end_ns=end_ns, x_ref=x_ref, params=nominal,
+                                    lockstep=args.lockstep)
+    return report(args, names, summary, series, run_dir=run_dir, bag=bag, elapsed=elapsed,
+                  fault=graph.fault)
 
-    series = summary = None
+
+def _banner(args: argparse.Namespace, names: dict[str, str], bag: Path | None) -> str:
+    where = f' recording into {bag}' if bag else ''
+    return (f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
+            f'{"lockstep" if args.lockstep else "real time"}, '
+            f'{"one process a node" if args.processes else "one process"}, '
+            f'{names["swingup"]} + {names["stabilizer"]}, ROS_DOMAIN_ID='
+            f'{os.environ.get("ROS_DOMAIN_ID", "0")}{where}; '
+            f'{"for %g s" % args.duration if args.duration else "Ctrl-C stops"}')
+
+
+def run_end_ns(stop_stamp_ns: int | None, lockstep_duration: float | None) -> int | None:
+    """Where the run's summary ends: its ``--duration`` in lockstep, else where the stop began.
+
+    In lockstep the simulated time runs on while the stop takes its wall
+    time; ending at the duration makes the summary the same for the same
+    run, however long the stop took.
+    """
+    if lockstep_duration is not None:
+        end = int(round(lockstep_duration * 1e9))
+        return end if stop_stamp_ns is None else min(end, stop_stamp_ns)
+    return stop_stamp_ns
+
+
+def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, params,
+                  lockstep: bool):
+    """(series, summary) of the run: from its bag (repaired if need be), else from the monitor.
+
+    The bag's custom_data gets ``run_end_ns`` and ``fault``, so that
+    ``cartpole analyze`` of the bag reports the same. (None, None) when no
+    summary can be made (the reason is printed).
+    """
+    from ..analyze import analyze_bag
+    from ..bag import update_custom_data
+    from ..bag_repair import RepairError, needs_repair, repair_bag
+
     try:
-        if bag is not None:
-            analysis = analyze_bag(bag, x_ref=x_ref, params=nominal)
-            series, summary = analysis.series, analysis.summary
-        else:
-            series, contact = graph.monitor.builder.build(
-                params=nominal, x_ref=x_ref, lockstep=args.lockstep, label='run')
-            summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
-                                        catch_time=series.catch_time, end_stop_contact=contact,
-                                        swingup_law=graph.monitor.builder.swingup_law,
-                                        force=series.force, t_force=series.t_force)
-    except (ValueError, OSError) as exc:
+        if bag is None:
+            return graph.monitor.builder.summarize(params=params, x_ref=x_ref, lockstep=lockstep,
+                                                   label='run', end_ns=end_ns, fault=graph.fault)
+        if needs_repair(bag):  # the recorder was killed
+            print(f'cartpole run: {repair_bag(bag).describe()}', file=sys.stderr)
+        update_custom_data(bag, {'run_end_ns': None if end_ns is None else str(end_ns),
+                                 'fault': graph.fault})
+        analysis = analyze_bag(bag, x_ref=x_ref, params=params)
+        return analysis.series, analysis.summary
+    except (ValueError, OSError, RepairError) as exc:
         print(f'cartpole run: no summary: {exc}', file=sys.stderr)
+        return None, None
+
+
+def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
+           run_dir: Path | None, bag: Path | None, elapsed: float, fault: str | None) -> int:
+    """Plots, ``summary.json``, the printed summary; the exit code (1 after a fault)."""
+    from ..plots import run_title, write_plots
+    from ..timeline import names_that_ran
+
+    spans = (summary or {}).get('controllers') or []
+    ran = {kind: ' -> '.join(names_that_ran(spans, kind)) or names[kind]
+           for kind in ('swingup', 'stabilizer')}
     plots: list[Path] = []
     if series is not None and args.plots is not None:
-        from ..plots import write_plots
         plot_dir = run_dir if args.plots == '' else Path(args.plots)
         plots = write_plots(series, plot_dir, 'run',
-                            title=f'{names["swingup"]} + {names["stabilizer"]}')
-    extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), **names,
+                            title=run_title(spans, f'{names["swingup"]} + {names["stabilizer"]}'))
+    extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), **ran,
              'run_dir': str(run_dir) if run_dir else None, 'bag': str(bag) if bag else None,
              'plots': [str(p) for p in plots]}
-    if run_dir is not None and summary is not None:
-        (run_dir / 'summary.json').write_text(json.dumps(dict(summary, **extra), indent=2) + '\n')
+    result = dict(summary) if summary is not None else {'fault': fault}
+    result.update(extra)
+    if run_dir is not None:
+        (run_dir / 'summary.json').write_text(json.dumps(result, indent=2) + '\n')
     if args.json:
-        print(json.dumps(dict(summary or {}, **extra)))
+        print(json.dumps(result))
     else:
         if summary is not None:
             options.print_summary(summary, as_json=False)
@@ -316,4 +368,4 @@ def main(args: argparse.Namespace) -> int:
                 print(f'{key}: {extra[key]}')
         for p in plots:
             print(f'plot: {p}')
-    return 0 if summary is not None else 1
+    return 0 if summary is not None and not summary.get('fault') else 1

@@ -77,18 +77,21 @@ class NodeSource:
 
 NODES: tuple[NodeSource, ...] = (
     NodeSource('cartpole_sim', 'sim_node', 'cartpole_sim.sim_node', 'SimNode',
-               variants=({'lockstep': True},)),
+               variants=({'lockstep': True, 'recorder_window': 10},)),
     NodeSource('cartpole_estimation', 'ekf_node', 'cartpole_estimation.ekf_node', 'EkfNode'),
     NodeSource('cartpole_control', 'controller_manager', 'cartpole_control.manager_node',
                'ControllerManagerNode'),
     NodeSource('cartpole_hw', 'hw_bridge', 'cartpole_hw.hw_node', 'HwBridgeNode',
                lambda tmp: {'port': str(tmp / 'no-such-port')}),
     NodeSource('cartpole_bringup', 'recorder', 'cartpole_bringup.record', 'RecorderNode',
-               lambda tmp: {'output': str(tmp / 'bag')}),
+               lambda tmp: {'output': str(tmp / 'bag')}, variants=({'lockstep': True},)),
+    NodeSource('cartpole_bringup', 'viewer', 'cartpole_bringup.viewer_node', 'ViewerNode',
+               lambda tmp: {'port': 0}),
 )
 """Every installed executable that is a ROS node (``cartpole`` and ``emulator`` are not)."""
 
-_OVERRIDE_DEFAULTS = {'hw_bridge': {'port': '/dev/ttyACM0'}, 'recorder': {'output': ''}}
+_OVERRIDE_DEFAULTS = {'hw_bridge': {'port': '/dev/ttyACM0'}, 'recorder': {'output': ''},
+                      'viewer': {'port': 8765}}
 """The declared defaults of the parameters :data:`NODES` overrides to build the node."""
 
 

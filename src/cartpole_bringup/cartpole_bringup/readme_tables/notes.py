@@ -21,6 +21,8 @@ TOPIC_NOTES: dict[str, str] = {
     '/cartpole/plant_reset': 'the plant (simulator reset) or the position reference (bridge '
                              'homing) moved; reliable, transient local',
     '/clock': 'simulated time for `use_sim_time` (lockstep)',
+    '/cartpole/recorder/progress': '`stamp` = the sample up to which the recorder holds every '
+                                   '200 Hz topic (lockstep with `--record`: complete bags)',
 }
 """Content of each graph topic (the "At a glance" table)."""
 
@@ -34,6 +36,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         "stops' peak spring force over the period, 0.0 unless the cart was pressed into a stop "
         "by more than 1 um: the plant's contact state, which `end_stop_contact` is taken from)",
     ('sim', '/clock'): 'before each sample: simulated time of the sample',
+    ('sim', '/cartpole/recorder/progress'):
+        'the recorder\'s progress (`recorder_window` > 0): sample k is stepped past only once '
+        'the recorder holds every sample topic up to sample k - `recorder_window`',
     ('sim', '/cartpole/force_command'):
         "`name=['cart']`, `effort=[F]` [N]; held over the next period (zero-order hold). A "
         'message without a finite effort for `cart` is counted and ignored',
@@ -90,6 +95,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'effort of `cart` [N]; forwarded as `U` setpoints only while armed',
     ('hw_bridge', '/hw_bridge/arm'): 'arm (true) or disarm (false) at once; refused with the reason',
     ('hw_bridge', '/hw_bridge/home'): 'send `R` (zero both encoders); refused while armed',
+    ('viewer', '*'): 'drawn in the live view (decimated to at most `max_rate`); with `feed` set '
+                     'the samples come from `viewer_tap` instead and only the parameter events '
+                     'are subscribed',
     ('recorder', '*'): 'recorded: the serialized message as it arrived (`raw=True`, no '
                        'deserialisation), reliable QoS of depth `queue_depth`',
 }

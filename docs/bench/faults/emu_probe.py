@@ -1,0 +1,45 @@
+"""The emulated rig in this process, logging what the device received and its output.
+
+Usage: ``python emu_probe.py LINK SECONDS OUT.json``. Opens the emulator on a
+pseudo-terminal linked at LINK, runs it SECONDS, then writes the timeline
+(monotonic time, ``U``/``E`` lines received, changes of the output between
+zero and non-zero) to OUT.json for hw_after_kill.py.
+"""
+import json
+import sys
+import time
+
+from cartpole_hw.emulator import Emulator
+
+
+def main() -> None:
+    link, seconds, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+    emulator = Emulator(link=link)
+    timeline = []
+    handle, step = emulator.device.handle_line, emulator.sample_period
+    zero_before = [None]
+
+    def handle_line(line, now_us):
+        if line[:2] in (b'U,', b'E,'):
+            timeline.append((time.monotonic(), line[:1].decode(), line.split(b'*')[0].decode()))
+        return handle(line, now_us)
+
+    def sample_period():
+        step()
+        zero = not emulator.device.enabled or emulator.device.output_setpoint() == 0
+        if zero != zero_before[0]:
+            timeline.append((time.monotonic(), 'output', 'zero' if zero else 'nonzero'))
+            zero_before[0] = zero
+
+    emulator.device.handle_line = handle_line
+    emulator.sample_period = sample_period
+    emulator.start()
+    print('port', emulator.port, flush=True)
+    time.sleep(seconds)
+    emulator.stop()
+    with open(out, 'w') as f:
+        json.dump({'timeline': timeline}, f)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,107 @@
+"""``cartpole bag repair BAG`` and ``cartpole bag info BAG``: bags after a kill, and what is in one.
+
+``repair`` is the equivalent of ``ros2 bag reindex`` for the MCAP bags of
+``cartpole run --record`` and the recorder node
+(:mod:`cartpole_bringup.bag_repair`); ``info`` prints what ``ros2 bag info``
+prints (for installs without the ros2 CLI). No ROS needed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    verbs = parser.add_subparsers(dest='verb', metavar='VERB', required=True)
+    repair = verbs.add_parser(
+        'repair', help='make a bag whose recording was killed readable again',
+        description='Recover the messages of a truncated MCAP file (a recorder or run killed '
+                    'with SIGKILL) into a complete one and rebuild metadata.yaml; the damaged '
+                    'file is kept as <file>.damaged. An intact bag is left alone.')
+    repair.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bag directories')
+    repair.add_argument('--json', action='store_true', help='one JSON object a bag')
+    info = verbs.add_parser('info', help='topics, types, counts and time span of a bag',
+                            description='What ros2 bag info prints: topics, types, counts, '
+                                        'time span and custom_data of a bag.')
+    info.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bag directories')
+    info.add_argument('--json', action='store_true', help='one JSON object a bag')
+
+
+def _repair(args: argparse.Namespace) -> int:
+    from ..bag_repair import RepairError, repair_bag
+
+    code = 0
+    for bag in args.bags:
+        try:
+            result = repair_bag(bag)
+        except (RepairError, OSError, ValueError) as error:
+            print(f'cartpole bag repair: {error}', file=sys.stderr)
+            code = 2
+            continue
+        if args.json:
+            print(json.dumps({'bag': str(result.bag), 'action': result.action,
+                              'messages': result.message_count, 'counts': result.counts,
+                              'start_ns': result.start_ns, 'end_ns': result.end_ns,
+                              'dropped_bytes': result.dropped_bytes,
+                              'damaged_copy': (str(result.damaged_copy)
+                                               if result.damaged_copy else None)}))
+        else:
+            print(result.describe())
+    return code
+
+
+def bag_info(bag: Path) -> dict:
+    """The facts of ``metadata.yaml`` (and whether the bag needs ``cartpole bag repair``)."""
+    import yaml
+
+    from ..bag_repair import needs_repair
+
+    meta = bag / 'metadata.yaml'
+    if not meta.is_file():
+        raise FileNotFoundError(f'{bag}: no metadata.yaml (a recording cut short? run '
+                                f'`cartpole bag repair {bag}`)')
+    info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+    return {
+        'bag': str(bag), 'files': info['relative_file_paths'],
+        'storage': info['storage_identifier'], 'version': info['version'],
+        'start_ns': info['starting_time']['nanoseconds_since_epoch'],
+        'duration_s': info['duration']['nanoseconds'] * 1e-9,
+        'messages': info['message_count'],
+        'topics': {t['topic_metadata']['name']: {'type': t['topic_metadata']['type'],
+                                                 'count': t['message_count']}
+                   for t in info['topics_with_message_count']},
+        'custom_data': info.get('custom_data') or {},
+        'needs_repair': needs_repair(bag),
+    }
+
+
+def _info(args: argparse.Namespace) -> int:
+    code = 0
+    for bag in args.bags:
+        try:
+            facts = bag_info(bag)
+        except (OSError, KeyError, TypeError, ValueError) as error:
+            print(f'cartpole bag info: {error}', file=sys.stderr)
+            code = 2
+            continue
+        if args.json:
+            print(json.dumps(facts))
+            continue
+        print(f'bag:       {facts["bag"]} ({facts["storage"]}, version {facts["version"]}, '
+              f'files {", ".join(facts["files"])})')
+        print(f'duration:  {facts["duration_s"]:.3f} s from {facts["start_ns"] * 1e-9:.3f} s')
+        print(f'messages:  {facts["messages"]}')
+        width = max((len(t) for t in facts['topics']), default=0)
+        for topic, t in facts['topics'].items():
+            print(f'  {topic:<{width}}  {t["count"]:>7}  {t["type"]}')
+        for key, value in facts['custom_data'].items():
+            print(f'custom_data {key}: {value}')
+        if facts['needs_repair']:
+            print(f'the MCAP file is incomplete: run `cartpole bag repair {bag}`')
+    return code
+
+
+def main(args: argparse.Namespace) -> int:
+    return _repair(args) if args.verb == 'repair' else _info(args)

@@ -1,0 +1,112 @@
+"""What the recorder has of each sample: lockstep progress, repeats, and the messages it missed.
+
+Every 200 Hz topic of the graph carries the stamp of the sample it belongs to
+(SPEC 4: the plant's samples, the estimate and the force command copy it):
+``/joint_states``, ``/cartpole/true_state``, ``/clock`` (the plant),
+``/cartpole/state`` (EKF), ``/cartpole/force_command`` and
+``/cartpole/controller_status`` (controller manager). That stamp is the
+sequence number the ledger counts by. No ROS here; the recorder node feeds it.
+
+- **Progress** (lockstep): the oldest of the newest stamps taken on each of
+  these topics that is recorded. When it reaches sample k's stamp the
+  recorder holds every message of every sample up to k; the simulator does
+  not step more than a few samples ahead of it (``recorder_window``), so the
+  publishers' queues never overflow and nothing is lost, on any load.
+- **Repeats** (lockstep): while the graph starts, sample 0 is re-published
+  until a controller answers, and the EKF and the manager answer a repeated
+  sample again; a message with the stamp its topic had last is not a new
+  message and is not written twice. (In real time such a repeat, e.g. the
+  manager's last zero force at the stop, is written.)
+- **Missed** (real time, where nobody waits for the recorder): a message
+  implies the ones it was computed from (a status implies the force command
+  and the estimate of its cycle, a force command the estimate, an estimate
+  the encoder sample, a sample the simulator's ground truth). A stamp seen on one topic but absent on a topic
+  it implies is a message the recorder missed; counted once the stamp is
+  ``horizon_ns`` older than the newest one. Only topics that had a message
+  are implied (no ground truth on the rig). A sample missed on every topic
+  at once is not seen.
+"""
+from __future__ import annotations
+
+from typing import Iterable
+
+JOINT_STATES, STATE, FORCE = '/joint_states', '/cartpole/state', '/cartpole/force_command'
+TRUE_STATE, STATUS, CLOCK = '/cartpole/true_state', '/cartpole/controller_status', '/clock'
+
+SAMPLE_TOPICS = (JOINT_STATES, TRUE_STATE, CLOCK, STATE, FORCE, STATUS)
+"""The topics with one message per sample, stamped with the sample's stamp."""
+
+IMPLIES: dict[str, tuple[str, ...]] = {
+    FORCE: (STATE,),
+    STATUS: (FORCE, STATE),
+    STATE: (JOINT_STATES,),
+    JOINT_STATES: (TRUE_STATE,),
+    CLOCK: (TRUE_STATE,),
+}
+"""A message of the key's topic implies one of the same stamp on each of these."""
+
+HORIZON_NS = 2_000_000_000
+"""How long [ns] a stamp waits for its other messages before a missing one is counted."""
+
+
+class RecordLedger:
+    """Per-stamp book of the sample topics the recorder takes; see the module docstring."""
+
+    def __init__(self, topics: Iterable[str], *, skip_repeats: bool = False,
+                 horizon_ns: int = HORIZON_NS) -> None:
+        self.skip_repeats = skip_repeats
+        self.topics = tuple(t for t in SAMPLE_TOPICS if t in set(topics))
+        self._index = {t: i for i, t in enumerate(self.topics)}
+        self._implies = {self._index[t]: tuple(self._index[u] for u in IMPLIES.get(t, ())
+                                               if u in self._index) for t in self.topics}
+        self._last: dict[str, int] = {}
+        self._seen: dict[int, int] = {}  # stamp -> bit mask of the topics seen with it
+        self._ever = 0  # bit mask of the topics that had a message
+        self._newest = -1
+        self._horizon = int(horizon_ns)
+        self.repeats = 0
+        """Messages with the stamp their topic had last (not written when ``skip_repeats``)."""
+        self.missed = 0
+        """Messages implied by another one of the same stamp that never came (counted so far)."""
+
+    def take(self, topic: str, stamp_ns: int) -> bool:
+        """Book one message; False when it is a repeat to skip (``skip_repeats``)."""
+        if topic not in self._index:
+            return True
+        if self._last.get(topic) == stamp_ns:
+            self.repeats += 1
+            return not self.skip_repeats
+        self._last[topic] = stamp_ns
+        bit = 1 << self._index[topic]
+        self._ever |= bit
+        self._seen[stamp_ns] = self._seen.get(stamp_ns, 0) | bit
+        if stamp_ns > self._newest:
+            self._newest = stamp_ns
+            if len(self._seen) > 64:
+                self._settle(self._newest - self._horizon)
+        return True
+
+    def progress_ns(self) -> int | None:
+        """The stamp up to which every sample topic has arrived; None before each has one."""
+        if len(self._last) < len(self.topics) or not self.topics:
+            return None
+        return min(self._last.values())
+
+    def _settle(self, before_ns: int | None) -> None:
+        for stamp in [s for s in self._seen if before_ns is None or s < before_ns]:
+            mask = self._seen.pop(stamp)
+            needed = mask
+            for i in range(len(self.topics)):
+                if mask >> i & 1:
+                    for j in self._implies[i]:
+                        needed |= 1 << j
+            self.missed += bin(needed & ~mask & self._ever).count('1')
+
+    def finish(self) -> int:
+        """Count what is still open (the recording ended); returns :attr:`missed`."""
+        # The last samples may still be on their way to the answering nodes: only
+        # what an arrived message implies, and not for the newest stamp.
+        newest = self._newest
+        self._settle(newest)
+        self._seen.clear()
+        return self.missed
