@@ -1,6 +1,6 @@
 """One graph per ROS domain: a second node of the same name is refused, naming the domain.
 
-A node executable (through cartpole_sim.node_main.run_node) and `cartpole run`
+A node executable (through cartpole_sim.node_runner.run_node) and `cartpole run`
 refuse to start when a node of theirs is on the domain already, with a
 message naming ROS_DOMAIN_ID and the fix; `-p allow_duplicates:=true` (or
 `--allow-duplicates`) starts anyway.

@@ -13,7 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 RECORDER_WINDOW = 10
 """Lockstep with a recorder: how many samples the simulator may be ahead of it (the
-publishers keep 100, cartpole_sim.node_main.PUBLISH_DEPTH)."""
+publishers keep 100, cartpole_sim.node_runner.PUBLISH_DEPTH)."""
 
 
 EXECUTORS = ('single', 'events')

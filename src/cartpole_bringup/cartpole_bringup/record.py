@@ -125,7 +125,7 @@ class RecorderNode(Node):
                                      self._writer_for(topic), qos, raw=True)
         # The callbacks only queue what arrives; a thread writes it into the bag and
         # finishes the chunks on time (also while nothing arrives). The signal that stops
-        # the recorder (a KeyboardInterrupt, cartpole_sim.node_main) can land anywhere in
+        # the recorder (a KeyboardInterrupt, cartpole_sim.node_runner) can land anywhere in
         # this thread's callbacks, but never in the middle of writing a record, which
         # would make its chunk unreadable.
         self._queue: collections.deque = collections.deque()

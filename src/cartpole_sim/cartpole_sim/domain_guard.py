@@ -3,7 +3,7 @@
 Two graphs on one ``ROS_DOMAIN_ID`` see each other's topics: one graph's
 controller would drive the other's plant, one's shutdown would switch off
 the other's controller. So every node executable
-(:func:`cartpole_sim.node_main.run_node` calls :func:`refuse_duplicate_node`)
+(:func:`cartpole_sim.node_runner.run_node` calls :func:`refuse_duplicate_node`)
 and ``cartpole run`` (:func:`claim_node_names` for the whole graph) check
 before they create a node, in two ways:
 
