@@ -66,7 +66,8 @@ def node_command(name: str, parameters: Mapping[str, Any], *, log_level: str,
     return cmd
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child
+def die_with_parent() -> None:  # pragma: no cover - runs in the child
+    """In the child before exec: SIGTERM when the parent dies (Linux PR_SET_PDEATHSIG)."""
     try:
         import ctypes
         ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -78,7 +79,7 @@ def start_node_process(cmd: Sequence[str]) -> subprocess.Popen:
     """Start one node process in its own session, dying with this process."""
     return subprocess.Popen(
         list(cmd), env=dict(os.environ), stdin=subprocess.DEVNULL, start_new_session=True,
-        preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None)
+        preexec_fn=die_with_parent if sys.platform.startswith('linux') else None)
 
 
 def stop_node_process(proc: subprocess.Popen, name: str,

@@ -67,12 +67,12 @@ class ViewerProcess:
         Raises RuntimeError with the viewer's own words when it exits or
         stays silent.
         """
-        from .graph import _die_with_parent  # as the graph's node processes
+        from .node_processes import die_with_parent  # as the graph's node processes
 
         self.process = subprocess.Popen(
             self.command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE, text=True, start_new_session=True,
-            preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None)
+            preexec_fn=die_with_parent if sys.platform.startswith('linux') else None)
         threading.Thread(target=self._read, daemon=True).start()
         said: list[str] = []
         while True:
