@@ -54,6 +54,8 @@ class RunMonitor(Node):
         """Zero force commands this node published itself."""
         self.zero_force_samples = 0
         """Simulator samples whose actuator force (``effort[0]`` of the truth) is zero."""
+        self._zero_stamp_ns: int | None = None
+        """Stamp of the last sample-stamped zero this node published (lockstep fault stop)."""
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
         self.create_subscription(JointState, FORCE, self._on_force, qos)
@@ -74,13 +76,18 @@ class RunMonitor(Node):
         return callback
 
     def _on_force(self, msg: JointState) -> None:
-        self.builder.joint_state(FORCE, _stamp_ns(msg.header.stamp), msg.position,
-                                 msg.velocity, msg.effort)
+        stamp = _stamp_ns(msg.header.stamp)
+        self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
         if len(msg.effort):
             self.forces += 1
             self.last_force = float(msg.effort[0])
             if self.last_force == 0.0:
                 self.zero_forces += 1
+            elif self._zero_stamp_ns is not None and stamp >= self._zero_stamp_ns:
+                # A command of the dead manager still in flight answered a later sample
+                # than this node's zero: answer that sample with zero too, so that the
+                # last command of every sample is zero (the plant and the bag agree).
+                self._publish_zero(stamp)
 
     def _diag_cb(self, topic: str) -> Callable[[DiagnosticArray], None]:
         def callback(msg: DiagnosticArray) -> None:
@@ -100,10 +107,16 @@ class RunMonitor(Node):
         lockstep simulator waits for), else with this node's clock (fresh for
         the hardware bridge, which drops commands older than its timeout).
         """
-        msg = JointState(name=['cart'], effort=[0.0])
         if sample_stamp and self.last_stamp_ns is not None:
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(self.last_stamp_ns,
-                                                                    1_000_000_000)
+            self._zero_stamp_ns = self.last_stamp_ns
+            self._publish_zero(self.last_stamp_ns)
+        else:
+            self._publish_zero(None)
+
+    def _publish_zero(self, stamp_ns: int | None) -> None:
+        msg = JointState(name=['cart'], effort=[0.0])
+        if stamp_ns is not None:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         else:
             msg.header.stamp = self.get_clock().now().to_msg()
         self._force_pub.publish(msg)
