@@ -1,11 +1,11 @@
 """Stalls under load (issue 11): hardware start-ups and stale-state faults with CPU burners.
 
-    python docs/bench/stalls/measure.py hw N [--processes] [--burners K]   # N start-ups
+    python docs/bench/stalls/measure.py hw N [--processes] [--burners K] [--stabilizer NAME]
     python docs/bench/stalls/measure.py sim SECONDS [--burners K]         # one long run
 
 Starts K (default 2) CPU-bound processes (``while True: pass``, normal priority),
 then either N times: ``cartpole emulate`` and ``cartpole run --hw --hw-arm
---stabilizer smc --duration 6`` (one process, or ``--processes``), watching
+--duration 6`` (the default controllers unless ``--stabilizer NAME``) (one process, or ``--processes``), watching
 ``/cartpole/hw/health``: a start-up succeeds when the bridge arms and no fault
 disarms it before the run's own stop; or one ``cartpole run --sim --duration
 SECONDS`` counting ``fault: stale state``. One JSON line per trial, with the
@@ -108,7 +108,9 @@ def hw_trial(i, processes, duration):
     assert 'port:' in first, first
     watch = HealthWatch()
     cmd = ['cartpole', 'run', '--hw', '--port', link, '--hw-arm', '--duration', str(duration),
-           '--json', '--log-level', 'info', '--stabilizer', 'smc'] + (['--processes'] if processes else [])
+           '--json', '--log-level', 'info'] + (['--processes'] if processes else []) + \
+        (['--stabilizer', sys.argv[sys.argv.index('--stabilizer') + 1]]
+         if '--stabilizer' in sys.argv else [])
     t0 = time.monotonic()
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     wall = time.monotonic() - t0

@@ -105,11 +105,11 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     plant = Plant(nominal, scenario, integration_step=integration_step)
     ekf = ExtendedKalmanFilter(nominal, ekf_config or EkfConfig())
     manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
-    started_with = manager.get_parameters()  # the plugins before any switch
     if manager_parameters:
         result = manager.set_parameters(dict(manager_parameters))
         if not result.successful:
             raise ValueError(result.reason)
+    started_with = manager.get_parameters()  # the plugins the run starts with
     if prepare:
         manager.prepare(ControllerState(0.0, *scenario.initial_state()), progress)
     x_ref = float(manager.get_parameters()['x_ref'])
