@@ -12,7 +12,12 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
   stamps) and read on the node clock) from the reader thread, for every valid
   ``S`` line;
 - subscribes ``/cartpole/force_command`` (``name=['cart']``, ``effort=[F]``)
-  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed;
+  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed; a
+  command's age (the bridge's freshness rule) counts from the host's receipt
+  of the sample it answers (found by its stamp), not from the device's
+  sampling time: the USB latency before the receipt is the device
+  watchdog's business, and counting it twice made a late-read sample's
+  prompt answer stale;
 - ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
   ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
@@ -23,6 +28,7 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import threading
@@ -42,6 +48,9 @@ from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
 from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+
+RECEIPTS_KEPT = 400
+"""Receipt times kept for the command-age rule (2 s of samples at 200 Hz)."""
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -135,6 +144,9 @@ class HwBridgeNode(Node):
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
         self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
         self._homes_announced = 0
+        self._received: dict[int, int] = {}
+        """Stamp [ns] of each recent published sample -> node-clock time of its receipt [ns]."""
+        self._received_order: collections.deque = collections.deque()
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)
         self.create_service(Trigger, '~/home', self._on_home)
@@ -152,6 +164,7 @@ class HwBridgeNode(Node):
     def _publish_sample(self, sample: JointSample) -> None:
         msg = JointState()
         msg.header.stamp = self._node_time(sample.stamp)
+        self._note_receipt(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
@@ -164,6 +177,18 @@ class HwBridgeNode(Node):
             self._home_pending = False
             ok, reason = self.link.call(lambda core, now: core.home(now))
             self.get_logger().info(f'home_on_start: {reason}')
+
+    def _note_receipt(self, stamp_ns: int) -> None:
+        """Remember when the sample stamped ``stamp_ns`` was received (the last 400)."""
+        self._received[stamp_ns] = self.get_clock().now().nanoseconds
+        self._received_order.append(stamp_ns)
+        while len(self._received_order) > RECEIPTS_KEPT:
+            self._received.pop(self._received_order.popleft(), None)
+
+    def command_age(self, stamp_ns: int, now_ns: int) -> float:
+        """Age [s] of a command answering the sample stamped ``stamp_ns``: from that
+        sample's receipt when it is one of ours, else from the stamp itself."""
+        return (now_ns - self._received.get(stamp_ns, stamp_ns)) * 1e-9
 
     def _node_time(self, link_time: float) -> Time:
         """``link_time`` (the link's clock, monotonic) on the node clock: the two read
@@ -188,7 +213,8 @@ class HwBridgeNode(Node):
         stamp = msg.header.stamp
         latency = None
         if stamp.sec or stamp.nanosec:
-            latency = (self.get_clock().now().nanoseconds - (stamp.sec * 10**9 + stamp.nanosec)) * 1e-9
+            latency = self.command_age(stamp.sec * 10**9 + stamp.nanosec,
+                                       self.get_clock().now().nanoseconds)
         self.link.call(lambda core, now: (True, '', core.on_command(force, now, latency)))
 
     # -- arm / home --------------------------------------------------------------------------------

@@ -195,3 +195,25 @@ def test_bad_parameter_values_are_refused_with_reasons(rig):
     assert [r.successful for r in results] == [False, False, False]
     assert all(r.reason for r in results)
     assert rig.node.get_parameter('command_timeout').value == 0.3     # unchanged
+
+
+def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
+    """The stamp is the device's sampling time; a sample read 80 ms late (a USB burst, a
+    stalled reader) and answered at once is fresh, an unknown stamp 80 ms old is not."""
+    node = rig.node
+    now = node.get_clock().now().nanoseconds
+    sampled = now - 80_000_000                 # device time of a sample read just now
+    node._note_receipt(sampled)
+    assert node.command_age(sampled, now) < 0.01
+    assert node.command_age(sampled - 5_000_000, now) == pytest.approx(0.085)
+    assert rig.spin(lambda: len(rig.joint_states) > 3, force=1.0)
+    stale_before = int(rig.h().get('stale_commands', '0'))
+    msg_stamp = rig.joint_states[-1].header.stamp      # a real sample: answered promptly
+    from sensor_msgs.msg import JointState
+    late = JointState(name=['cart'], effort=[1.0])
+    late.header.stamp.sec, late.header.stamp.nanosec = divmod(
+        msg_stamp.sec * 10**9 + msg_stamp.nanosec - 500_000_000, 10**9)  # older than the 0.3 s
+    rig.pub.publish(late)
+    assert rig.spin(lambda: int(rig.h().get('stale_commands', '0')) > stale_before,
+                    force=1.0), rig.h()
+    assert rig.h().get('armed') == 'true'
