@@ -14,7 +14,7 @@ def test_sim_reset_while_balancing_restarts_the_swingup_without_a_fault(ros_cont
     from diagnostic_msgs.msg import DiagnosticArray
     from std_srvs.srv import Trigger
 
-    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_bringup.graph.graph import Graph, GraphSpec
 
     g = Graph(GraphSpec(plant='sim', lockstep=True), ros_context)
     status, health = [], []

@@ -24,7 +24,7 @@ With a recorder in the loop (``recorder_window`` > 0; ``cartpole run
 --lockstep --record`` sets it) the node also does not step past sample k
 until the recorder reports (``/cartpole/recorder/progress``, std_msgs/Header)
 that it holds every sample topic up to k - ``recorder_window``: so the bag is
-complete however slow the recorder is (see ``cartpole_bringup.record_ledger``).
+complete however slow the recorder is (see ``cartpole_bringup.graph.record_ledger``).
 A recorder silent for ``lockstep_timeout`` (at sample 0:
 :data:`STARTUP_RECORDER_WAIT`) is not waited for any longer.
 

@@ -80,7 +80,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     theta)`` (e.g. a rehearsal on the model from that state) may refuse with
     reasons; arm the bridge (``/hw_bridge/arm``) if asked; answer samples
     until the plan is done or ``timeout`` wall seconds passed. ``record``
-    adds a :class:`~cartpole_bringup.record.RecorderNode` writing that bag.
+    adds a :class:`~cartpole_bringup.graph.recorder.RecorderNode` writing that bag.
     ``extra_nodes`` (e.g. a simulator) are spun in the same executor.
 
     Returns a summary dict; raises RuntimeError with the reason on failure
@@ -93,7 +93,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     recorder = None
     try:
         if record is not None:
-            from ..record import RecorderNode
+            from ..graph.recorder import RecorderNode
             recorder = RecorderNode(context=context, parameter_overrides=[
                 Parameter('output', value=str(record))])
             nodes.append(recorder)
