@@ -1,4 +1,4 @@
-"""Which part of the live view costs the loop its tail latency (issue 14).
+"""Which part of the live view costs the loop its tail latency (docs/benchmarks.md, the live view).
 
     python docs/bench/view/compare.py [ROUNDS] [SECONDS]
 

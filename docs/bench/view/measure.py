@@ -1,4 +1,4 @@
-"""What a Foxglove client receives from ``cartpole run --sim --view`` (issue 14).
+"""What a Foxglove client receives from ``cartpole run --sim --view`` (docs/benchmarks.md, the live view).
 
     python docs/bench/view/measure.py [SECONDS] [--processes]
 

@@ -48,7 +48,12 @@ _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_tra
 
 
 class HwBridgeNode(Node):
-    """Serial bridge to the Arduino Due I/O firmware (node name ``hw_bridge``)."""
+    """Serial bridge to the Arduino Due I/O firmware (node name ``hw_bridge``).
+
+    Why one class of about 230 lines: a node adapter whose ``__init__`` declares the
+    bridge's parameters, topics and services; everything it decides is
+    :class:`cartpole_hw.bridge.BridgeCore`.
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('hw_bridge', **kwargs)

@@ -95,7 +95,13 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
 
 
 class SimNode(Node):
-    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring."""
+    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring.
+
+    Why one class of about 360 lines: a node adapter, most of it the declaration of
+    the scenario's parameters and their validation, and the lockstep handshake with
+    the recorder, which shares the node's publishers and timers; the sample clock and
+    watchdog are :mod:`cartpole_sim.sim_runner`, the plant :class:`cartpole_sim.plant.Plant`.
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('sim', **kwargs)

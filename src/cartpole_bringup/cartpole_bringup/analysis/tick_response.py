@@ -79,7 +79,7 @@ THESIS_SETTINGS: dict[str, tuple[dict[str, Any], EkfConfig]] = {
         {'lqg.q': [100.0, 400.0, 100.0, 400.0], 'feedforward.velocity_band': 0.0},
         EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
                   discretisation='euler')),
-    "before issue 10: LQR Q = diag(400, 400, 400, 400), thesis EKF and feedforward": (
+    "earlier default: LQR Q = diag(400, 400, 400, 400), thesis EKF and feedforward": (
         {'lqg.q': [400.0, 400.0, 400.0, 400.0], 'feedforward.velocity_band': 0.0},
         EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
                   discretisation='euler')),

@@ -9,7 +9,7 @@ there at rest), that offset together with a 20 % lighter tip, measurement
 noise on, several seeds. Besides the SPEC 5 summary (with the control effort
 ``force_rms_n``/``force_p2p_n``) each run reports ``x_err_mean_m``, the mean
 |x - x*| over its last 5 s: what is left of an offset once the transients of
-the catch are over (issue 10's "offset-free" measure).
+the catch are over (the "offset-free" measure).
 
 Each case is one offline closed-loop run (:func:`run_case`), a pure function
 of its :class:`BenchCase`, so the sweep gives the same numbers serially, on a
@@ -53,7 +53,7 @@ SCENARIOS: dict[str, dict[str, float]] = {
     'offset -0.1': _offset(-0.1),
     'offset +0.05 mass-20%': _offset(0.05, tip_mass=NOMINAL_TIP_MASS * 0.8),
 }
-"""The scenario grid of SPEC section 6 and issue 10, by name."""
+"""The scenario grid of SPEC section 6 (and docs/benchmarks.md), by name."""
 
 SETTLE_WINDOW_S = 5.0
 """``x_err_mean_m`` is the mean |x - x*| over the last this many seconds."""
@@ -177,7 +177,7 @@ def _fmt(v: Any, spec: str = '.3g') -> str:
 
 
 def left_stop_bound(params: CartPoleParameters | None = None) -> float:
-    """The minimum-time swing-up bound from the default start (issue #7), in seconds."""
+    """The minimum-time swing-up bound from the default start (``cartpole bound``), in seconds."""
     from cartpole_control.trajectory_optimization import swingup_bounds
     params = params or CartPoleParameters()
     return float(swingup_bounds(params, ['left_stop'], n_intervals=70,

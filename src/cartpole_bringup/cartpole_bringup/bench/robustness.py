@@ -165,7 +165,7 @@ SWEEPS: tuple[Sweep, ...] = (
           note=f'impulse of a {PENDULUM_PUSH_WIDTH:g} s torque at {PUSH_TIME:g} s, towards '
                'increasing theta, after the catch'),
 )
-"""The default grid: every category of issue 13, each sweep from nominal outwards."""
+"""The default grid: every category of the robustness benchmark (docs/benchmarks.md), each sweep from nominal outwards."""
 
 CATEGORIES = tuple(dict.fromkeys(s.category for s in SWEEPS))
 

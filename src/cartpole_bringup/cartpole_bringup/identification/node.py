@@ -15,7 +15,6 @@ force once and stops publishing; the hw bridge's watchdog then disarms
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -24,6 +23,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+
+from cartpole_sim.spin import spin_until as spin_executor_until
 
 from .pulse_player import PulsePlayer
 
@@ -101,13 +102,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
             executor.add_node(n)
 
         def spin_until(predicate, seconds: float) -> bool:
-            deadline = time.monotonic() + seconds
-            while not predicate():
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                executor.spin_once(timeout_sec=min(0.1, remaining))
-            return True
+            return spin_executor_until(executor, predicate, seconds)
 
         if not spin_until(lambda: node.first_sample is not None, sample_wait):
             raise RuntimeError(f'no /joint_states sample within {sample_wait:g} s: is the hw '

@@ -71,7 +71,12 @@ PLANT_TOPIC_CHECK_PERIOD = 1.0
 
 
 class ViewerNode(Node):
-    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``."""
+    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``.
+
+    Why one class of about 180 lines: a node adapter whose ``__init__`` declares the
+    viewer's parameters and chooses between the graph's topics and the tap's feed;
+    the view itself is :class:`cartpole_bringup.viewer.server.LiveView`.
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)

@@ -22,6 +22,8 @@ import sys
 import threading
 from pathlib import Path
 
+from cartpole_sim.child_process import interrupt
+
 SERVING = re.compile(r'viewer: serving (ws://\S+)')
 START_TIMEOUT = 30.0
 """Wall seconds for the viewer to import, bind and report."""
@@ -109,12 +111,7 @@ class ViewerProcess:
         if proc is None or proc.poll() is not None:
             return None if proc is None or proc.returncode in (0, -signal.SIGINT) else \
                 f'viewer had exited with code {proc.returncode}'
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=STOP_TIMEOUT)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        if not interrupt(proc, STOP_TIMEOUT, drain=False):  # a thread reads its stdout
             return 'viewer did not stop on SIGINT; killed'
         return None if proc.returncode in (0, -signal.SIGINT) else \
             f'viewer exited with code {proc.returncode}'
