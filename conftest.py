@@ -8,7 +8,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 
 import pytest
 
@@ -42,15 +41,31 @@ def spin_until():
     Waits on the executor (work arrives as events), never on a bare sleep; the
     timeout only bounds a failing test.
     """
+    from cartpole_sim.spin import spin_until as _spin
+
     def _spin_until(executor, predicate, timeout=30.0):
-        deadline = time.monotonic() + timeout
-        while not predicate():
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
-            executor.spin_once(timeout_sec=min(0.1, remaining))
-        return True
+        return _spin(executor, predicate, timeout)
     return _spin_until
+
+
+@pytest.fixture
+def three_ways():
+    """three_ways(run, cases) -> (serial, pool, dask): a sweep runner's results on every executor.
+
+    ``run(cases, workers=..., dask_address=...)`` is :func:`cartpole_bringup.bench.control.run_sweep`
+    or :func:`cartpole_bringup.bench.robustness.run_grid`: serially, on a pool of two
+    processes and on a local Dask cluster of two worker processes.
+    """
+    def _three_ways(run, cases):
+        from distributed import LocalCluster
+
+        serial = run(cases, workers=1)
+        pool = run(cases, workers=2)
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster:
+            dask = run(cases, dask_address=cluster.scheduler_address)
+        return serial, pool, dask
+    return _three_ways
 
 
 @pytest.fixture(scope='session')

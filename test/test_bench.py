@@ -7,9 +7,7 @@ import sys
 
 import pytest
 
-from cartpole_bringup import bench_control as bc
-
-
+from cartpole_bringup.bench import control as bc
 def cartpole(*argv, timeout=600):
     out = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', *argv],
                          capture_output=True, text=True, timeout=timeout)
@@ -18,15 +16,9 @@ def cartpole(*argv, timeout=600):
 
 
 @pytest.mark.slow
-def test_sweep_is_identical_serially_on_a_pool_and_on_dask():
-    from distributed import LocalCluster
-
+def test_sweep_is_identical_serially_on_a_pool_and_on_dask(three_ways):
     cases = bc.make_cases(['sign_based'], ['smc'], ['nominal', 'mass-10%'], seeds=2, duration=6.0)
-    serial = bc.run_sweep(cases, workers=1)
-    pool = bc.run_sweep(cases, workers=2)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
-        dask = bc.run_sweep(cases, dask_address=cluster.scheduler_address)
+    serial, pool, dask = three_ways(bc.run_sweep, cases)
     assert serial == pool == dask
     # Different seeds really are different runs (noise is on), so equality means something.
     assert serial[0]['mse_x'] != serial[1]['mse_x']

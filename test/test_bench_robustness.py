@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from cartpole_bringup import bench_robustness as br
-from cartpole_bringup import robustness_report as rr
+from cartpole_bringup.bench import robustness as br
+from cartpole_bringup.bench import robustness_report as rr
 from cartpole_sim.plant import Push, Scenario
 
 
@@ -141,18 +141,12 @@ def test_levels_become_the_scenarios_they_name():
 
 
 @pytest.mark.slow
-def test_a_short_grid_gives_the_same_results_serially_on_a_pool_and_on_dask():
-    from distributed import LocalCluster
-
+def test_a_short_grid_gives_the_same_results_serially_on_a_pool_and_on_dask(three_ways):
     sweeps = [dataclasses.replace(s, levels=s.levels[:2])
               for s in br.sweeps_of(['lost samples', 'force noise'])]
     cells, runs = br.make_grid([('sign_based', 'smc')], sweeps, seeds=2, duration=6.0)
     assert len(cells) == 8 and len(set(runs)) == 6  # the nominal level is run once per seed
-    serial = br.run_grid(runs, workers=1)
-    pool = br.run_grid(runs, workers=2)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
-        dask = br.run_grid(runs, dask_address=cluster.scheduler_address)
+    serial, pool, dask = three_ways(br.run_grid, runs)
     assert serial == pool == dask
     assert serial[0] == serial[4]  # the same nominal run, shared by both sweeps
     assert serial[0]['mse_x'] != serial[1]['mse_x']  # seeds differ, so equality means something

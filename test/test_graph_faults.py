@@ -81,7 +81,7 @@ def _read(bag: Path) -> dict[str, list[tuple[int, float]]]:
     """(stamp, effort[0]) of the JointState topics of a bag, in stamp order."""
     from rosbags.highlevel import AnyReader
 
-    from cartpole_bringup.cdr_parse import parse_joint_state
+    from cartpole_bringup.bags.cdr_parse import parse_joint_state
     out: dict[str, list[tuple[int, float]]] = {}
     with AnyReader([bag]) as reader:
         conns = [c for c in reader.connections if c.msgtype == 'sensor_msgs/msg/JointState']
@@ -146,7 +146,7 @@ def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, ros_
 
 
 def test_a_raising_callback_in_one_process_is_the_fault(ros_context):
-    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_bringup.graph.graph import Graph, GraphSpec
 
     graph = Graph(GraphSpec(plant='sim', lockstep=True), ros_context, report=lambda text: None)
     try:

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 from pathlib import Path
 
 import pytest
+
+from cartpole_sim.child_process import interrupt
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -33,13 +34,7 @@ def run(args, timeout):
     try:
         out, err = proc.communicate(timeout=timeout)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.communicate(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.communicate()
+        interrupt(proc, 10.0)
     return proc.returncode, out, err
 
 
@@ -57,7 +52,7 @@ def bag_stamps(bag):
 
 
 def assert_complete(stamps, duration):
-    """Lockstep (issue 12): every sample of the run on every 200 Hz topic, each once."""
+    """Lockstep (complete bags, docs/architecture.md): every sample of the run on every 200 Hz topic, each once."""
     n = int(round(duration / 0.005)) + 1
     expected = [k * 5_000_000 for k in range(n)]
     for topic in SIM_TOPICS:

@@ -1,4 +1,4 @@
-"""``/sim/reset`` while balancing hands over cleanly (issue 11): the simulator announces the
+"""``/sim/reset`` while balancing hands over cleanly (SPEC section 2, ``~/reset``): the simulator announces the
 reset, the EKF re-initialises from the reset sample and the controller manager starts a new
 swing-up instead of its rail guard seeing the jump of the estimate (one-process graph,
 lockstep, ground truth).
@@ -14,7 +14,7 @@ def test_sim_reset_while_balancing_restarts_the_swingup_without_a_fault(ros_cont
     from diagnostic_msgs.msg import DiagnosticArray
     from std_srvs.srv import Trigger
 
-    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_bringup.graph.graph import Graph, GraphSpec
 
     g = Graph(GraphSpec(plant='sim', lockstep=True), ros_context)
     status, health = [], []

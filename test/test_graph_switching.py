@@ -24,7 +24,7 @@ def _theta_w(theta):
 
 @pytest.fixture
 def graph(ros_context):
-    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_bringup.graph.graph import Graph, GraphSpec
 
     spec = GraphSpec(plant='sim', lockstep=True,
                      parameters={'controller_manager': {'stabilizer': 'lqg'}})
@@ -86,7 +86,7 @@ def test_switch_stabilizer_while_balancing(graph):
     # Still the first catch only: no fall happened.
     assert graph.monitor.builder.catch_ns == b.catch_ns
     # The summary names every stabiliser that ran, each from its switch on (SPEC 8).
-    from cartpole_bringup.plots import run_title
+    from cartpole_bringup.analysis.plots import run_title
     from cartpole_sim.model import CartPoleParameters
     _, summary = b.summarize(params=CartPoleParameters(), x_ref=0.3845, lockstep=True)
     spans = summary['controllers']

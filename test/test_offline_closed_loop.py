@@ -1,6 +1,6 @@
 """The thesis's closed loop without ROS: every swing-up x stabiliser pair swings up and balances.
 
-Issue #3's acceptance runs: from the default initial state (cart at the left
+The thesis's acceptance runs: from the default initial state (cart at the left
 stop, pendulum hanging; SPEC 1a), 30 s each, with the plant's tip mass nominal,
 10 % lighter and 10 % heavier (requirement 3.1.2-5; the controllers keep the
 nominal model). Each must be caught within 10 s, oscillate less than 2 deg and
@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from cartpole_bringup.closed_loop import run_closed_loop
+from cartpole_bringup.offline.closed_loop import run_closed_loop
 from cartpole_estimation.ekf import EkfConfig
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
@@ -133,7 +133,7 @@ def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_
 
 @pytest.mark.slow
 def test_default_stabiliser_is_quiet_while_balancing():
-    """Issue 10's effort targets on the nominal plant with noise: about the Coulomb floor.
+    """The effort targets (SPEC section 7) on the nominal plant with noise: about the Coulomb floor.
 
     A cart moving all the time needs its friction, 3.4 / 2.45 N: 2.96 N rms. Before,
     one encoder tick times K_theta and the feedforward's sign flips gave 16 N rms, 72 N p2p.

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from cartpole_bringup.closed_loop import run_closed_loop
+from cartpole_bringup.offline.closed_loop import run_closed_loop
 from cartpole_sim.plant import Push, Scenario
 
 pytestmark = pytest.mark.slow

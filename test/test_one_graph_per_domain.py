@@ -8,13 +8,13 @@ message naming ROS_DOMAIN_ID and the fix; `-p allow_duplicates:=true` (or
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from cartpole_sim.child_process import interrupt
 from cartpole_sim.domain_guard import (DuplicateNodeError, claim_node_names, domain_id,
                                        graph_duplicates)
 
@@ -87,12 +87,7 @@ def test_a_second_graph_on_the_domain_is_refused(ros_context, spin_until):
         assert spin_until(executor, lambda: count_sims() == 2, 30.0), 'allowed sim did not start'
     finally:
         for proc in (first, allowed):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.communicate(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.communicate()
+            if proc is not None:
+                interrupt(proc, 10.0)
         watcher.destroy_node()
     assert first.returncode == 0 and allowed.returncode == 0

@@ -24,7 +24,7 @@ EXAMPLE = Path(__file__).resolve().parents[1] / 'docs' / 'examples' / 'cartpole_
 
 USE = textwrap.dedent('''
     import json, math
-    from cartpole_bringup.closed_loop import run_closed_loop
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_control.controller import STABILIZER, ControllerState
     from cartpole_control.manager import ControllerManager
     from cartpole_control.registry import load_controllers

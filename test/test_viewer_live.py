@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cartpole_bringup.viewer import TOPICS
-from cartpole_bringup.viewer_client import ViewerClient
+from cartpole_bringup.viewer.server import TOPICS
+from cartpole_bringup.viewer.client import ViewerClient
 
 _spec = importlib.util.spec_from_file_location(
     'foxglove_support', Path(__file__).resolve().parents[1] / 'src' / 'cartpole_bringup' / 'test'

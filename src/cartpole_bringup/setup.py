@@ -19,8 +19,8 @@ setup(
     entry_points={
         'console_scripts': [
             'cartpole = cartpole_bringup.cli:main',
-            'recorder = cartpole_bringup.record:main',
-            'viewer = cartpole_bringup.viewer_node:main',
+            'recorder = cartpole_bringup.graph.recorder:main',
+            'viewer = cartpole_bringup.viewer.node:main',
         ],
     },
 )

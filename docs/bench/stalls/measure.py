@@ -1,4 +1,4 @@
-"""Stalls under load (issue 11): hardware start-ups and stale-state faults with CPU burners.
+"""Stalls under load (docs/benchmarks.md): hardware start-ups and stale-state faults with CPU burners.
 
     python docs/bench/stalls/measure.py hw N [--processes] [--burners K] [--stabilizer NAME]
     python docs/bench/stalls/measure.py sim SECONDS [--burners K]         # one long run

@@ -1,4 +1,4 @@
-"""Control-cycle compute time under parameter changes (issue 12, "the cycle only swaps").
+"""Control-cycle compute time under parameter changes (docs/architecture.md: "the cycle only swaps").
 
     python docs/bench/swaps/measure.py graph [--duration S]   # the real-time graph
     python docs/bench/swaps/measure.py direct                 # ControllerManager in-process

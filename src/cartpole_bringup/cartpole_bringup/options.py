@@ -89,7 +89,7 @@ def print_summary(summary: dict[str, Any], as_json: bool) -> None:
         if isinstance(value, float):
             text = f'{value:.6g}'
         elif key == 'controllers' and isinstance(value, list):
-            from .timeline import describe
+            from .analysis.timeline import describe
             text = describe(value)
         else:
             text = 'null' if value is None else str(value)

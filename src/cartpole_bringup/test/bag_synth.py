@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cartpole_bringup.bag import BagWriter
+from cartpole_bringup.bags.writer import BagWriter
 
 TS = 0.01
 X_REF = 0.3845

@@ -14,8 +14,8 @@ bag_synth = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bag_synth)
 
 from cartpole_bringup import cli  # noqa: E402
-from cartpole_bringup.analyze import analyze_bag  # noqa: E402
-from cartpole_bringup.plots import heteroclinic_orbit  # noqa: E402
+from cartpole_bringup.analysis.analyze import analyze_bag  # noqa: E402
+from cartpole_bringup.analysis.plots import heteroclinic_orbit  # noqa: E402
 
 PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 
@@ -65,7 +65,7 @@ def test_summary_names_the_swingup_law_of_the_catch(tmp_path):
 
 
 def test_series_builder_takes_the_law_at_the_catch_from_a_status_series():
-    from cartpole_bringup.analyze import SeriesBuilder
+    from cartpole_bringup.analysis.analyze import SeriesBuilder
     b = SeriesBuilder()
     statuses = [('swingup', '', 'time_optimal'), ('swingup', '', 'time_optimal:plan'),
                 ('stabilizing', 'catch', 'time_optimal:plan'),
@@ -105,7 +105,7 @@ def test_hardware_bag_uses_the_estimate_and_the_limit_flags(tmp_path):
 
 
 def test_limit_switch_contact_is_a_switch_closing_after_it_opened():
-    from cartpole_bringup.analyze import SeriesBuilder
+    from cartpole_bringup.analysis.analyze import SeriesBuilder
     b = SeriesBuilder()
     for flags in [('true', 'false')] * 3:  # resting on the left switch at the start
         b.hw_health(0, dict(zip(('limit_left', 'limit_right'), flags)))
@@ -117,7 +117,7 @@ def test_limit_switch_contact_is_a_switch_closing_after_it_opened():
 
 
 def test_a_bag_without_states_is_refused(tmp_path):
-    from cartpole_bringup.bag import BagWriter
+    from cartpole_bringup.bags.writer import BagWriter
     path = tmp_path / 'empty'
     BagWriter(path).close()
     with pytest.raises(ValueError, match='nothing to analyse'):
@@ -127,7 +127,7 @@ def test_a_bag_without_states_is_refused(tmp_path):
 @pytest.mark.parametrize('little_endian', [True, False])
 def test_joint_state_parser_matches_the_generic_deserialiser(little_endian):
     from rosbags.typesys import Stores, get_typestore
-    from cartpole_bringup.analyze import parse_joint_state
+    from cartpole_bringup.analysis.analyze import parse_joint_state
     ts = get_typestore(Stores.ROS2_JAZZY)
     js, header, time = (ts.types[n] for n in ('sensor_msgs/msg/JointState', 'std_msgs/msg/Header',
                                               'builtin_interfaces/msg/Time'))
@@ -215,7 +215,7 @@ def test_summary_lists_every_controller_that_ran_and_the_plot_marks_the_switch(t
 def test_the_plot_marks_each_controller_start_and_names_it():
     from matplotlib.figure import Figure
 
-    from cartpole_bringup.plots import _mark_controllers, run_title
+    from cartpole_bringup.analysis.plots import _mark_controllers, run_title
     spans = [{'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0, 'end_s': 5.0},
              {'kind': 'stabilizer', 'name': 'lqg', 'start_s': 5.0, 'end_s': 12.0},
              {'kind': 'stabilizer', 'name': 'smc', 'start_s': 12.0, 'end_s': 20.0}]
@@ -238,7 +238,7 @@ def test_fault_and_longest_cycle_gap_come_from_the_controller_status(tmp_path):
 
 def test_the_summary_ends_where_the_run_ended_and_keeps_its_fault(tmp_path):
     """cartpole run writes run_end_ns and fault into the bag: analyze reports the same."""
-    from cartpole_bringup.bag import bag_custom_data, update_custom_data
+    from cartpole_bringup.bags.writer import bag_custom_data, update_custom_data
 
     path = tmp_path / 'cut'
     bag_synth.write_run(path, custom_data={'lockstep': 'true', 'x_ref': repr(bag_synth.X_REF)})
@@ -258,7 +258,7 @@ def test_the_summary_ends_where_the_run_ended_and_keeps_its_fault(tmp_path):
 def test_diagnostic_parser_matches_the_generic_deserialiser(little_endian):
     from rosbags.typesys import Stores, get_typestore
 
-    from cartpole_bringup.cdr_parse import parse_diagnostic_array
+    from cartpole_bringup.bags.cdr_parse import parse_diagnostic_array
     ts = get_typestore(Stores.ROS2_JAZZY)
     raw = bag_synth.diagnostic(ts, 1.25, 'controller_manager',
                                {'mode': 'swingup', 'event': 'fault:stale state', 'é': 'ü'}, 'x')
@@ -272,7 +272,7 @@ def test_diagnostic_parser_matches_the_generic_deserialiser(little_endian):
 
 
 def test_offline_spans_follow_modes_and_switch_events():
-    from cartpole_bringup.timeline import spans_from_modes
+    from cartpole_bringup.analysis.timeline import spans_from_modes
     t = [0.0, 0.005, 0.01, 0.015, 0.02, 0.025]
     modes = ['swingup', 'swingup', 'stabilizing', 'stabilizing', 'fault', 'fault']
     events = [(0.0, 'switch:stabilizer=smc'), (0.01, 'catch'), (0.02, 'fault:rail guard')]
@@ -282,7 +282,7 @@ def test_offline_spans_follow_modes_and_switch_events():
 
 
 def test_force_keys_are_null_without_commands_and_a_length_mismatch_is_refused():
-    from cartpole_bringup import metrics
+    from cartpole_bringup.analysis import metrics
     t = np.arange(0.0, 20.0, 0.01)
     common = dict(x_ref=0.0, catch_time=1.0, end_stop_contact=False)
     s = metrics.summarize(t, 0.0 * t, 0.0 * t, **common)

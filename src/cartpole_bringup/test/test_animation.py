@@ -17,8 +17,8 @@ import pytest
 from PIL import Image
 
 from cartpole_bringup import cli
-from cartpole_bringup.animation import Viewport, frame_times, gif_durations
-from cartpole_bringup.viewer_scene import MODE_COLOURS
+from cartpole_bringup.analysis.animation import Viewport, frame_times, gif_durations
+from cartpole_bringup.viewer.scene import MODE_COLOURS
 from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
 

@@ -16,9 +16,9 @@ import pytest
 import yaml
 
 from cartpole_bringup import cli
-from cartpole_bringup.bag import BagWriter, bag_custom_data
-from cartpole_bringup.bag_repair import needs_repair, repair_bag
-from cartpole_bringup.bag_storage import FLUSH_PERIOD
+from cartpole_bringup.bags.writer import BagWriter, bag_custom_data
+from cartpole_bringup.bags.repair import needs_repair, repair_bag
+from cartpole_bringup.bags.storage import FLUSH_PERIOD
 
 _spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).with_name('bag_synth.py'))
 bag_synth = importlib.util.module_from_spec(_spec)
@@ -124,7 +124,7 @@ def test_cartpole_bag_repair_and_info_and_analyze(tmp_path, capsys):
 
 def test_the_writer_finishes_a_chunk_once_it_is_a_flush_period_old(tmp_path):
     """Wall-clock rule: nothing of the open chunk is in the file before the period, all after."""
-    from cartpole_bringup.bag_storage import McapBagFile, TopicInfo
+    from cartpole_bringup.bags.storage import McapBagFile, TopicInfo
     now = [0.0]
     path = tmp_path / 'x.mcap'
     f = McapBagFile(path, flush_period=0.5, clock=lambda: now[0])

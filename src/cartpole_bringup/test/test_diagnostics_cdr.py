@@ -2,7 +2,7 @@
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from cartpole_bringup.diagnostics_cdr import parse_diagnostic_array
+from cartpole_bringup.viewer.diagnostics_cdr import parse_diagnostic_array
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 

@@ -1,7 +1,7 @@
 """Every executable of the workspace pins the numerical libraries to one thread before numpy
 loads (cartpole_sim.realtime.pin_numerical_threads, run by each package's __init__): a BLAS
 thread pool competing with the loop on a small machine turned a 0.6 ms Riccati solve into
-16 ms (issue 12)."""
+16 ms (docs/benchmarks.md, loop latency)."""
 import os
 import subprocess
 import sys

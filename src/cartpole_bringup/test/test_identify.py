@@ -239,7 +239,7 @@ def write_bag(path, rec, *, t_origin: float = 1.7e9, topics=('/joint_states',
     """
     from rosbags.typesys import Stores, get_typestore
 
-    from cartpole_bringup.bag import BagWriter
+    from cartpole_bringup.bags.writer import BagWriter
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     js = ts.types['sensor_msgs/msg/JointState']

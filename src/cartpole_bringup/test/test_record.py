@@ -74,8 +74,8 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.bag import bag_custom_data
-    from cartpole_bringup.record import RecorderNode
+    from cartpole_bringup.bags.writer import bag_custom_data
+    from cartpole_bringup.graph.recorder import RecorderNode
 
     bag = tmp_path / 'bag'
     recorder = RecorderNode(context=ros_context, parameter_overrides=[
@@ -128,7 +128,7 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
 def test_recorder_refuses_an_existing_bag_and_unknown_topics(ros_context, tmp_path):
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.record import RecorderNode
+    from cartpole_bringup.graph.recorder import RecorderNode
 
     (tmp_path / 'exists').mkdir()
     with pytest.raises(FileExistsError, match='already exists'):

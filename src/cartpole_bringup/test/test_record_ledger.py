@@ -1,7 +1,7 @@
-"""The recorder's ledger (cartpole_bringup.record_ledger): lockstep progress, repeats, misses."""
+"""The recorder's ledger (cartpole_bringup.graph.record_ledger): lockstep progress, repeats, misses."""
 from __future__ import annotations
 
-from cartpole_bringup.record_ledger import (CLOCK, FORCE, JOINT_STATES, STATE, STATUS,
+from cartpole_bringup.graph.record_ledger import (CLOCK, FORCE, JOINT_STATES, STATE, STATUS,
                                             TRUE_STATE, RecordLedger)
 
 TS = 5_000_000

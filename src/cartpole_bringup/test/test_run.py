@@ -48,7 +48,7 @@ def test_disturbance_options_become_sim_parameters():
 
 
 def test_graph_spec_and_process_command_lines(tmp_path):
-    from cartpole_bringup.graph import GraphSpec, command_line, ros_value_text
+    from cartpole_bringup.graph.graph import GraphSpec, command_line, ros_value_text
 
     spec = GraphSpec(plant='sim', lockstep=True, processes=True, record=tmp_path / 'bag',
                      params_file=tmp_path / 'p.yaml', custom_data={'x_ref': '0.3845'},
@@ -158,7 +158,7 @@ def test_lockstep_start_recovers_when_the_first_command_is_lost(ros_context):
     """
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.graph import Graph, GraphSpec
+    from cartpole_bringup.graph.graph import Graph, GraphSpec
     from cartpole_control.manager_node import ControllerManagerNode
     from cartpole_estimation.ekf_node import EkfNode
     from cartpole_sim.sim_node import SimNode

@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cartpole_bringup.closed_loop import run_closed_loop
-from cartpole_bringup.viewer import (MAX_RATE_HZ, TOPICS, Decimator, LiveView, ViewerServer,
+from cartpole_bringup.offline.closed_loop import run_closed_loop
+from cartpole_bringup.viewer.server import (MAX_RATE_HZ, TOPICS, Decimator, LiveView, ViewerServer,
                                      parse_address)
-from cartpole_bringup.viewer_client import ViewerClient
-from cartpole_bringup.viewer_layout import foxglove_layout, layout_text
-from cartpole_bringup.viewer_offline import RealTimePlayer
-from cartpole_bringup.viewer_scene import MODE_COLOURS, NO_MODE_COLOUR
+from cartpole_bringup.viewer.client import ViewerClient
+from cartpole_bringup.viewer.layout import foxglove_layout, layout_text
+from cartpole_bringup.viewer.offline import RealTimePlayer
+from cartpole_bringup.viewer.scene import MODE_COLOURS, NO_MODE_COLOUR
 from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
 
@@ -194,7 +194,7 @@ def test_real_time_player_paces_by_simulated_time(served_run):
 
 
 def test_layout_file_is_the_generated_one_and_uses_advertised_fields():
-    from cartpole_bringup.viewer import CONTROL_SCHEMA, STATE_SCHEMA
+    from cartpole_bringup.viewer.server import CONTROL_SCHEMA, STATE_SCHEMA
     assert (REPO / 'docs' / 'foxglove_layout.json').read_text() == layout_text()
     layout = foxglove_layout()
     fields = {TOPICS['state']: set(STATE_SCHEMA['properties']),

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from cartpole_bringup.bag import cdr_stamp_ns
-from cartpole_bringup.viewer import MAX_RATE_HZ
-from cartpole_bringup.viewer_feed import (ESTIMATE, STATUS, TRUTH, FeedReceiver, FeedSender,
+from cartpole_bringup.bags.writer import cdr_stamp_ns
+from cartpole_bringup.viewer.server import MAX_RATE_HZ
+from cartpole_bringup.viewer.feed import (ESTIMATE, STATUS, TRUTH, FeedReceiver, FeedSender,
                                           FeedTap, status_has_event)
 
 TS = get_typestore(Stores.ROS2_JAZZY)

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_bringup.viewer import TOPICS
-from cartpole_bringup.viewer_client import ViewerClient
+from cartpole_bringup.viewer.server import TOPICS
+from cartpole_bringup.viewer.client import ViewerClient
 
 _spec = importlib.util.spec_from_file_location('foxglove_support',
                                                Path(__file__).with_name('foxglove_support.py'))
@@ -29,7 +29,7 @@ def test_standalone_viewer_draws_the_topics_it_subscribes(ros_context, spin_unti
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
-    from cartpole_bringup.viewer_node import ViewerNode
+    from cartpole_bringup.viewer.node import ViewerNode
 
     viewer = ViewerNode(context=ros_context, parameter_overrides=[Parameter('port', value=0)])
     graph = Node('controller_manager', context=ros_context)  # its x_ref: parameter events

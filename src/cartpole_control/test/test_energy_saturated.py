@@ -80,7 +80,7 @@ def test_plugin_is_registered_and_refuses_bad_gains():
 @pytest.mark.slow
 @pytest.mark.parametrize('stabilizer', ['pid', 'lqg', 'smc'])
 def test_offline_from_the_left_stop_catches_within_2x_the_bound(stabilizer):
-    from cartpole_bringup.closed_loop import run_closed_loop
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
     run = run_closed_loop(duration=14.0, manager_parameters={
         'swingup': 'energy_saturated', 'stabilizer': stabilizer})
     s = run.summary

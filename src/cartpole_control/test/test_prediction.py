@@ -40,7 +40,7 @@ def test_the_prediction_follows_the_model_over_the_delay(state, force):
 
 @pytest.mark.slow
 def test_the_prediction_saves_lqg_under_20_ms_of_delay():
-    from cartpole_bringup.closed_loop import run_closed_loop
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Scenario
 
     scenario = Scenario(noise=True, seed=0, delay=0.020, jitter=0.004)

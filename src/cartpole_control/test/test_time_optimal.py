@@ -189,7 +189,7 @@ def test_registered():
 @pytest.mark.slow
 @pytest.mark.parametrize('stabilizer', ['pid', 'lqg', 'smc'])
 def test_offline_from_the_left_stop_catches_within_1_5x_the_bound(cache_dir, stabilizer):
-    from cartpole_bringup.closed_loop import run_closed_loop
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
     run = run_closed_loop(duration=20.0, manager_parameters={  # 20 s: the LQI settles in ~4 s
         'swingup': 'time_optimal', 'stabilizer': stabilizer,
         'time_optimal.cache_dir': str(cache_dir)})
@@ -207,7 +207,7 @@ def test_fall_back_engages_for_a_start_far_from_the_plan_and_still_catches(cache
     at 0.5 m moving right at 0.5 m/s with the pendulum 29 deg off and falling at 3 rad/s, and
     with the midpoint EKF the rail guard trips after it; from 0.35 m with either filter.
     20 s: the LQI takes about 4 s after a catch to bring the cart within 2 cm.)"""
-    from cartpole_bringup.closed_loop import run_closed_loop
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Scenario
     params = {'swingup': 'time_optimal', 'stabilizer': 'lqg',
               'time_optimal.cache_dir': str(cache_dir), 'time_optimal.plan_on_activation': False}

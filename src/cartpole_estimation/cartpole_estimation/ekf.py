@@ -99,6 +99,11 @@ class ExtendedKalmanFilter:
     the angle as the encoder reads it and b its offset
     (:mod:`cartpole_estimation.covariance`); the estimates handed out carry
     ``theta = m + b``, the pendulum's own angle.
+
+    Why one class of about 430 lines: the filter is one state (estimate, covariance,
+    offset prior, the last accepted sample) that prediction (5.6), correction (5.7)
+    and the refusal of implausible samples all read and write; the covariance algebra
+    is :mod:`cartpole_estimation.covariance`, the configuration :mod:`~cartpole_estimation.ekf_config`.
     """
 
     params: CartPoleParameters = field(default_factory=CartPoleParameters)

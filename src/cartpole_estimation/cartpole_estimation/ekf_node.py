@@ -65,6 +65,11 @@ class EkfNode(Node):
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``,
     ``parameter_overrides``, ``namespace``, ...).
+
+    Why one class of about 330 lines: a node adapter, most of it the declaration of
+    its parameters and their validation (``__init__``) and the three callbacks that
+    share the pending sample and the held force; the filter itself is
+    :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`.
     """
 
     def __init__(self, **kwargs) -> None:

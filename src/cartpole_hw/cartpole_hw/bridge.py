@@ -145,7 +145,13 @@ STREAM_OFF = jp.encode(jp.Stream(False))
 
 
 class BridgeCore:
-    """Host-side protocol state machine (see the module docstring)."""
+    """Host-side protocol state machine (see the module docstring).
+
+    Why one class of about 360 lines: the host's protocol state machine
+    (disconnected, connected, armed, fault) whose transitions (connect, arm, command,
+    sample, device error, watchdog tick) all read and change the same state; the
+    codec is :mod:`cartpole_hw.protocol`, the device clock :mod:`cartpole_hw.device_clock`.
+    """
 
     def __init__(self, config: BridgeConfig | None = None) -> None:
         self.config = config or BridgeConfig()

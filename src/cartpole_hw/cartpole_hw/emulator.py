@@ -91,7 +91,12 @@ class FaultConfig:
 
 
 class Emulator:
-    """The emulated rig on a pty. ``open()``, then ``run()`` (or ``start()`` a thread)."""
+    """The emulated rig on a pty. ``open()``, then ``run()`` (or ``start()`` a thread).
+
+    Why one class of about 280 lines: the emulated device's pty, outbox, schedule of
+    faults and sample clock are one state that ``run`` advances; the firmware's own
+    state machine is :class:`cartpole_hw.device.DeviceLogic`, the plant :class:`cartpole_sim.plant.Plant`.
+    """
 
     def __init__(self, scenario: Scenario | None = None, params: CartPoleParameters | None = None,
                  link: str | None = None, name: str = 'cartpole_emulator',

@@ -57,7 +57,12 @@ _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_tra
 
 
 class HwBridgeNode(Node):
-    """Serial bridge to the Arduino Due I/O firmware (node name ``hw_bridge``)."""
+    """Serial bridge to the Arduino Due I/O firmware (node name ``hw_bridge``).
+
+    Why one class of about 230 lines: a node adapter whose ``__init__`` declares the
+    bridge's parameters, topics and services; everything it decides is
+    :class:`cartpole_hw.bridge.BridgeCore`.
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('hw_bridge', **kwargs)
@@ -75,15 +80,11 @@ class HwBridgeNode(Node):
                         '/tmp/cartpole-emu); re-opened after a disconnect', **ro))
         self.declare_parameter('baud', 115200, ParameterDescriptor(
             description='baud rate (8N1)', integer_range=ir(1200, 4_000_000), **ro))
-        self.declare_parameter('cart_sign', cal.cart_sign, ParameterDescriptor(
-            description='+1 if a growing cart count means the cart moves right, else -1',
-            integer_range=ir(-1, 1, 2), **ro))
-        self.declare_parameter('pendulum_sign', cal.pendulum_sign, ParameterDescriptor(
-            description='+1 if a growing pendulum count means theta grows, else -1',
-            integer_range=ir(-1, 1, 2), **ro))
-        self.declare_parameter('force_sign', cal.force_sign, ParameterDescriptor(
-            description='+1 if a positive setpoint pushes the cart right, else -1',
-            integer_range=ir(-1, 1, 2), **ro))
+        for name, meaning in (('cart_sign', 'a growing cart count means the cart moves right'),
+                              ('pendulum_sign', 'a growing pendulum count means theta grows'),
+                              ('force_sign', 'a positive setpoint pushes the cart right')):
+            self.declare_parameter(name, getattr(cal, name), ParameterDescriptor(
+                description=f'+1 if {meaning}, else -1', integer_range=ir(-1, 1, 2), **ro))
         self.declare_parameter('cart_ticks_over_travel', cal.cart_ticks_over_travel,
                                ParameterDescriptor(description='cart ticks over the travel (2.4)',
                                                    floating_point_range=fp(1, 1e6), **ro))

@@ -40,7 +40,7 @@ NODE_OF_CLASS: dict[str, str] = {
     'cartpole_estimation.ekf_node.EkfNode': 'ekf',
     'cartpole_control.manager_node.ControllerManagerNode': 'controller_manager',
     'cartpole_hw.hw_node.HwBridgeNode': 'hw_bridge',
-    'cartpole_bringup.record.RecorderNode': 'recorder',
+    'cartpole_bringup.graph.recorder.RecorderNode': 'recorder',
 }
 """Node class (module.Class) -> the node name it creates (docs/architecture.md)."""
 ALLOW_PARAMETER = 'allow_duplicates'

@@ -2,8 +2,8 @@
 
 One geometry behind every picture of the rig: the URDF
 (``share/cartpole_sim/urdf/cartpole.urdf``), the live Foxglove scene
-(:mod:`cartpole_bringup.viewer_scene`) and the animations made from bags
-(:mod:`cartpole_bringup.animation`).
+(:mod:`cartpole_bringup.viewer.scene`) and the animations made from bags
+(:mod:`cartpole_bringup.analysis.animation`).
 
 The rail frame (``rail``): origin at the pendulum joint when the cart is at
 the left end stop (x = 0), x along the rail to the right, z up, y from the

@@ -79,6 +79,10 @@ class Plant(DisturbedHold):
 
     ``params`` are the nominal parameters; the scenario's tip mass and
     friction scale make the true ones (:attr:`true_params`).
+
+    Why one class of about 250 lines: the integration (RK4, the end-stop contact),
+    the held and delayed command and the encoder read-out share one true state; the
+    scenario's random streams are :mod:`cartpole_sim.disturbance`.
     """
 
     params: CartPoleParameters = field(default_factory=CartPoleParameters)

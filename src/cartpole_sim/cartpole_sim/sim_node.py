@@ -24,7 +24,7 @@ With a recorder in the loop (``recorder_window`` > 0; ``cartpole run
 --lockstep --record`` sets it) the node also does not step past sample k
 until the recorder reports (``/cartpole/recorder/progress``, std_msgs/Header)
 that it holds every sample topic up to k - ``recorder_window``: so the bag is
-complete however slow the recorder is (see ``cartpole_bringup.record_ledger``).
+complete however slow the recorder is (see ``cartpole_bringup.graph.record_ledger``).
 A recorder silent for ``lockstep_timeout`` (at sample 0:
 :data:`STARTUP_RECORDER_WAIT`) is not waited for any longer.
 
@@ -95,7 +95,13 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
 
 
 class SimNode(Node):
-    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring."""
+    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring.
+
+    Why one class of about 360 lines: a node adapter, most of it the declaration of
+    the scenario's parameters and their validation, and the lockstep handshake with
+    the recorder, which shares the node's publishers and timers; the sample clock and
+    watchdog are :mod:`cartpole_sim.sim_runner`, the plant :class:`cartpole_sim.plant.Plant`.
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('sim', **kwargs)

@@ -63,7 +63,7 @@ SIMULATOR_MODULES = ('cartpole_sim.plant', 'cartpole_sim.sim_node', 'cartpole_si
 
 @pytest.mark.parametrize('node_module', ['cartpole_estimation.ekf_node',
                                          'cartpole_control.manager_node',
-                                         'cartpole_hw.hw_node', 'cartpole_bringup.record'])
+                                         'cartpole_hw.hw_node', 'cartpole_bringup.graph.recorder'])
 def test_the_nodes_above_the_simulator_load_none_of_its_code(node_module):
     # The runner and the shared QoS come from cartpole_sim.node_runner, the model from
     # cartpole_sim.model; neither pulls in the plant or the simulator node.

@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from cartpole_sim.child_process import interrupt
+
 pytestmark = pytest.mark.ros
 
 TS_NS = 5_000_000
@@ -135,13 +137,7 @@ def test_installed_executable_publishes_joint_states_in_real_time(ros_context, s
         code = proc.wait(timeout=15.0)
         assert code in (0, -signal.SIGINT, 130), proc.stdout.read().decode(errors='replace')
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        interrupt(proc, 5.0, drain=False)
         proc.stdout.close()
         executor.remove_node(probe.node)
         probe.node.destroy_node()
@@ -426,7 +422,7 @@ def test_lockstep_skips_lost_samples_without_waiting_for_their_command(graph, sp
 
 
 def test_lockstep_with_a_recorder_waits_for_its_progress(graph, spin_until):
-    """recorder_window (issue 12): sample k + 1 only once the recorder holds sample k - window."""
+    """recorder_window (docs/architecture.md, complete bags): sample k + 1 only once the recorder holds sample k - window."""
     from builtin_interfaces.msg import Time
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Header

@@ -38,8 +38,8 @@ def write_animation(analysis, args: argparse.Namespace) -> dict:
     """``--animate``: the animation of one analysed bag; returns what was written."""
     from cartpole_sim.geometry import RigGeometry
 
-    from ..animation import series_from_analysis
-    from ..animation import write_animation as render
+    from ..analysis.animation import series_from_analysis
+    from ..analysis.animation import write_animation as render
 
     info = render(series_from_analysis(analysis), args.animate,
                   RigGeometry.from_parameters(nominal_parameters(args)), fps=args.fps,
@@ -51,7 +51,7 @@ def write_animation(analysis, args: argparse.Namespace) -> dict:
 
 def write_figures(analyses, directory: Path) -> list[Path]:
     """Per-run figures and, for several runs, the overlay; returns the paths."""
-    from ..plots import plot_overlay, run_title, write_plots
+    from ..analysis.plots import plot_overlay, run_title, write_plots
 
     paths: list[Path] = []
     stems: set[str] = set()
@@ -69,7 +69,7 @@ def write_figures(analyses, directory: Path) -> list[Path]:
 
 def controllers_that_ran(analysis) -> dict[str, str]:
     """``swingup`` / ``stabilizer``: every one that ran, in order (``lqg -> smc``)."""
-    from ..timeline import names_that_ran
+    from ..analysis.timeline import names_that_ran
     spans = analysis.summary.get('controllers') or []
     out = {}
     for kind in ('swingup', 'stabilizer'):
@@ -80,7 +80,7 @@ def controllers_that_ran(analysis) -> dict[str, str]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ..analyze import analyze_bag, comparison_table
+    from ..analysis.analyze import analyze_bag, comparison_table
 
     params = nominal_parameters(args)
     if args.animate is not None and len(args.bags) != 1:

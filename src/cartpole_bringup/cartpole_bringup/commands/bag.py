@@ -2,7 +2,7 @@
 
 ``repair`` is the equivalent of ``ros2 bag reindex`` for the MCAP bags of
 ``cartpole run --record`` and the recorder node
-(:mod:`cartpole_bringup.bag_repair`); ``info`` prints what ``ros2 bag info``
+(:mod:`cartpole_bringup.bags.repair`); ``info`` prints what ``ros2 bag info``
 prints (for installs without the ros2 CLI). No ROS needed.
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _repair(args: argparse.Namespace) -> int:
-    from ..bag_repair import RepairError, repair_bag
+    from ..bags.repair import RepairError, repair_bag
 
     code = 0
     for bag in args.bags:
@@ -56,7 +56,7 @@ def bag_info(bag: Path) -> dict:
     """The facts of ``metadata.yaml`` (and whether the bag needs ``cartpole bag repair``)."""
     import yaml
 
-    from ..bag_repair import needs_repair
+    from ..bags.repair import needs_repair
 
     meta = bag / 'metadata.yaml'
     if not meta.is_file():

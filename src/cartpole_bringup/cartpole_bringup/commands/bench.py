@@ -115,7 +115,7 @@ def _progress(done: int, total: int) -> None:
 def bench_control(args: argparse.Namespace, argv: list[str]) -> dict:
     from cartpole_control.registry import load_controllers
 
-    from .. import bench_control as bc
+    from ..bench import control as bc
 
     swingups = args.swingups or list(load_controllers('swingup'))
     stabilizers = args.stabilizers or list(load_controllers('stabilizer'))
@@ -144,7 +144,7 @@ def _pairs(args: argparse.Namespace) -> list[tuple[str, str]]:
     from cartpole_control.manager import DEFAULT_CONTROLLERS
     from cartpole_control.registry import load_controllers
 
-    from ..bench_robustness import default_pairs
+    from ..bench.robustness import default_pairs
 
     swingups, stabilizers = load_controllers('swingup'), load_controllers('stabilizer')
     if not args.pairs:
@@ -164,9 +164,9 @@ def bench_robustness(args: argparse.Namespace, argv: list[str]) -> dict:
     import dataclasses
     import time
 
-    from .. import bench_control as bc
-    from .. import bench_robustness as br
-    from .. import robustness_report as rr
+    from ..bench import control as bc
+    from ..bench import robustness as br
+    from ..bench import robustness_report as rr
 
     if args.seeds < 1 or not args.duration > 0:
         raise SystemExit('--seeds must be >= 1 and --duration > 0')
@@ -228,7 +228,7 @@ def _load() -> str:
 def bench_offline(args: argparse.Namespace, argv: list[str]) -> dict:
     import time
 
-    from ..closed_loop import run_closed_loop
+    from ..offline.closed_loop import run_closed_loop
 
     best = None
     for _ in range(max(1, args.repeat)):
@@ -259,7 +259,7 @@ def bench_offline(args: argparse.Namespace, argv: list[str]) -> dict:
 
 
 def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
-    from ..bench_loop import run_loop_benchmark
+    from ..bench.loop import run_loop_benchmark
 
     out = _out_dir(args, 'loop')
     if getattr(args, 'view', 0) < 0:

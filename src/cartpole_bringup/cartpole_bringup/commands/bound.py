@@ -1,4 +1,4 @@
-"""`cartpole bound`: the minimum-time swing-up bounds of issue #7 for the parameters in use.
+"""`cartpole bound`: the minimum-time swing-up bounds for the parameters in use.
 
 Solves, by direct multiple shooting with free final time (CasADi + IPOPT,
 :mod:`cartpole_control.trajectory_optimization`), the fastest swing-up with

@@ -50,7 +50,7 @@ def ekf_config_from_args(args: argparse.Namespace):
 
 
 def main(args: argparse.Namespace) -> int:
-    from ..closed_loop import run_closed_loop
+    from ..offline.closed_loop import run_closed_loop
 
     if not args.duration > 0:
         raise SystemExit('--duration must be > 0')
@@ -77,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
             server.stop()
     options.print_summary(run.summary, args.json)
     if args.plot:
-        from ..plots import plot_offline_run
+        from ..analysis.plots import plot_offline_run
         plot_offline_run(run, args.plot)
         if not args.json:
             print(f'plot: {args.plot}')
@@ -88,8 +88,8 @@ def _start_view(args: argparse.Namespace, nominal):
     """The viewer's server and the loop's real-time observer (waits for a client unless told)."""
     from cartpole_sim.geometry import RigGeometry
 
-    from ..viewer import LiveView, ViewerServer, parse_address
-    from ..viewer_offline import RealTimePlayer
+    from ..viewer.server import LiveView, ViewerServer, parse_address
+    from ..viewer.offline import RealTimePlayer
 
     try:
         host, port = parse_address(args.view)

@@ -1,6 +1,6 @@
 """``cartpole run --sim | --hw --port DEV``: the node graph, optionally recorded, then its summary.
 
-See the README, "Running the graph, recording, analysing". The graph itself is :mod:`cartpole_bringup.graph`.
+See the README, "Running the graph, recording, analysing". The graph itself is :mod:`cartpole_bringup.graph.graph`.
 """
 from __future__ import annotations
 
@@ -150,7 +150,7 @@ def _validate(args: argparse.Namespace) -> str | None:
     if args.plant_params is not None and not args.plant_params.is_file():
         return f'--plant-params {args.plant_params}: no such file'
     if args.view is not None:
-        from ..viewer import parse_address
+        from ..viewer.server import parse_address
         try:
             parse_address(args.view)
         except ValueError as error:
@@ -202,8 +202,8 @@ def main(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from ..analyze import JOINTS, TRUE_STATE
-    from ..graph import DuplicateNodeError, Graph, GraphError, GraphSpec
+    from ..analysis.analyze import JOINTS, TRUE_STATE
+    from ..graph.graph import DuplicateNodeError, Graph, GraphError, GraphSpec
 
     names = controller_names(args)
     nominal = options.nominal_parameters(args)
@@ -233,7 +233,7 @@ def main(args: argparse.Namespace) -> int:
 
     viewer = None
     if args.view is not None:
-        from ..viewer_process import start_viewer
+        from ..viewer.process import start_viewer
         try:
             viewer = start_viewer(args.view, plant_params=args.plant_params,
                                   log_level=args.log_level)
@@ -318,9 +318,9 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
     ``cartpole analyze`` of the bag reports the same. (None, None) when no
     summary can be made (the reason is printed).
     """
-    from ..analyze import analyze_bag
-    from ..bag import update_custom_data
-    from ..bag_repair import RepairError, needs_repair, repair_bag
+    from ..analysis.analyze import analyze_bag
+    from ..bags.writer import update_custom_data
+    from ..bags.repair import RepairError, needs_repair, repair_bag
 
     try:
         if bag is None:
@@ -340,8 +340,8 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
 def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
            run_dir: Path | None, bag: Path | None, elapsed: float, fault: str | None) -> int:
     """Plots, ``summary.json``, the printed summary; the exit code (1 after a fault)."""
-    from ..plots import run_title, write_plots
-    from ..timeline import names_that_ran
+    from ..analysis.plots import run_title, write_plots
+    from ..analysis.timeline import names_that_ran
 
     spans = (summary or {}).get('controllers') or []
     ran = {kind: ' -> '.join(names_that_ran(spans, kind)) or names[kind]

@@ -102,7 +102,7 @@ def load_recording(path: str | Path, *, t_start: float | None = None,
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from ..analyze import parse_joint_state
+    from ..analysis.analyze import parse_joint_state
 
     path = Path(path)
     label = path.name if path.name != 'bag' else path.parent.name

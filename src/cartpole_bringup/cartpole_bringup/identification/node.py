@@ -15,7 +15,6 @@ force once and stops publishing; the hw bridge's watchdog then disarms
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -24,6 +23,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+
+from cartpole_sim.spin import spin_until as spin_executor_until
 
 from .pulse_player import PulsePlayer
 
@@ -80,7 +81,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     theta)`` (e.g. a rehearsal on the model from that state) may refuse with
     reasons; arm the bridge (``/hw_bridge/arm``) if asked; answer samples
     until the plan is done or ``timeout`` wall seconds passed. ``record``
-    adds a :class:`~cartpole_bringup.record.RecorderNode` writing that bag.
+    adds a :class:`~cartpole_bringup.graph.recorder.RecorderNode` writing that bag.
     ``extra_nodes`` (e.g. a simulator) are spun in the same executor.
 
     Returns a summary dict; raises RuntimeError with the reason on failure
@@ -93,7 +94,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     recorder = None
     try:
         if record is not None:
-            from ..record import RecorderNode
+            from ..graph.recorder import RecorderNode
             recorder = RecorderNode(context=context, parameter_overrides=[
                 Parameter('output', value=str(record))])
             nodes.append(recorder)
@@ -101,13 +102,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
             executor.add_node(n)
 
         def spin_until(predicate, seconds: float) -> bool:
-            deadline = time.monotonic() + seconds
-            while not predicate():
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                executor.spin_once(timeout_sec=min(0.1, remaining))
-            return True
+            return spin_executor_until(executor, predicate, seconds)
 
         if not spin_until(lambda: node.first_sample is not None, sample_wait):
             raise RuntimeError(f'no /joint_states sample within {sample_wait:g} s: is the hw '

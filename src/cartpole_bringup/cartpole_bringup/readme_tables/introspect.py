@@ -83,9 +83,9 @@ NODES: tuple[NodeSource, ...] = (
                'ControllerManagerNode'),
     NodeSource('cartpole_hw', 'hw_bridge', 'cartpole_hw.hw_node', 'HwBridgeNode',
                lambda tmp: {'port': str(tmp / 'no-such-port')}),
-    NodeSource('cartpole_bringup', 'recorder', 'cartpole_bringup.record', 'RecorderNode',
+    NodeSource('cartpole_bringup', 'recorder', 'cartpole_bringup.graph.recorder', 'RecorderNode',
                lambda tmp: {'output': str(tmp / 'bag')}, variants=({'lockstep': True},)),
-    NodeSource('cartpole_bringup', 'viewer', 'cartpole_bringup.viewer_node', 'ViewerNode',
+    NodeSource('cartpole_bringup', 'viewer', 'cartpole_bringup.viewer.node', 'ViewerNode',
                lambda tmp: {'port': 0}),
 )
 """Every installed executable that is a ROS node (``cartpole`` and ``emulator`` are not)."""

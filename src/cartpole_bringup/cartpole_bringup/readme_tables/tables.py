@@ -47,5 +47,5 @@ def generate(nodes: dict[str, NodeInfo], plugins: dict[str, dict[str, type]],
 
 def generate_all() -> dict[str, str]:
     """:func:`generate` for the installed nodes, plugins and the recorder's topics."""
-    from ..bag import TOPICS
+    from ..bags.writer import TOPICS
     return generate(describe_nodes(), load_plugins(), list(TOPICS))

@@ -1,0 +1,1 @@
+"""The node graph of ``cartpole run``: its spec, its processes, the run monitor and the recorder node."""

@@ -1,0 +1,238 @@
+"""The recorder node ``recorder``: every topic of the graph into a rosbag2 bag.
+
+Subscribes the topics of docs/architecture.md (:data:`cartpole_bringup.bags.writer.TOPICS`)
+with ``raw=True``, so rclpy hands over the serialized CDR bytes, and writes
+them unchanged into an MCAP bag (metadata version 9, readable by
+``ros2 bag info``, Foxglove and ``rosbags``). Log time = the message's own
+stamp (simulated time in lockstep); see :mod:`cartpole_bringup.bags.writer`.
+
+Run alone next to a graph started otherwise::
+
+    ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag
+
+The bag is closed (``metadata.yaml`` written) when the node is destroyed,
+on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
+chunks at most ``flush_period`` old (also while no message arrives: a
+thread writes an idle chunk on the wall clock), so a recorder killed with SIGKILL loses at most
+that much; ``cartpole bag repair BAG`` makes the rest readable.
+
+Complete bags (:mod:`cartpole_bringup.graph.record_ledger`): with ``lockstep:=true``
+the recorder publishes on ``/cartpole/recorder/progress`` (std_msgs/Header)
+the stamp up to which it holds every sample topic, and the simulator does not
+step more than ``recorder_window`` samples ahead of it; a sample re-published
+while the graph starts is written once. In real time the messages it missed
+are counted by stamp and stored as ``recorder_missed`` in the bag's
+custom_data when it closes.
+"""
+from __future__ import annotations
+
+import collections
+import datetime as _dt
+import threading
+import time
+from pathlib import Path
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Header
+
+from cartpole_sim.node_runner import run_node
+
+from ..bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from .record_ledger import RecordLedger
+
+PROGRESS_TOPIC = '/cartpole/recorder/progress'
+
+
+WRITE_PERIOD = 0.01
+"""Wall seconds between two looks of the writer thread at the queue."""
+
+
+def _import_type(name: str):
+    """The rclpy message class of ``pkg/msg/Type``."""
+    import importlib
+    package, _, type_name = name.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), type_name)
+
+
+def default_output() -> str:
+    """``recording_<UTC timestamp>`` in the working directory."""
+    return 'recording_' + _dt.datetime.now(_dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+
+
+def parse_custom_data(items) -> dict[str, str]:
+    """``['key=value', ...]`` -> dict; ValueError on an item without '='."""
+    out = {}
+    for item in items:
+        key, sep, value = str(item).partition('=')
+        if not sep or not key:
+            raise ValueError(f"custom_data item {item!r} is not 'key=value'")
+        out[key] = value
+    return out
+
+
+class RecorderNode(Node):
+    """Records the graph's topics into an MCAP bag (node name ``recorder``)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('recorder', **kwargs)
+        self.declare_parameter('output', '', ParameterDescriptor(
+            description="Bag directory to create (must not exist); '' = "
+                        'recording_<UTC timestamp> in the working directory.', read_only=True))
+        self.declare_parameter('topics', list(TOPICS), ParameterDescriptor(
+            description='Topics to record; each must be one of the graph topics of '
+                        'docs/architecture.md (an unknown name is refused).', read_only=True))
+        self.declare_parameter('custom_data', [''], ParameterDescriptor(
+            description="'key=value' strings stored in the bag's custom_data "
+                        '(x_ref, controllers, scenario).', read_only=True))
+        self.declare_parameter('log_time', 'stamp', ParameterDescriptor(
+            description="Log time of each message: 'stamp' (its header stamp; simulated time "
+                        "in lockstep) or 'receive' (the node clock when it arrived).",
+            read_only=True))
+        self.declare_parameter('flush_period', FLUSH_PERIOD, ParameterDescriptor(
+            description='Longest time [s] a received message waits in memory before it is '
+                        'written to the file (what a SIGKILL can lose).', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
+        self.declare_parameter('lockstep', False, ParameterDescriptor(
+            description='Lockstep: publish the progress the simulator waits for on '
+                        f'{PROGRESS_TOPIC} and write a re-published sample once.',
+            read_only=True))
+        self.declare_parameter('queue_depth', 200, ParameterDescriptor(
+            description='Subscription queue depth (reliable QoS).', read_only=True,
+            integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
+
+        topics = [str(t) for t in self.get_parameter('topics').value]
+        unknown = sorted(set(topics) - set(TOPICS))
+        if unknown:
+            raise ValueError(f'cannot record {unknown}: known topics are {sorted(TOPICS)}')
+        custom = parse_custom_data(c for c in self.get_parameter('custom_data').value if c)
+        output = self.get_parameter('output').value or default_output()
+        flush_period = float(self.get_parameter('flush_period').value)
+        self._bag = BagWriter(Path(output), {t: TOPICS[t] for t in topics}, custom,
+                              log_time=str(self.get_parameter('log_time').value),
+                              flush_period=flush_period)
+        qos = QoSProfile(depth=int(self.get_parameter('queue_depth').value),
+                         reliability=ReliabilityPolicy.RELIABLE)
+        lockstep = bool(self.get_parameter('lockstep').value)
+        self.ledger = RecordLedger(topics, skip_repeats=lockstep)
+        self._progress_ns = -1
+        self._progress_pub = self.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.RELIABLE)) if lockstep else None
+        for topic in topics:
+            self.create_subscription(_import_type(TOPICS[topic]), topic,
+                                     self._writer_for(topic), qos, raw=True)
+        # The callbacks only queue what arrives; a thread writes it into the bag and
+        # finishes the chunks on time (also while nothing arrives). The signal that stops
+        # the recorder (a KeyboardInterrupt, cartpole_sim.node_runner) can land anywhere in
+        # this thread's callbacks, but never in the middle of writing a record, which
+        # would make its chunk unreadable.
+        self._queue: collections.deque = collections.deque()
+        self._stop_writer = threading.Event()
+        self._writer = threading.Thread(target=self._write_loop, name='recorder_writer',
+                                        daemon=True)
+        self._writer.start()
+        self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
+
+    def _writer_for(self, topic: str):
+        if topic not in self.ledger.topics:
+            def queue(data: bytes) -> None:
+                self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+            return queue
+
+        def book_and_queue(data: bytes) -> None:
+            if not self.ledger.take(topic, cdr_stamp_ns(data)):
+                return  # a sample re-published while the graph started: written once
+            self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+            if self._progress_pub is not None:
+                progress = self.ledger.progress_ns()
+                if progress is not None and progress > self._progress_ns:
+                    self._progress_ns = progress
+                    msg = Header()
+                    msg.stamp.sec, msg.stamp.nanosec = divmod(progress, 1_000_000_000)
+                    self._progress_pub.publish(msg)
+        return book_and_queue
+
+    def _write_queued(self) -> None:
+        queue, bag = self._queue, self._bag
+        while queue:
+            topic, data, received = queue.popleft()
+            bag.write(topic, data, received)
+
+    def _write_loop(self) -> None:
+        while not self._stop_writer.wait(WRITE_PERIOD):
+            self._write_queued()
+            self._bag.flush_if_due()
+        self._write_queued()
+
+    @property
+    def bag_path(self) -> Path:
+        """The bag directory being written."""
+        return self._bag.path
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, per topic (the queue is written every 10 ms)."""
+        return dict(self._bag.counts)
+
+    def close(self) -> None:
+        """Write what was queued, close the bag (``metadata.yaml``); later messages are dropped."""
+        if self._bag.closed:
+            return
+        self._stop_writer.set()
+        self._writer.join()
+        self._write_queued()
+        self._bag.close()
+        missed = self.ledger.finish()
+        update_custom_data(self._bag.path, {'recorder_missed': str(missed)})
+        if missed:
+            self.get_logger().warning(f'the recorder missed {missed} messages (by stamp)')
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def _executor():
+    """The C++ EventsExecutor (about 3x less overhead per message), else rclpy's own.
+
+    The recorder takes every message of the graph (about 1200 per second), so
+    the executor's overhead decides whether it keeps up.
+    """
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:
+        return SingleThreadedExecutor()
+    return EventsExecutor()
+
+
+def drain(node: RecorderNode, executor, quiet_rounds: int = 3, pause: float = 0.01) -> None:
+    """Write what has already arrived, then return (the bag is closed after it).
+
+    The signal that ends the recorder interrupts the executor, possibly in the
+    middle of a callback, so the queues are not left to the executor's
+    bookkeeping: every subscription's queue is emptied directly
+    (``take_message``), in rounds ``pause`` apart, until ``quiet_rounds``
+    rounds in a row bring nothing. The writer thread then writes them.
+    """
+    quiet = 0
+    while quiet < quiet_rounds:
+        taken = 0
+        for sub in node.subscriptions:
+            with sub.handle:
+                while (info := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+                    sub.callback(info[0])
+                    taken += 1
+        quiet = 0 if taken else quiet + 1
+        if not taken:
+            time.sleep(pause)
+
+
+def main(args=None) -> None:
+    """Record until SIGINT/SIGTERM, then write what had arrived (drain) and close the bag."""
+    run_node(RecorderNode, args, name='recorder', make_executor=_executor, on_interrupt=drain)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,131 @@
+"""The node ``cartpole_run`` of ``cartpole run``: what the run sees of its graph.
+
+It keeps the time series for the summary
+(:class:`cartpole_bringup.analysis.analyze.SeriesBuilder`), the stamp of the latest
+state (the run's clock: simulated time in lockstep), the force commands
+(counts, the last one, zeros), and it can command zero force itself
+(:meth:`RunMonitor.publish_zero_force`) when the controller manager is the
+node that died. Its publisher on ``/cartpole/force_command`` exists from the
+start, so that it is matched by the plant long before it may be needed; it
+publishes nothing otherwise.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from ..analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
+
+NODE_NAME = 'cartpole_run'
+ZERO_FORCE_N = 1e-3
+"""An actuator force below this [N] is zero (the current loop's lag leaves ~1e-20 N after Ts)."""
+
+
+def _stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class RunMonitor(Node):
+    """Watches a run (node ``cartpole_run``): series, sim time, forces.
+
+    Parameters
+    ----------
+    state_topic
+        The state it times the run by (``/cartpole/true_state`` on the
+        simulator, ``/cartpole/state`` on the rig).
+    collect
+        Also subscribe the controller status (and the hw health) for the
+        in-memory summary; not needed when a bag is recorded.
+    """
+
+    def __init__(self, state_topic: str = TRUE_STATE, collect: bool = True, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.builder = SeriesBuilder()
+        self.last_stamp_ns: int | None = None
+        """Stamp of the latest state sample (simulated time in lockstep)."""
+        self.forces = 0
+        self.last_force: float | None = None
+        self.zero_forces = 0
+        self.own_zero_forces = 0
+        """Zero force commands this node published itself."""
+        self.zero_force_samples = 0
+        """Simulator samples whose actuator force (``effort[0]`` of the truth) is zero."""
+        self._zero_stamp_ns: int | None = None
+        """Stamp of the last sample-stamped zero this node published (lockstep fault stop)."""
+        qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
+        self.create_subscription(JointState, FORCE, self._on_force, qos)
+        self._force_pub = self.create_publisher(JointState, FORCE, 10)
+        if collect:
+            self.create_subscription(DiagnosticArray, STATUS, self._diag_cb(STATUS), qos)
+            if state_topic == STATE:
+                self.create_subscription(DiagnosticArray, HW_HEALTH, self._diag_cb(HW_HEALTH), qos)
+
+    def _state_cb(self, topic: str) -> Callable[[JointState], None]:
+        def callback(msg: JointState) -> None:
+            stamp = _stamp_ns(msg.header.stamp)
+            self.builder.joint_state(topic, stamp, msg.position, msg.velocity, msg.effort)
+            if topic == TRUE_STATE and len(msg.effort) and abs(msg.effort[0]) < ZERO_FORCE_N:
+                self.zero_force_samples += 1
+            if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
+                self.last_stamp_ns = stamp
+        return callback
+
+    def _on_force(self, msg: JointState) -> None:
+        stamp = _stamp_ns(msg.header.stamp)
+        self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
+        if len(msg.effort):
+            self.forces += 1
+            self.last_force = float(msg.effort[0])
+            if self.last_force == 0.0:
+                self.zero_forces += 1
+            elif self._zero_stamp_ns is not None and stamp >= self._zero_stamp_ns:
+                # A command of the dead manager still in flight answered a later sample
+                # than this node's zero: answer that sample with zero too, so that the
+                # last command of every sample is zero (the plant and the bag agree).
+                self._publish_zero(stamp)
+
+    def _diag_cb(self, topic: str) -> Callable[[DiagnosticArray], None]:
+        def callback(msg: DiagnosticArray) -> None:
+            stamp = _stamp_ns(msg.header.stamp)
+            for status in msg.status:
+                values = {kv.key: kv.value for kv in status.values}
+                if topic == STATUS:
+                    self.builder.status(stamp, values)
+                else:
+                    self.builder.hw_health(stamp, values)
+        return callback
+
+    def publish_zero_force(self, sample_stamp: bool) -> None:
+        """Command zero force (``name=['cart']``, ``effort=[0.0]``) in place of the manager.
+
+        ``sample_stamp``: stamped with the latest state sample (what the
+        lockstep simulator waits for), else with this node's clock (fresh for
+        the hardware bridge, which drops commands older than its timeout).
+        """
+        if sample_stamp and self.last_stamp_ns is not None:
+            self._zero_stamp_ns = self.last_stamp_ns
+            self._publish_zero(self.last_stamp_ns)
+        else:
+            self._publish_zero(None)
+
+    def _publish_zero(self, stamp_ns: int | None) -> None:
+        msg = JointState(name=['cart'], effort=[0.0])
+        if stamp_ns is not None:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        else:
+            msg.header.stamp = self.get_clock().now().to_msg()
+        self._force_pub.publish(msg)
+        self.own_zero_forces += 1
+
+    def duplicated_names(self, names) -> list[str]:
+        """Names of ``names`` that the graph shows more than once in the root namespace."""
+        counts: dict[str, int] = {}
+        for name, ns in self.get_node_names_and_namespaces():
+            if name in names and (ns or '/') == '/':
+                counts[name] = counts.get(name, 0) + 1
+        return sorted(n for n, c in counts.items() if c > 1)

@@ -1,0 +1,152 @@
+"""Starting a graph: its nodes in one process or one process a node, until the loop is wired.
+
+The plant starts last (with processes: once the EKF, the controller manager
+and the recorder subscribe), then the start waits for the first state and,
+in lockstep, for the loop to answer its first sample (:data:`LOOP_START_TIMEOUT`).
+"""
+from __future__ import annotations
+
+import importlib
+import time
+
+from rclpy.parameter import Parameter
+from rcl_interfaces.srv import SetParameters
+from std_srvs.srv import Trigger
+
+from cartpole_sim import realtime
+from cartpole_sim.domain_guard import ALLOW_PARAMETER
+
+from ..analysis.analyze import FORCE, STATE
+from .processes import NODES, NodeStartError, describe_exit, node_command, start_node_process
+from .spec import GraphSpec
+
+STARTUP_TIMEOUT = 30.0
+"""Wall seconds for the graph to come up (processes import rclpy and numpy first)."""
+LOOP_START_TIMEOUT = 10.0
+"""Lockstep: wall seconds for the loop to answer its first sample before the remedy.
+
+Longer than the discovery of one process by another (up to about 3 s: Fast DDS's
+participant announcement period): until then the EKF's re-published estimate and the
+manager's answer to it reach the simulator without a reset, and a reset (which starts
+the run one period later) would make the run differ from the same run without one."""
+LOOP_START_ATTEMPTS = 3
+
+class GraphError(RuntimeError):
+    """The graph could not be started (a node failed, a timeout)."""
+
+
+def command_line(spec: GraphSpec, name: str) -> list[str]:
+    """The command starting node ``name`` of ``spec`` as a process."""
+    parameters = spec.node_parameters(name)
+    if spec.allow_duplicates:
+        parameters[ALLOW_PARAMETER] = True
+    try:
+        return node_command(name, parameters, log_level=spec.log_level,
+                            params_file=spec.params_file)
+    except NodeStartError as error:
+        raise GraphError(str(error)) from error
+
+
+class GraphStartup:
+    """The start of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+
+    Uses the graph's ``spec``, ``context``, ``executor``, ``monitor``,
+    ``nodes``, ``processes``, ``warnings``, ``fault``, ``should_stop``,
+    ``spin_until`` and ``_client``.
+    """
+
+    # -- start -----------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start every node (plant last) and wait until the loop is wired."""
+        if self.spec.processes:
+            self._client(SetParameters, 'controller_manager', 'set_parameters')
+            if self.spec.plant == 'hw_bridge':
+                self._client(SetParameters, 'hw_bridge', 'set_parameters')
+            self._start_processes()
+        else:
+            self._start_in_process()
+            # The loop's real-time hygiene for this process (cartpole_sim.realtime), once
+            # the executor has spun (its threads exist then and take the priority too).
+            self.executor.spin_once(timeout_sec=0.0)
+            try:
+                self.realtime = realtime.enter_loop(
+                    0 if self.spec.lockstep else None, what='cartpole run',
+                    log=self.monitor.get_logger().info, warn=self.monitor.get_logger().warning)
+            except ValueError as error:
+                raise GraphError(str(error)) from None
+        self.wall_start = time.monotonic()
+        if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
+            if self.should_stop():
+                return
+            raise GraphError(self.fault or f'no state arrived within {STARTUP_TIMEOUT:g} s; '
+                                           f'{self._process_report()}')
+        if self.spec.lockstep:
+            self._ensure_loop_started()
+        self.wall_start = time.monotonic()
+
+    def _ensure_loop_started(self) -> None:
+        """Lockstep: make sure the loop got past its first sample.
+
+        The simulator re-publishes its first sample until the answering force
+        command arrives. With one process a node, that first command can be
+        published before the simulator's subscription is matched and be lost;
+        the EKF then ignores the repeated sample (same stamp) and the loop
+        would wait forever. The remedy is the simulator's ``~/reset``: the
+        initial state again, as a new sample one period later.
+        """
+        first = self.monitor.last_stamp_ns
+        moved = lambda: self.monitor.last_stamp_ns > first  # noqa: E731
+        for _ in range(LOOP_START_ATTEMPTS):
+            if self.spin_until(moved, LOOP_START_TIMEOUT) or self.should_stop() or self.fault:
+                return
+            self.warnings.append('lockstep loop did not answer the first sample; '
+                                 'reset the simulator (the run starts one period later)')
+            client = self._client(Trigger, 'sim', 'reset')
+            if self.spin_until(client.service_is_ready, 5.0):
+                future = client.call_async(Trigger.Request())
+                self.spin_until(future.done, 5.0)
+            first = self.monitor.last_stamp_ns
+        if not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop():
+            raise GraphError(self.fault or 'the lockstep loop does not start; '
+                                           + self._process_report())
+
+    def _start_in_process(self) -> None:
+        for name in self.spec.nodes:
+            package, _, module, cls = NODES[name]
+            try:
+                node_class = getattr(importlib.import_module(module), cls)
+            except (ImportError, AttributeError) as error:
+                raise GraphError(f'node {name} ({module}.{cls}) is not available: {error}') from error
+            overrides = [Parameter(k, value=v) for k, v in self.spec.node_parameters(name).items()]
+            try:
+                node = node_class(context=self.context, parameter_overrides=overrides)
+            except Exception as error:
+                raise GraphError(f'node {name} did not start: {error}') from error
+            self.nodes[name] = node
+            self.executor.add_node(node)
+
+    def _start_processes(self) -> None:
+        for name in self.spec.nodes:
+            if name == self.spec.plant:
+                self._wait_for_subscribers()
+            self.processes[name] = start_node_process(command_line(self.spec, name))
+
+    def _wait_for_subscribers(self) -> None:
+        """Processes: wait until EKF, controller manager (and recorder) are in the graph."""
+        rec = 1 if self.spec.record else 0
+        m = self.monitor
+
+        def ready() -> bool:
+            # The monitor itself publishes on FORCE too (its zero force in a fault).
+            return (m.count_subscribers('/joint_states') >= 1 + rec
+                    and m.count_subscribers(STATE) >= 1 + rec
+                    and m.count_publishers(FORCE) >= 2)
+        if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
+            raise GraphError(self.fault or f'the nodes did not come up within '
+                                           f'{STARTUP_TIMEOUT:g} s; {self._process_report()}')
+
+    def _process_report(self) -> str:
+        if not self.processes:
+            return 'in-process nodes: ' + ', '.join(self.nodes)
+        return ', '.join(f'{n}: {"running" if p.poll() is None else describe_exit(p.returncode)}'
+                         for n, p in self.processes.items())

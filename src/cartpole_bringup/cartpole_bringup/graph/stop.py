@@ -1,0 +1,120 @@
+"""Stopping a graph (:meth:`StopSequence.stop`): zero force first, then the nodes in order.
+
+Zero force through whoever is still alive: after a fault the run monitor's
+own zero force command at once, then the controller manager's
+``enabled:=false`` (and the zero force it then publishes); on the rig also the
+bridge's ``armed:=false`` (``U,0``, ``E,0``); on the simulator until a sample
+shows the zero force applied. Then the nodes stop one by one
+(:data:`STOP_ORDER`, :data:`IN_PROCESS_STOP_ORDER`), the recorder last, so
+that the bag holds the zero force and is closed. A process gets SIGINT and
+time to shut down (:data:`EXIT_TIMEOUT`, the recorder
+:data:`RECORDER_EXIT_TIMEOUT`) before SIGTERM and, last, SIGKILL
+(:func:`cartpole_bringup.graph.processes.stop_node_process`).
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from ..analysis.analyze import FORCE
+from .processes import stop_node_process
+
+ZERO_FORCE_TIMEOUT = 2.0
+"""Wall seconds to wait for the zero force command after disabling the controllers."""
+EXIT_TIMEOUT = 5.0
+"""Wall seconds a child process gets after SIGINT (then SIGTERM, and SIGKILL 2 s later)."""
+RECORDER_EXIT_TIMEOUT = 15.0
+"""The recorder's SIGINT grace: it writes what it had received and closes the bag."""
+STOP_ORDER = ('controller_manager', 'sim', 'hw_bridge', 'ekf', 'recorder')
+"""Processes: the manager first, so that nothing it watches goes stale while it runs."""
+IN_PROCESS_STOP_ORDER = ('sim', 'hw_bridge', 'ekf', 'controller_manager', 'recorder')
+"""One process: the plant first, before the manager's last zero force reaches it (the
+executor would still run that callback of a destroyed node); nothing spins in between,
+so nothing goes stale."""
+
+class StopSequence:
+    """The stop sequence of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+
+    Uses the graph's ``spec``, ``monitor``, ``nodes``, ``processes``,
+    ``executor``, ``fault``, ``set_parameters``, ``_alive`` and ``_spin_once``.
+    """
+
+    def stop(self) -> list[str]:
+        """Zero force first, then stop the nodes in order (see the module docstring).
+
+        Returns warnings (empty when everything went as planned). Waits here
+        are not cut short by Ctrl-C or the fault: the stop always completes.
+        """
+        if self.stopped:
+            return []
+        self._stopping = True
+        if self.stop_stamp_ns is None:
+            self.stop_stamp_ns = self.monitor.last_stamp_ns
+        warnings = self._command_zero_force()
+        self.stopped = True
+        if self.processes:
+            for name in STOP_ORDER:
+                if name in self.processes:
+                    warnings += self._stop_process(name)
+        else:
+            self._destroy_in_order([n for n in IN_PROCESS_STOP_ORDER if n in self.nodes])
+        return warnings
+
+    def _command_zero_force(self) -> list[str]:
+        """Zero force through whoever is alive; returns warnings.
+
+        After a fault the monitor commands zero at once too (the manager may be
+        dead, or alive without states to run its next cycle on). On the
+        simulator the stop waits until a sample shows the zero force applied.
+        """
+        warnings: list[str] = []
+        m = self.monitor
+        zeros_before, applied_before = m.zero_forces, m.zero_force_samples
+        plant_alive = self._alive(self.spec.plant)
+        if plant_alive and (self.fault is not None or not self._alive('controller_manager')):
+            m.publish_zero_force(sample_stamp=self.spec.lockstep)
+        if self._alive('controller_manager'):
+            for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
+                if not ok:
+                    warnings.append(f'controller_manager enabled:=false refused: {reason}')
+        if self.spec.plant == 'hw_bridge' and plant_alive:
+            for ok, reason in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
+                if not ok:
+                    warnings.append(f'hw_bridge armed:=false refused: {reason}')
+        if not plant_alive:
+            return warnings
+        if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
+            warnings.append('no zero force command seen after disabling the controller '
+                            '(the plant watchdog zeroes the force)')
+        elif self.spec.plant == 'sim':
+            self._wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
+        return warnings
+
+    def _destroy_in_order(self, order: list[str]) -> None:
+        forces_seen = self.monitor.forces
+        recorder = self.nodes.get('recorder')
+        for name in order:
+            node = self.nodes.pop(name, None)
+            if node is None:
+                continue
+            if name == 'recorder':
+                # Let the recorder take every command the monitor took, then close the bag.
+                self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
+            self.executor.remove_node(node)
+            node.destroy_node()
+
+    def _wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() >= deadline:
+                return False
+            self._spin_once(0.02)
+        return True
+
+    def _stop_process(self, name: str) -> list[str]:
+        self._asked_to_stop.add(name)
+        if self.processes[name].poll() is not None:
+            return []  # it had died: that is the fault, reported already
+        # Keep the monitor spinning while a node shuts down (it may still publish).
+        return stop_node_process(self.processes[name], name, self._wait,
+                                 RECORDER_EXIT_TIMEOUT if name == 'recorder' else EXIT_TIMEOUT)

@@ -1,0 +1,1 @@
+"""The closed loop without ROS, the very objects the nodes host."""

@@ -1,0 +1,33 @@
+"""Stopping a child process the way a user stops a node: SIGINT, a wait, then SIGKILL.
+
+Every node's ``main`` (:func:`cartpole_sim.node_runner.run_node`) ends cleanly
+on SIGINT; a child that does not within the grace is killed, so that no test
+or tool leaves a process behind. The graph's own stop, which escalates through
+SIGTERM and reports, is :func:`cartpole_bringup.graph.processes.stop_node_process`.
+This module imports nothing of the simulator (see :mod:`cartpole_sim.node_runner`
+for why shared helpers live in the bottom package).
+"""
+from __future__ import annotations
+
+import signal
+import subprocess
+
+
+def interrupt(proc: subprocess.Popen, grace: float, *, drain: bool = True) -> bool:
+    """SIGINT ``proc`` (if it runs) and wait ``grace`` seconds for it to end, else SIGKILL.
+
+    ``drain``: read its pipes while waiting (``communicate``), so that a child
+    blocked on a full pipe can end; False when another thread reads them.
+    Returns True if it ended within the grace (its exit code is
+    ``proc.returncode``), False if it had to be killed.
+    """
+    wait = proc.communicate if drain else proc.wait
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        wait(timeout=grace)
+        return True
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        wait()
+        return False
