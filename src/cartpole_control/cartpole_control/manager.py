@@ -40,6 +40,7 @@ from cartpole_sim.model import CartPoleParameters, acceleration_function, pendul
 
 from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec
+from .manager_parameters import manager_parameter_specs
 from .rail_guard import BRAKING, STOPPED
 from .prediction import predict_state
 from .registry import load_controllers
@@ -233,52 +234,7 @@ class ControllerManager:
             specs.append(ParameterSpec(kind, default, f'{title}: one of the registered plugins '
                                        f'{list(names)}; switched bumplessly between two cycles',
                                        choices=names))
-        specs += [
-            ParameterSpec('enabled', True, 'Control on; false: idle, zero force. Setting it true '
-                          'again restarts the swing-up (and clears a fault).'),
-            ParameterSpec('x_ref', p.x_middle, 'Cart reference x* [m] from the left end stop; '
-                          'default the middle of the travel', low=round(0.1 * p.travel, 6),
-                          high=round(0.9 * p.travel, 6)),
-            ParameterSpec('catch.energy_tolerance', 0.05, 'Catch trigger (6.4): switch to the '
-                          'stabiliser when |E* - E_p| <= this times E*', low=0.001, high=1.0),
-            ParameterSpec('catch.angle_deg', 30.0, 'Catch trigger (6.4): and |theta_w| <= this '
-                          '[deg]', low=1.0, high=90.0),
-            ParameterSpec('fall.angle_deg', 45.0, 'Fall detector: while stabilising, |theta_w| '
-                          'beyond this [deg] hands back to swing-up; larger than catch.angle_deg',
-                          low=2.0, high=180.0),
-            ParameterSpec('feedforward.right', 3.3, 'Cart friction feedforward (6.12): c_c,R used '
-                          'while x_dot >= 0 [N] (thesis 9.2.1: 3.3)', low=0.0, high=20.0),
-            ParameterSpec('feedforward.left', 2.8, 'Cart friction feedforward (6.12): c_c,L used '
-                          'while x_dot < 0 [N] (thesis 9.2.1: 2.8)', low=0.0, high=20.0),
-            ParameterSpec('feedforward.steepness', 20.0, 'k of tanh(k u) in (6.12) [1/N]; 0 turns '
-                          'the feedforward off', low=0.0, high=1000.0),
-            ParameterSpec('feedforward.velocity_band', 0.0005, 'Cart friction feedforward while '
-                          'stabilising: above this |x_dot| [m/s] the kinetic friction is '
-                          'compensated along the velocity, below it blended into (6.12); '
-                          '0 = (6.12) at every speed', low=0.0, high=1.0),
-            ParameterSpec('rail.margin', 0.02, 'Rail guard: distance kept from each end stop [m]',
-                          low=0.0, high=0.15),
-            ParameterSpec('rail.max_brake_force', 30.0, 'Rail guard: braking force F_b [N], '
-                          'further limited by the amplifier', low=1.0, high=40.0),
-            ParameterSpec('rail.latency', ts, 'Rail guard: loop latency before a command acts [s]',
-                          low=0.0, high=0.1),
-            ParameterSpec('rail.rest_speed', 0.02, 'Rail guard: |x_dot| below which the cart is at '
-                          'rest [m/s]', low=0.001, high=0.5),
-            ParameterSpec('rail.creep_speed', 0.1, 'Rail guard: inside a margin a cart slower '
-                          'than this counts as at rest [m/s] (the noisy velocity of a cart '
-                          'resting at a stop)', low=0.0, high=0.5),
-            ParameterSpec('rail.limit', True, 'Rail guard: limit the command of a moving cart to '
-                          'the braking envelope before tripping (false: trip at once)'),
-            ParameterSpec('rail.limit_reserve', 0.05, 'Rail guard: the limiter keeps the '
-                          'stopping position this much further from the stops than the trip '
-                          'test [m]', low=0.0, high=0.3),
-            ParameterSpec('predict.horizon', 0.0, 'Delay compensation: the controllers and the '
-                          'catch trigger see the estimate predicted this far ahead under the '
-                          'last command (cartpole_control.prediction) [s]; 0 = off; about the '
-                          "rig's loop latency", low=0.0, high=0.05),
-            ParameterSpec('state_timeout', 0.05, 'No state for this long: zero force, fault '
-                          "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),
-        ]
+        specs += manager_parameter_specs(p, ts)
         out = {spec.name: spec for spec in specs}
         for kind in KINDS:
             for name, cls in self._registry[kind].items():

@@ -1,6 +1,6 @@
 """Minimum-time swing-up: the optimal control problem, its bounds and a plan cache (no ROS).
 
-The problem (GitHub issue #7). From a start state x_0, find the force
+The problem. From a start state x_0, find the force
 F(t) and the final time T that solve
 
     minimise    T
@@ -28,8 +28,8 @@ term smoothed to ``tanh(k v)`` with k = :data:`SMOOTH_FRICTION_STEEPNESS`
 direction-dependent level c_c(x_dot) of (4.27) blended the same way. The
 actuator lag (4.4) (time constant 0.1 ms) is left out. With friction the
 thesis parameters give 1.35 s from the middle, 1.16 s from the left stop and
-1.52 s to upright at rest (issue #7: 1.36, 1.17, 1.53 s); without friction
-1.29, 1.12 and 1.47 s, 4-5 % below the issue's figures. Assumptions: no
+1.52 s to upright at rest (the reference bounds :data:`ISSUE_BOUNDS`: 1.36, 1.17,
+1.53 s); without friction 1.29, 1.12 and 1.47 s, 4-5 % below them. Assumptions: no
 stiction beyond the Coulomb model, the force limits of Appendix C,
 parameters known exactly.
 
@@ -78,7 +78,7 @@ class CatchRegion:
     """The set the swing-up must reach at the final time T.
 
     ``at_rest`` False: |theta_w| <= ``angle`` and |E_p - E*| <= ``energy_tolerance`` E*
-    (the catch trigger (6.4) with the issue's 10 deg). ``at_rest`` True: upright
+    (the catch trigger (6.4) with the 10 deg upright region of SPEC 5). ``at_rest`` True: upright
     and at rest, theta_w = theta_dot = x_dot = 0 (the cart may be anywhere on the rail).
     """
 
@@ -487,13 +487,14 @@ def solve_minimum_time(problem: MinimumTimeProblem, n_intervals: int = 50,
                                key=problem.key(grid))
 
 
-# -- the bounds of issue #7 ---------------------------------------------------------------------
+# -- the reference bounds -------------------------------------------------------------------------
 BOUND_CASES = ('middle', 'left_stop', 'upright_at_rest')
 """The three minimum-time bounds: from hanging rest in the middle, at the left stop, and from
 the middle to upright at rest."""
 
 ISSUE_BOUNDS = {'middle': 1.36, 'left_stop': 1.17, 'upright_at_rest': 1.53}
-"""The issue's figures at the thesis parameters [s]."""
+"""The reference minimum-time bounds at the thesis parameters [s] (the target figures the
+optimiser is checked against; the name is kept for the `cartpole bound` output)."""
 
 
 def bound_problem(case: str, params: CartPoleParameters, friction: bool = True) -> MinimumTimeProblem:

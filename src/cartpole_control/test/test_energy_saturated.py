@@ -1,4 +1,4 @@
-"""Saturated energy swing-up (issue #7): the law's properties and offline closed-loop runs."""
+"""Saturated energy swing-up: the law's properties and offline closed-loop runs."""
 import math
 
 import pytest
@@ -13,7 +13,7 @@ from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energ
 P = CartPoleParameters()
 X_MID = P.x_middle
 LEFT_STOP_BOUND = 1.17
-"""Issue #7: the minimum-time bound from the left stop [s]."""
+"""The reference minimum-time bound from the left stop [s] (ISSUE_BOUNDS)."""
 
 
 def plugin(**gains):

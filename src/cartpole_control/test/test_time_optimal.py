@@ -1,4 +1,4 @@
-"""Time-optimal swing-up (issue #7): plan, TV-LQR tracking, fall-back, switching by parameter.
+"""Time-optimal swing-up: plan, TV-LQR tracking, fall-back, switching by parameter.
 
 The plan is solved once a session, by the cold-cache ``cartpole offline`` run of the
 ``cold_plan_run`` fixture (conftest.py), and reused from its cache by the other tests.
@@ -24,7 +24,7 @@ from cartpole_sim.model import CartPoleParameters
 P = CartPoleParameters()
 TS = P.sample_time
 LEFT_STOP_BOUND = 1.17
-"""Issue #7: the minimum-time bound from the left stop [s]."""
+"""The reference minimum-time bound from the left stop [s] (ISSUE_BOUNDS)."""
 
 
 @pytest.fixture(scope='module')

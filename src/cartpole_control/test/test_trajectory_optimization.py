@@ -1,4 +1,4 @@
-"""The minimum-time swing-up optimiser (issue #7): model, bounds, cache, tracking gains."""
+"""The minimum-time swing-up optimiser : model, bounds, cache, tracking gains."""
 import dataclasses
 import math
 
@@ -37,7 +37,7 @@ def bounds():
 
 
 @pytest.mark.parametrize('case', to.BOUND_CASES)
-def test_optimiser_reproduces_the_issue_bounds_within_3_percent(bounds, case):
+def test_optimiser_reproduces_the_reference_bounds_within_3_percent(bounds, case):
     traj = bounds[case]
     assert traj.success
     assert traj.final_time == pytest.approx(to.ISSUE_BOUNDS[case], rel=0.03)

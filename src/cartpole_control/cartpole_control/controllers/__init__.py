@@ -113,3 +113,20 @@ class ConditionalIntegrator:
             self.value = self._previous
         self._previous = self.value
         self._effect = 0.0
+
+
+def integral_property(attribute: str, doc: str) -> property:
+    """A property for the value of the :class:`ConditionalIntegrator` ``self.<attribute>``.
+
+    Reading gives its ``value``; setting it (a test, a take-over of a running
+    state) resets the integrator and starts it from the given value.
+    """
+    def get(self: object) -> float:
+        return getattr(self, attribute).value
+
+    def put(self: object, value: float) -> None:
+        integrator = getattr(self, attribute)
+        integrator.reset()
+        integrator.value = float(value)
+
+    return property(get, put, doc=doc)

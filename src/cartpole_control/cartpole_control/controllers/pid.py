@@ -47,7 +47,7 @@ tens of seconds, and K_p,c = 0.2 rad/m lets a 0.05 rad offset hold the cart
 from __future__ import annotations
 
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
-from . import ConditionalIntegrator, StepClock, acceleration_to_force
+from . import ConditionalIntegrator, StepClock, acceleration_to_force, integral_property
 
 
 class PidStabilizer(Controller):
@@ -78,25 +78,8 @@ class PidStabilizer(Controller):
         """theta* of the last update [rad]."""
         self._clock = StepClock()
 
-    @property
-    def integral_x(self) -> float:
-        """int (x* - x) dt [m s]."""
-        return self._integral_x.value
-
-    @integral_x.setter
-    def integral_x(self, value: float) -> None:
-        self._integral_x.reset()
-        self._integral_x.value = float(value)
-
-    @property
-    def integral_theta(self) -> float:
-        """int (theta* - theta) dt [rad s]."""
-        return self._integral_theta.value
-
-    @integral_theta.setter
-    def integral_theta(self, value: float) -> None:
-        self._integral_theta.reset()
-        self._integral_theta.value = float(value)
+    integral_x = integral_property('_integral_x', 'int (x* - x) dt [m s].')
+    integral_theta = integral_property('_integral_theta', 'int (theta* - theta) dt [rad s].')
 
     def on_configure(self) -> None:
         """Refuse an inner loop that cannot hold the pendulum (K_p,p <= g)."""

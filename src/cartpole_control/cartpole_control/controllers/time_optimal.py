@@ -1,6 +1,6 @@
 """Time-optimal swing-up: track a minimum-time plan with time-varying LQR, fall back to energy_saturated.
 
-The plan (issue #7) is the solution of the minimum-time problem of
+The plan is the solution of the minimum-time problem of
 :mod:`cartpole_control.trajectory_optimization` from hanging rest at the
 activation's cart position, for the controller's plant model (the manager's
 nominal parameters), on the 5 ms control grid, with a fraction
@@ -160,7 +160,7 @@ class TimeOptimalSwingUp(Controller):
         ParameterSpec('rail_margin', 0.05, 'distance the plan keeps from each end stop [m]',
                       low=0.0, high=0.2),
         ParameterSpec('terminal_angle_deg', 10.0, 'plan: |theta_w| at the final time below '
-                      'this [deg] (the issue\'s catch region: 10)', low=1.0, high=30.0),
+                      'this [deg] (the upright region of SPEC 5: 10)', low=1.0, high=30.0),
         ParameterSpec('terminal_energy_tolerance', 0.03, 'plan: |E_p - E*| <= this E* at the '
                       'final time (tighter than the catch trigger\'s 0.05: calmer hand-over)',
                       low=0.005, high=0.2),
