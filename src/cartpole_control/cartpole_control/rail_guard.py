@@ -229,7 +229,7 @@ class RailGuard:
         towards_right = stop > self._high and stop > x
         towards_left = stop < self.margin and stop < x
         if not (towards_right or towards_left):
-            force, _ = self._margin_zone(x, force)
+            force = self._margin_zone(x, force)
             if limited:
                 self.status = LIMITED
             return force, False
@@ -244,7 +244,7 @@ class RailGuard:
         """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""
         return x < self.margin or x > self._high
 
-    def _margin_zone(self, x: float, force: float) -> tuple[float, bool]:
+    def _margin_zone(self, x: float, force: float) -> float:
         """Inside a margin, never push towards that stop (whatever the velocity estimate says).
 
         A cart resting at the left stop after reset, with a noisy velocity
@@ -255,9 +255,9 @@ class RailGuard:
         """
         if force < 0.0 and x < self.margin or force > 0.0 and x > self._high:
             self.status = LIMITED
-            return 0.0, False
+            return 0.0
         self.status = ARMED
-        return force, False
+        return force
 
     def _limited_force(self, x: float, x_dot: float, theta_dot: float, force: float,
                        towards_right: bool, boundary: float) -> float:
