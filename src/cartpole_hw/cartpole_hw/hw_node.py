@@ -164,8 +164,9 @@ class HwBridgeNode(Node):
     # -- samples and commands ------------------------------------------------------------------
     def _publish_sample(self, sample: JointSample) -> None:
         msg = JointState()
-        msg.header.stamp = self._node_time(sample.stamp)
-        self._note_receipt(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+        stamp_ns, received_ns = self._node_time_ns(sample.stamp)
+        msg.header.stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+        self._note_receipt(stamp_ns, received_ns)
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
@@ -179,9 +180,10 @@ class HwBridgeNode(Node):
             ok, reason = self.link.call(lambda core, now: core.home(now))
             self.get_logger().info(f'home_on_start: {reason}')
 
-    def _note_receipt(self, stamp_ns: int) -> None:
-        """Remember when the sample stamped ``stamp_ns`` was received (the last 400)."""
-        self._received[stamp_ns] = self.get_clock().now().nanoseconds
+    def _note_receipt(self, stamp_ns: int, received_ns: int) -> None:
+        """Remember that the sample stamped ``stamp_ns`` was received at ``received_ns``
+        (node clock; the last :data:`RECEIPTS_KEPT`)."""
+        self._received[stamp_ns] = received_ns
         self._received_order.append(stamp_ns)
         while len(self._received_order) > RECEIPTS_KEPT:
             self._received.pop(self._received_order.popleft(), None)
@@ -191,9 +193,10 @@ class HwBridgeNode(Node):
         sample's receipt when it is one of ours, else from the stamp itself."""
         return (now_ns - self._received.get(stamp_ns, stamp_ns)) * 1e-9
 
-    def _node_time(self, link_time: float) -> Time:
-        """``link_time`` (the link's clock, monotonic) on the node clock: the two read
-        back to back, again if something came between the reads."""
+    def _node_time_ns(self, link_time: float) -> tuple[int, int]:
+        """``link_time`` (the link's clock, monotonic) on the node clock [ns], and the node
+        clock's reading it was mapped with (now) [ns]: the two clocks read back to back,
+        again if something came between the reads."""
         clock, read = self.get_clock(), self.link.clock
         for _ in range(3):
             before = read()
@@ -201,8 +204,7 @@ class HwBridgeNode(Node):
             after = read()
             if after - before < 5e-5:
                 break
-        ns = now_ns - int(round((0.5 * (before + after) - link_time) * 1e9))
-        return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+        return now_ns - int(round((0.5 * (before + after) - link_time) * 1e9)), now_ns
 
     def _on_force_command(self, msg: JointState) -> None:
         try:

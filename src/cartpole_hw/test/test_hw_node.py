@@ -203,7 +203,7 @@ def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
     node = rig.node
     now = node.get_clock().now().nanoseconds
     sampled = now - 80_000_000                 # device time of a sample read just now
-    node._note_receipt(sampled)
+    node._note_receipt(sampled, now)
     assert node.command_age(sampled, now) < 0.01
     assert node.command_age(sampled - 5_000_000, now) == pytest.approx(0.085)
     assert rig.spin(lambda: len(rig.joint_states) > 3, force=1.0)
