@@ -305,10 +305,7 @@ class _LeastSquares:
         self.initial_window, self.integration_step = initial_window, integration_step
         self.rel_step, self.progress = rel_step, progress
         self.n_rec, self.n_glob = len(recordings), p0.size
-        self.s0 = [fit_initial_state(r, nominal.replace(**dict(zip(free, p0))),
-                                     window=initial_window, weight_cart=weight_cart,
-                                     weight_pendulum=weight_pendulum,
-                                     integration_step=integration_step) for r in recordings]
+        self.s0 = self._initial_states(nominal.replace(**dict(zip(free, p0))))
         self.n_nuis = n_nuis = 4 if refine_initial_state else 0
         self.state_scale = np.array(INITIAL_STATE_SCALE)
         self.z0 = np.concatenate([p0 / scale, np.zeros(n_nuis * self.n_rec)])
@@ -335,13 +332,17 @@ class _LeastSquares:
                 states.append(self.s0[b])
         return params, states
 
+    def _initial_states(self, params: CartPoleParameters) -> list[np.ndarray]:
+        """Every recording's initial state fitted over its quiet lead-in with ``params``."""
+        return [fit_initial_state(r, params, window=self.initial_window,
+                                  weight_cart=self.weight_cart,
+                                  weight_pendulum=self.weight_pendulum,
+                                  integration_step=self.integration_step)
+                for r in self.recordings]
+
     def refit_initial_states(self, z: np.ndarray) -> None:
         params, _ = self.unpack(z)
-        self.s0[:] = [fit_initial_state(r, params, window=self.initial_window,
-                                        weight_cart=self.weight_cart,
-                                        weight_pendulum=self.weight_pendulum,
-                                        integration_step=self.integration_step)
-                      for r in self.recordings]
+        self.s0[:] = self._initial_states(params)
         self.cache.clear()
 
     def rec_residual(self, b: int, params: CartPoleParameters, state: np.ndarray) -> np.ndarray:
