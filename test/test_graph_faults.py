@@ -131,6 +131,14 @@ def test_sigkill_of_the_controller_manager_is_a_reported_fault(tmp_path, ros_con
     assert json.loads(analysed.stdout)['fault'] == 'controller_manager died (SIGKILL)'
 
 
+def test_sigkill_at_the_first_sample_is_a_reported_fault(tmp_path, ros_context, spin_until):
+    # A death while the run is still starting (the run's own subscriptions can match
+    # after the plant's first samples) is the same reported fault, not a start-up error.
+    code, out, err, _ = _run_and_kill(tmp_path, ros_context, spin_until, 'controller_manager',
+                                      after_s=0.0)
+    _assert_fault_reported(code, out, err, 'controller_manager died (SIGKILL)')
+
+
 def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, ros_context,
                                                                   spin_until):
     code, out, err, killed_at = _run_and_kill(tmp_path, ros_context, spin_until, 'recorder')

@@ -354,7 +354,7 @@ def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
     extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), **ran,
              'run_dir': str(run_dir) if run_dir else None, 'bag': str(bag) if bag else None,
              'plots': [str(p) for p in plots]}
-    result = dict(summary) if summary is not None else {'fault': fault}
+    result = dict(summary) if summary is not None else {'fault': fault, 'success': False}
     result.update(extra)
     if run_dir is not None:
         (run_dir / 'summary.json').write_text(json.dumps(result, indent=2) + '\n')

@@ -76,7 +76,10 @@ class GraphStartup:
                 raise GraphError(str(error)) from None
         self.wall_start = time.monotonic()
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
-            if self.should_stop():
+            # Ctrl-C, or a node died once the plant had started (under load the monitor's
+            # subscription can match seconds after the plant began to publish): the run
+            # stops and its summary reports the fault, as for a death later on.
+            if self.should_stop() or self.fault is not None:
                 return
             raise GraphError(self.fault or f'no state arrived within {STARTUP_TIMEOUT:g} s; '
                                            f'{self._process_report()}')
@@ -106,7 +109,8 @@ class GraphStartup:
                 future = client.call_async(Trigger.Request())
                 self.spin_until(future.done, 5.0)
             first = self.monitor.last_stamp_ns
-        if not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop():
+        if (not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop()
+                and self.fault is None):
             raise GraphError(self.fault or 'the lockstep loop does not start; '
                                            + self._process_report())
 
