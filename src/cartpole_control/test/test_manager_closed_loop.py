@@ -80,7 +80,7 @@ def test_swingup_catch_and_switching_stabilisers_keeps_the_pendulum_up():
     plant = Plant(P, Scenario())
     outs = run(m, plant, 7.0)
     assert outs[-1].mode == STABILIZING and outs[-1].catch_count == 1
-    assert 3.0 < outs[-1].catch_time < 7.0
+    assert 2.0 < outs[-1].catch_time < 7.0  # 2.8 s with the default gains, 4.8 s with the thesis k_e
     for name in ('smc', 'pid', 'lqg'):
         assert m.set_parameters({'stabilizer': name}).successful
         angles = []
