@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from ament_index_python.packages import get_package_prefix
 
+from cartpole_sim.child_process import reap
+
 pytestmark = pytest.mark.ros
 
 NODES = [
@@ -52,9 +54,7 @@ def test_node_executable_starts_and_stops_on_sigint(package, name, ros_args, nod
         assert proc.returncode == 0, f'{name} exited {proc.returncode}: {err[-2000:]}'
         assert 'Traceback' not in err, err[-2000:]
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
         executor.shutdown()
         observer.destroy_node()
 

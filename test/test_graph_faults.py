@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from cartpole_sim.child_process import reap
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 FORCE = '/cartpole/force_command'
@@ -70,9 +72,7 @@ def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float
         killed_at = seen[-1]
         out, err = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
         probe.destroy_node()
     return proc.returncode, out, err, killed_at
 
@@ -187,9 +187,7 @@ def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, ro
         last_seen = seen[-1]
         proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
         probe.destroy_node()
     (bag,) = tmp_path.glob('*/bag')
     assert not (bag / 'metadata.yaml').exists()

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cartpole_sim.child_process import reap
+
 from cartpole_bringup.viewer.server import TOPICS
 from cartpole_bringup.viewer.client import ViewerClient
 
@@ -79,9 +81,7 @@ def test_client_sees_the_running_rig(ros_context, spin_until):
                           and max(truths, default=0) > last, 10.0)
         out, err = proc.communicate(timeout=RUN_S + 60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
         if client is not None:
             client.close()
         executor.shutdown()

@@ -19,8 +19,22 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     which ``cartpole emulate`` shares.
     """
     g = scenario_options.add_scenario_arguments(parser)
-    g.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
-                   help='nominal plant parameters (CartPoleParameters YAML); default: thesis values')
+    add_plant_params_argument(g, 'nominal plant parameters (CartPoleParameters YAML)')
+
+
+def add_plant_params_argument(group, what: str) -> None:
+    """``--plant-params FILE.yaml``, read by :func:`nominal_parameters`; ``what`` says what
+    the file gives this command (without the thesis default, which is added)."""
+    group.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
+                       help=f'{what}; default: thesis values')
+
+
+def add_number_argument(group, flag: str, default: float, help: str,
+                        metavar: str | None = None) -> None:
+    """A number option of ``default``'s type whose help ends with that default, so the
+    value is written once: ``(default 0.5)``."""
+    group.add_argument(flag, type=type(default), default=default, metavar=metavar,
+                       help=f'{help} (default {default:g})')
 
 
 def add_controller_arguments(parser: argparse.ArgumentParser) -> None:

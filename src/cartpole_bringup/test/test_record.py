@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from cartpole_sim.child_process import reap
+
 pytestmark = pytest.mark.ros
 
 
@@ -187,9 +189,7 @@ def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, sp
             assert proc.returncode == 0, f'{sig.name}: {err}'
     finally:
         for proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.communicate()
+            reap(proc)
         source.node.destroy_node()
     for sig, bag in bags.items():
         assert (bag / 'metadata.yaml').is_file(), f'{sig.name}: bag not closed'

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from cartpole_sim.child_process import reap
+
 from cartpole_bringup import cli
 from cartpole_bringup.commands import run as run_cmd
 
@@ -127,9 +129,7 @@ def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until,
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
         node.destroy_node()
     assert proc.returncode == 0, err
     result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])

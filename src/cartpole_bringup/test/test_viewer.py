@@ -25,6 +25,7 @@ from cartpole_bringup.viewer.client import ViewerClient
 from cartpole_bringup.viewer.layout import foxglove_layout, layout_text
 from cartpole_bringup.viewer.offline import RealTimePlayer
 from cartpole_bringup.viewer.scene import MODE_COLOURS, NO_MODE_COLOUR
+from cartpole_sim.child_process import reap
 from cartpole_sim.geometry import RigGeometry
 from cartpole_sim.model import CartPoleParameters
 
@@ -222,9 +223,7 @@ def test_cartpole_offline_view_serves_a_client(tmp_path):
         out, err = proc.communicate(timeout=60)
         client.close()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        reap(proc)
     assert proc.returncode == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary['catch_time_s'] is None  # 2 s: still swinging up

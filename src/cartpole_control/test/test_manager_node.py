@@ -24,6 +24,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from cartpole_control.controllers.lqg import LqgStabilizer  # noqa: E402
 from cartpole_control.manager_node import STATUS_KEYS, ControllerManagerNode  # noqa: E402
+from cartpole_sim.child_process import reap  # noqa: E402
 from cartpole_sim.model import CartPoleParameters  # noqa: E402
 
 P = CartPoleParameters()
@@ -332,7 +333,5 @@ def test_installed_executable_takes_a_params_file_and_stops_on_sigint(
         _, err = proc.communicate(timeout=5)
         assert b'Traceback' not in err, err.decode()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        reap(proc, drain=False)
         h.destroy()

@@ -133,18 +133,11 @@ def correct(s: list[float], pc: Packed, y_x: float, y_theta: float, r_x: float,
     c12 = a11 * p12 - k10 * p02
     c13 = a11 * p13 - k10 * p03
     c14 = a11 * p14 - k10 * p04
-    c20 = -k20 * p00 - k21 * p01 + p02
-    c21 = -k20 * p01 - k21 * p11 + p12
-    c22 = -k20 * p02 - k21 * p12 + p22
-    c23 = -k20 * p03 - k21 * p13 + p23
-    c24 = -k20 * p04 - k21 * p14 + p24
-    c30 = -k30 * p00 - k31 * p01 + p03
-    c31 = -k30 * p01 - k31 * p11 + p13
-    c33 = -k30 * p03 - k31 * p13 + p33
-    c34 = -k30 * p04 - k31 * p14 + p34
-    c40 = -k40 * p00 - k41 * p01 + p04
-    c41 = -k40 * p01 - k41 * p11 + p14
-    c44 = -k40 * p04 - k41 * p14 + p44
+    p0 = (p00, p01, p02, p03, p04)
+    p1 = (p01, p11, p12, p13, p14)
+    c20, c21, c22, c23, c24 = _minus_k_h(k20, k21, p0, p1, (p02, p12, p22, p23, p24))
+    c30, c31, _, c33, c34 = _minus_k_h(k30, k31, p0, p1, (p03, p13, p23, p33, p34))
+    c40, c41, _, _, c44 = _minus_k_h(k40, k41, p0, p1, (p04, p14, p24, p34, p44))
     # K R K^T with R = diag(r_x, r_theta): (K R)_i0 k_j0 + (K R)_i1 k_j1.
     kr00, kr01 = k00 * r_x, k01 * r_t
     kr10, kr11 = k10 * r_x, k11 * r_t
@@ -167,3 +160,16 @@ def correct(s: list[float], pc: Packed, y_x: float, y_theta: float, r_x: float,
               -k40 * c30 - k41 * c31 + c34 + (kr30 * k40 + kr31 * k41),
               -k40 * c40 - k41 * c41 + c44 + (kr40 * k40 + kr41 * k41))
     return state, packed, nu_x, nu_t, s00, s11
+
+
+def _minus_k_h(k0: float, k1: float, p0: tuple[float, ...], p1: tuple[float, ...],
+               p_row: tuple[float, ...]) -> tuple[float, ...]:
+    """Row i >= 2 of C = (I - K H) P in :func:`correct`: ``P_ij - K_i0 P_0j - K_i1 P_1j``.
+
+    ``k0, k1`` are K's row i, ``p0, p1`` P's rows 0 and 1, ``p_row`` P's row i.
+    """
+    a0, a1, a2, a3, a4 = p0
+    b0, b1, b2, b3, b4 = p1
+    c0, c1, c2, c3, c4 = p_row
+    return (-k0 * a0 - k1 * b0 + c0, -k0 * a1 - k1 * b1 + c1, -k0 * a2 - k1 * b2 + c2,
+            -k0 * a3 - k1 * b3 + c3, -k0 * a4 - k1 * b4 + c4)

@@ -7,6 +7,7 @@ import time
 
 import pytest
 
+from cartpole_sim.child_process import reap
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
 
@@ -247,9 +248,7 @@ def test_installed_executable_answers_and_stops_on_sigint(ros_context, spin_unti
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=15.0) == 0
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        reap(proc, drain=False)
         executor.shutdown()
         node.destroy_node()
 

@@ -85,18 +85,13 @@ class HwBridgeNode(Node):
                               ('force_sign', 'a positive setpoint pushes the cart right')):
             self.declare_parameter(name, getattr(cal, name), ParameterDescriptor(
                 description=f'+1 if {meaning}, else -1', integer_range=ir(-1, 1, 2), **ro))
-        self.declare_parameter('cart_ticks_over_travel', cal.cart_ticks_over_travel,
-                               ParameterDescriptor(description='cart ticks over the travel (2.4)',
-                                                   floating_point_range=fp(1, 1e6), **ro))
-        self.declare_parameter('travel', cal.travel, ParameterDescriptor(
-            description='cart travel between the end stops [m] (section 2.3)',
-            floating_point_range=fp(0.01, 10.0), **ro))
-        self.declare_parameter('pendulum_ticks_per_rev', cal.pendulum_ticks_per_rev,
-                               ParameterDescriptor(description='pendulum ticks per revolution (2.3)',
-                                                   floating_point_range=fp(1, 1e6), **ro))
-        self.declare_parameter('setpoint_per_newton', cal.setpoint_per_newton, ParameterDescriptor(
-            description='DAC setpoint per newton, 1/0.017623 (A.3)',
-            floating_point_range=fp(1.0, 1000.0), **ro))
+        for name, meaning, lo, hi in (
+                ('cart_ticks_over_travel', 'cart ticks over the travel (2.4)', 1, 1e6),
+                ('travel', 'cart travel between the end stops [m] (section 2.3)', 0.01, 10.0),
+                ('pendulum_ticks_per_rev', 'pendulum ticks per revolution (2.3)', 1, 1e6),
+                ('setpoint_per_newton', 'DAC setpoint per newton, 1/0.017623 (A.3)', 1.0, 1000.0)):
+            self.declare_parameter(name, getattr(cal, name), ParameterDescriptor(
+                description=meaning, floating_point_range=fp(lo, hi), **ro))
         self.declare_parameter('dac_zero', cal.dac_zero, ParameterDescriptor(
             description='DAC value of zero current (Appendix A)', integer_range=ir(0, 4095), **ro))
         self.declare_parameter('command_timeout', 0.05, ParameterDescriptor(

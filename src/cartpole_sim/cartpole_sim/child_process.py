@@ -31,3 +31,14 @@ def interrupt(proc: subprocess.Popen, grace: float, *, drain: bool = True) -> bo
         proc.kill()
         wait()
         return False
+
+
+def reap(proc: subprocess.Popen, *, drain: bool = True) -> None:
+    """Kill ``proc`` if it still runs and collect it: the ``finally`` of whoever started it,
+    so that no child outlives a failed test or tool.
+
+    ``drain``: collect with ``communicate`` (its pipes read); False: ``wait``.
+    """
+    if proc.poll() is None:
+        proc.kill()
+        (proc.communicate if drain else proc.wait)()

@@ -80,6 +80,40 @@ def _float_range(low: float, high: float) -> list[FloatingPointRange]:
     return [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
 
 
+_START_PARAMETERS = (
+    ('x0', 0.0, 'Initial cart position from the left end stop [m]; within the travel.',
+     0.0, 10.0),
+    ('theta0', math.pi, 'Initial pendulum angle [rad]; 0 upright, pi hanging.', -20.0, 20.0),
+    ('x_dot0', 0.0, 'Initial cart velocity [m/s].', -5.0, 5.0),
+    ('theta_dot0', 0.0, 'Initial pendulum angular velocity [rad/s].', -50.0, 50.0),
+    ('tip_mass', 0.0, 'Tip mass of the plant [kg]; 0 keeps the nominal m_p (0.251 kg).',
+     0.0, 10.0),
+    ('friction_scale', 1.0, 'Multiplies every cart and pendulum friction coefficient.',
+     0.0, 10.0),
+    ('encoder_offset', 0.0, 'Pendulum angle minus pi when the encoders were reset [rad] '
+     '(Appendix H); biases the measured angle.', -math.pi, math.pi),
+)
+"""The start and the plant's uncertainties: (name, default, description, low, high)."""
+
+_DISTURBANCE_PARAMETERS = (
+    ('cart_mass', 0.0, 'Equivalent cart mass of the plant [kg]; 0 keeps the nominal m_c '
+     '(4.75 kg).', 0.0, 100.0),
+    ('delay', 0.0, 'Sensor-to-actuator latency [s]: a command takes effect this long after '
+     'the sample it was computed from (inside the hold).', 0.0, DELAY_MAX),
+    ('jitter', 0.0, 'Extra latency per sample, uniform in [0, jitter] [s].', 0.0, DELAY_MAX),
+    ('drop', 0.0, 'Probability in [0, 1) that a sample is lost: not published on '
+     '/joint_states (/cartpole/true_state and /clock still are); lockstep steps on at once '
+     'with the held command.', 0.0, 1.0),
+    ('force_noise', 0.0, 'Std of Gaussian force noise on the cart [N], one draw per sample.',
+     0.0, 100.0),
+    ('actuator_gain', 1.0, 'Amplifier gain error: the current is this times the commanded '
+     'one.', 0.0, 10.0),
+    ('actuator_tau', 0.0, 'Time constant of an extra first-order amplifier lag [s]; 0 = none.',
+     0.0, 1.0),
+)
+"""The scenario's disturbances (cartpole_sim.scenario): (name, default, description, low, high)."""
+
+
 def load_plant_parameters(path: str) -> CartPoleParameters:
     """The nominal plant parameters: the thesis values, or a YAML file's."""
     if not path:
@@ -182,28 +216,7 @@ class SimNode(Node):
             description='Watchdog: zero force when no command arrived for this much simulated '
                         'time [s]; takes effect at once.',
             floating_point_range=_float_range(0.0, 10.0)))
-        declare('x0', 0.0, ParameterDescriptor(
-            description='Initial cart position from the left end stop [m]; within the travel.',
-            floating_point_range=_float_range(0.0, 10.0)))
-        declare('theta0', math.pi, ParameterDescriptor(
-            description='Initial pendulum angle [rad]; 0 upright, pi hanging.',
-            floating_point_range=_float_range(-20.0, 20.0)))
-        declare('x_dot0', 0.0, ParameterDescriptor(
-            description='Initial cart velocity [m/s].',
-            floating_point_range=_float_range(-5.0, 5.0)))
-        declare('theta_dot0', 0.0, ParameterDescriptor(
-            description='Initial pendulum angular velocity [rad/s].',
-            floating_point_range=_float_range(-50.0, 50.0)))
-        declare('tip_mass', 0.0, ParameterDescriptor(
-            description='Tip mass of the plant [kg]; 0 keeps the nominal m_p (0.251 kg).',
-            floating_point_range=_float_range(0.0, 10.0)))
-        declare('friction_scale', 1.0, ParameterDescriptor(
-            description='Multiplies every cart and pendulum friction coefficient.',
-            floating_point_range=_float_range(0.0, 10.0)))
-        declare('encoder_offset', 0.0, ParameterDescriptor(
-            description='Pendulum angle minus pi when the encoders were reset [rad] '
-                        '(Appendix H); biases the measured angle.',
-            floating_point_range=_float_range(-math.pi, math.pi)))
+        self._declare_ranged(_START_PARAMETERS)
         declare('noise', False, ParameterDescriptor(
             description='Add Gaussian measurement noise before quantisation.'))
         declare('seed', 0, ParameterDescriptor(
@@ -217,32 +230,16 @@ class SimNode(Node):
             description='RK4 step of the plant [s]; at most the sample time.',
             floating_point_range=_float_range(1e-5, 0.005)))
 
+    def _declare_ranged(self, table) -> None:
+        """Declare the float parameters of ``table``: (name, default, description, low, high)."""
+        for name, default, description, low, high in table:
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=description, floating_point_range=_float_range(low, high)))
+
     def _declare_disturbances(self) -> None:
         """The scenario's disturbances (cartpole_sim.scenario), at the next reset like the rest."""
         declare = self.declare_parameter
-        declare('cart_mass', 0.0, ParameterDescriptor(
-            description='Equivalent cart mass of the plant [kg]; 0 keeps the nominal m_c '
-                        '(4.75 kg).', floating_point_range=_float_range(0.0, 100.0)))
-        declare('delay', 0.0, ParameterDescriptor(
-            description='Sensor-to-actuator latency [s]: a command takes effect this long '
-                        'after the sample it was computed from (inside the hold).',
-            floating_point_range=_float_range(0.0, DELAY_MAX)))
-        declare('jitter', 0.0, ParameterDescriptor(
-            description='Extra latency per sample, uniform in [0, jitter] [s].',
-            floating_point_range=_float_range(0.0, DELAY_MAX)))
-        declare('drop', 0.0, ParameterDescriptor(
-            description='Probability in [0, 1) that a sample is lost: not published on '
-                        '/joint_states (/cartpole/true_state and /clock still are); lockstep '
-                        'steps on at once with the held command.', floating_point_range=_float_range(0.0, 1.0)))
-        declare('force_noise', 0.0, ParameterDescriptor(
-            description='Std of Gaussian force noise on the cart [N], one draw per sample.',
-            floating_point_range=_float_range(0.0, 100.0)))
-        declare('actuator_gain', 1.0, ParameterDescriptor(
-            description='Amplifier gain error: the current is this times the commanded one.',
-            floating_point_range=_float_range(0.0, 10.0)))
-        declare('actuator_tau', 0.0, ParameterDescriptor(
-            description='Time constant of an extra first-order amplifier lag [s]; 0 = none.',
-            floating_point_range=_float_range(0.0, 1.0)))
+        self._declare_ranged(_DISTURBANCE_PARAMETERS)
         declare('pushes', '', ParameterDescriptor(
             description="Pushes 'T:TARGET:AMPLITUDE:WIDTH' separated by commas or spaces, "
                         "TARGET cart [N] or pendulum [N m]; '' = none."))

@@ -29,6 +29,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from cartpole_sim.child_process import reap
 from cartpole_sim.geometry import RigGeometry
 
 from ..viewer.scene import MODE_COLOURS, NO_MODE_COLOUR, mode_key
@@ -341,6 +342,4 @@ def _write_mp4(ffmpeg: str, renderer: Renderer, times: np.ndarray, fps: float,
         if proc.wait() != 0:
             raise RuntimeError(f'ffmpeg failed: {err.strip()[-500:]}')
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        reap(proc, drain=False)

@@ -6,7 +6,8 @@ import json
 import sys
 from pathlib import Path
 
-from ..options import add_output_arguments, nominal_parameters, print_summary
+from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
+                       nominal_parameters, print_summary)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,8 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'layout), <run>_phase.png; with several bags also comparison.png')
     parser.add_argument('--x-ref', type=float, default=None, metavar='M',
                         help="cart reference x* [m] (default: the bag's x_ref, else mid-travel)")
-    parser.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
-                        help='nominal plant parameters (travel, l, g, E*); default: thesis values')
+    add_plant_params_argument(parser, 'nominal plant parameters (travel, l, g, E*)')
     a = parser.add_argument_group('animation (one bag)')
     a.add_argument('--animate', type=Path, default=None, metavar='FILE',
                    help='write the run as an animation: FILE.gif (Pillow) or FILE.mp4 (needs '
@@ -27,10 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     a.add_argument('--speed', type=float, default=1.0, metavar='F',
                    help='with --animate: run seconds per second of animation (default 1: real '
                         'speed)')
-    a.add_argument('--fps', type=float, default=25.0, metavar='N',
-                   help='with --animate: frames per second of the animation (default 25)')
-    a.add_argument('--width', type=int, default=480, metavar='PX',
-                   help='with --animate: frame width in pixels (default 480)')
+    add_number_argument(a, '--fps', 25.0, 'with --animate: frames per second of the animation',
+                        metavar='N')
+    add_number_argument(a, '--width', 480, 'with --animate: frame width in pixels', metavar='PX')
     add_output_arguments(parser)
 
 

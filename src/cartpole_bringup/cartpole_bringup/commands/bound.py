@@ -15,25 +15,23 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
-from ..options import nominal_parameters
+from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
+                       nominal_parameters)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from cartpole_control.trajectory_optimization import BOUND_CASES
-    parser.add_argument('--plant-params', type=Path, default=None,
-                        metavar='FILE.yaml',
-                        help='plant parameters (CartPoleParameters YAML); default: thesis values')
+    add_plant_params_argument(parser, 'plant parameters (CartPoleParameters YAML)')
     parser.add_argument('--case', action='append', choices=BOUND_CASES, default=None,
                         help='compute only this bound (repeatable); default: all three')
     parser.add_argument('--no-friction', action='store_true',
                         help='frictionless model (default: the smoothed Coulomb/viscous friction)')
-    parser.add_argument('--intervals', type=int, default=70, metavar='N',
-                        help='shooting intervals of the multi-start solves (default 70)')
-    parser.add_argument('--refine', type=int, default=140, metavar='N',
-                        help='intervals of the final refinement, 0 for none (default 140)')
-    parser.add_argument('--json', action='store_true', help='print one JSON object instead of a table')
+    add_number_argument(parser, '--intervals', 70, 'shooting intervals of the multi-start solves',
+                        metavar='N')
+    add_number_argument(parser, '--refine', 140, 'intervals of the final refinement, 0 for none',
+                        metavar='N')
+    add_output_arguments(parser)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -14,7 +14,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..options import add_output_arguments, nominal_parameters
+from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
+                       nominal_parameters)
 
 PROG = 'cartpole identify'
 
@@ -32,21 +33,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument('--bound', action='append', default=[], metavar='NAME=LO:HI',
                      help='search bounds of a free parameter (repeatable); the thesis used '
                           'm_c=1:5, c_c_right=1:5, c_c_left=1:5')
-    fit.add_argument('--plant-params', type=Path, default=None, metavar='FILE.yaml',
-                     help='starting values and the fixed parameters (CartPoleParameters YAML); '
-                          'default: thesis values')
-    fit.add_argument('--weight-cart', type=float, default=1.0, metavar='W',
-                     help='weight of the cart position error [1/m] (default 1)')
+    add_plant_params_argument(fit, 'starting values and the fixed parameters '
+                                   '(CartPoleParameters YAML)')
+    add_number_argument(fit, '--weight-cart', 1.0, 'weight of the cart position error [1/m]',
+                        metavar='W')
     fit.add_argument('--weight-pendulum', type=float, default=None, metavar='W',
                      help='weight of the pendulum angle error [1/rad] (default l = 0.3345, '
                           'an angle error counted as the arc length at the tip)')
     fit.add_argument('--refine-initial-state', action='store_true',
                      help="fit every bag's initial state jointly with the parameters "
                           '(about twice the time)')
-    fit.add_argument('--integration-step', type=float, default=0.001, metavar='S',
-                     help='RK4 step of the simulated plant [s] (default 0.001)')
-    fit.add_argument('--max-nfev', type=int, default=30, metavar='N',
-                     help='most residual evaluations per pass, about the iterations (default 30)')
+    add_number_argument(fit, '--integration-step', 0.001, 'RK4 step of the simulated plant [s]',
+                        metavar='S')
+    add_number_argument(fit, '--max-nfev', 30,
+                        'most residual evaluations per pass, about the iterations', metavar='N')
     data = parser.add_argument_group('data')
     data.add_argument('--t-start', type=float, default=None, metavar='S',
                       help='use samples from S seconds after the first one (every bag)')
@@ -78,15 +78,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='record the test into this bag (in-process recorder)')
     pulse.add_argument('--arm', action='store_true',
                        help='arm the hw bridge (/hw_bridge/arm) after the rehearsal')
-    pulse.add_argument('--margin', type=float, default=0.1, metavar='M',
-                       help='rail guard: no pulse towards a stop closer than this, and the '
-                            'rehearsal must keep the cart this far from both stops (default 0.1)')
-    pulse.add_argument('--settle', type=float, default=1.0, metavar='S',
-                       help='the cart stands still this long before the next pulse (default 1)')
-    pulse.add_argument('--lead-in', type=float, default=0.5, metavar='S',
-                       help='zero force at the start of the test (default 0.5)')
-    pulse.add_argument('--timeout', type=float, default=120.0, metavar='S',
-                       help='give up after this many wall seconds (default 120)')
+    add_number_argument(pulse, '--margin', 0.1,
+                        'rail guard: no pulse towards a stop closer than this, and the '
+                        'rehearsal must keep the cart this far from both stops', metavar='M')
+    add_number_argument(pulse, '--settle', 1.0,
+                        'the cart stands still this long before the next pulse', metavar='S')
+    add_number_argument(pulse, '--lead-in', 0.5, 'zero force at the start of the test',
+                        metavar='S')
+    add_number_argument(pulse, '--timeout', 120.0, 'give up after this many wall seconds',
+                        metavar='S')
     add_output_arguments(parser)
 
 

@@ -14,8 +14,7 @@ reach the clients before the connection closes."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--duration', type=float, default=30.0, metavar='S',
-                        help='simulated seconds (default 30)')
+    options.add_number_argument(parser, '--duration', 30.0, 'simulated seconds', metavar='S')
     parser.add_argument('--plot', default=None, metavar='FILE.png',
                         help='draw cart position, angle, force and energy (Figure 10.1 layout)')
     v = parser.add_argument_group('live view (Foxglove WebSocket, no ROS)')
@@ -23,8 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='play the run in real time to a Foxglove / Lichtblick client (the '
                         "viewer's channels and layout; default 127.0.0.1:8765, port 0: any "
                         'free port)')
-    v.add_argument('--speed', type=float, default=1.0, metavar='F',
-                   help='with --view: simulated seconds per wall second (default 1)')
+    options.add_number_argument(v, '--speed', 1.0, 'with --view: simulated seconds per wall second',
+                                metavar='F')
     v.add_argument('--no-wait', action='store_true',
                    help='with --view: start at once instead of waiting for a client to '
                         'subscribe to the scene')

@@ -54,6 +54,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from cartpole_sim import realtime
+from cartpole_sim.child_process import reap
 from cartpole_sim.domain_guard import DuplicateNodeError
 
 from ..analysis.analyze import STATE, TRUE_STATE
@@ -182,9 +183,7 @@ class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters):
                 node.destroy_node()
             self.nodes.clear()
             for proc in self.processes.values():
-                if proc.poll() is None:  # only when the stop itself failed
-                    proc.kill()
-                    proc.wait()
+                reap(proc, drain=False)  # only when the stop itself failed
             self.monitor.destroy_node()
             self.executor.shutdown(timeout_sec=1.0)
             if self.realtime is not None:
