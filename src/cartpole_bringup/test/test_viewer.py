@@ -82,7 +82,7 @@ class FakeClock:
 
 @pytest.fixture(scope='module')
 def served_run():
-    """A 7 s offline run (caught at about 4.8 s) played at 4x to a server, and what a client got."""
+    """A 7 s offline run (caught at about 2.8 s) played at 4x to a server, and what a client got."""
     server = ViewerServer(port=0)
     params = CartPoleParameters()
     view = LiveView(server, RigGeometry.from_parameters(params), params.x_middle)

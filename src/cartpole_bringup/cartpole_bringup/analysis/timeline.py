@@ -94,7 +94,7 @@ def spans_from_modes(t: Sequence[float], modes: Sequence[str],
 
 
 def describe(spans: Sequence[dict[str, Any]]) -> str:
-    """One line for the summary table: ``pendulum_energy 0-4.77 s, lqg 4.77-30 s``."""
+    """One line for the summary table: ``pendulum_energy 0-2.81 s, lqg 2.81-30 s``."""
     if not spans:
         return 'none'
     return ', '.join(f'{s["name"]} {s["start_s"]:.4g}-{s["end_s"]:.4g} s' for s in spans)

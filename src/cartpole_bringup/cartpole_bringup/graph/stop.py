@@ -91,15 +91,22 @@ class StopSequence:
         return warnings
 
     def _destroy_in_order(self, order: list[str]) -> None:
-        forces_seen = self.monitor.forces
+        """Destroy the in-process nodes in ``order`` with nothing spinning in between.
+
+        The recorder first takes every command the monitor took (the executor
+        spins for it while every node is alive); then the nodes go one after
+        the other without spinning: a spin after a node's destruction would
+        still dispatch its queued callbacks (the events executor does), whose
+        publishers are gone.
+        """
         recorder = self.nodes.get('recorder')
+        if recorder is not None:
+            forces_seen = self.monitor.forces
+            self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
         for name in order:
             node = self.nodes.pop(name, None)
             if node is None:
                 continue
-            if name == 'recorder':
-                # Let the recorder take every command the monitor took, then close the bag.
-                self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
             self.executor.remove_node(node)
             node.destroy_node()
 
