@@ -124,7 +124,9 @@ class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters):
         try:
             self.executor = make_executor(spec.executor, context)
             self.monitor = RunMonitor(state_topic=TRUE_STATE if spec.plant == 'sim' else STATE,
-                                      collect=spec.record is None, context=context)
+                                      collect=spec.record is None,
+                                      progress=spec.lockstep and spec.record is None,
+                                      context=context)
         except BaseException:
             self._release_claim()
             raise

@@ -33,6 +33,10 @@ from typing import Iterable
 JOINT_STATES, STATE, FORCE = '/joint_states', '/cartpole/state', '/cartpole/force_command'
 TRUE_STATE, STATUS, CLOCK = '/cartpole/true_state', '/cartpole/controller_status', '/clock'
 
+PROGRESS_TOPIC = '/cartpole/recorder/progress'
+"""Lockstep: the stamp up to which the recorder (or, without one, the run monitor) holds
+every sample (std_msgs/Header); the simulator waits for it (``recorder_window``)."""
+
 SAMPLE_TOPICS = (JOINT_STATES, TRUE_STATE, CLOCK, STATE, FORCE, STATUS)
 """The topics with one message per sample, stamped with the sample's stamp."""
 

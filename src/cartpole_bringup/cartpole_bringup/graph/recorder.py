@@ -41,9 +41,8 @@ from std_msgs.msg import Header
 from cartpole_sim.node_runner import run_node
 
 from ..bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
-from .record_ledger import RecordLedger
+from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
-PROGRESS_TOPIC = '/cartpole/recorder/progress'
 
 
 WRITE_PERIOD = 0.01

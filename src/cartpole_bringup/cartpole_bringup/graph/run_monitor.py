@@ -8,6 +8,15 @@ state (the run's clock: simulated time in lockstep), the force commands
 node that died. Its publisher on ``/cartpole/force_command`` exists from the
 start, so that it is matched by the plant long before it may be needed; it
 publishes nothing otherwise.
+
+A lockstep run without a recorder takes its summary from this node's series,
+so the monitor then stands where the recorder would (``progress``): it
+publishes on ``/cartpole/recorder/progress`` the stamp up to which it holds
+every sample's state, force command and status
+(:class:`~cartpole_bringup.graph.record_ledger.RecordLedger`), and the
+simulator does not step more than ``recorder_window`` samples ahead of it.
+Without that a monitor slowed by load lost samples from its queues and two
+identical lockstep runs reported different summaries.
 """
 from __future__ import annotations
 
@@ -17,8 +26,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 
 from ..analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
+from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 NODE_NAME = 'cartpole_run'
 ZERO_FORCE_N = 1e-3
@@ -40,11 +51,18 @@ class RunMonitor(Node):
     collect
         Also subscribe the controller status (and the hw health) for the
         in-memory summary; not needed when a bag is recorded.
+    progress
+        Publish the lockstep progress of what it collected (module docstring).
     """
 
-    def __init__(self, state_topic: str = TRUE_STATE, collect: bool = True, **kwargs) -> None:
+    def __init__(self, state_topic: str = TRUE_STATE, collect: bool = True,
+                 progress: bool = False, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.builder = SeriesBuilder()
+        self._ledger = RecordLedger((state_topic, FORCE, STATUS)) if progress else None
+        self._progress_ns = -1
+        self._progress_pub = self.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
+            depth=10, reliability=ReliabilityPolicy.RELIABLE)) if progress else None
         self.last_stamp_ns: int | None = None
         """Stamp of the latest state sample (simulated time in lockstep)."""
         self.forces = 0
@@ -73,11 +91,25 @@ class RunMonitor(Node):
                 self.zero_force_samples += 1
             if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
                 self.last_stamp_ns = stamp
+            self._book(topic, stamp)
         return callback
+
+    def _book(self, topic: str, stamp_ns: int) -> None:
+        """Lockstep progress: book a sample message, publish the new progress."""
+        if self._ledger is None:
+            return
+        self._ledger.take(topic, stamp_ns)
+        progress = self._ledger.progress_ns()
+        if progress is not None and progress > self._progress_ns:
+            self._progress_ns = progress
+            msg = Header()
+            msg.stamp.sec, msg.stamp.nanosec = divmod(progress, 1_000_000_000)
+            self._progress_pub.publish(msg)
 
     def _on_force(self, msg: JointState) -> None:
         stamp = _stamp_ns(msg.header.stamp)
         self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
+        self._book(FORCE, stamp)
         if len(msg.effort):
             self.forces += 1
             self.last_force = float(msg.effort[0])
@@ -98,6 +130,8 @@ class RunMonitor(Node):
                     self.builder.status(stamp, values)
                 else:
                     self.builder.hw_health(stamp, values)
+            if topic == STATUS:
+                self._book(STATUS, stamp)
         return callback
 
     def publish_zero_force(self, sample_stamp: bool) -> None:

@@ -88,7 +88,8 @@ class GraphSpec:
             out['lockstep'] = self.lockstep
         if name == 'ekf' and self.lockstep:
             out['lockstep'] = True
-        if self.lockstep and self.record and name == 'sim':
+        if self.lockstep and name == 'sim':
+            # The recorder, or without one the run monitor, paces the loop (complete series).
             out['recorder_window'] = RECORDER_WINDOW
         if name == 'recorder':
             out['lockstep'] = self.lockstep

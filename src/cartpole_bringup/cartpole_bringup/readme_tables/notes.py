@@ -22,7 +22,8 @@ TOPIC_NOTES: dict[str, str] = {
                              'homing) moved; reliable, transient local',
     '/clock': 'simulated time for `use_sim_time` (lockstep)',
     '/cartpole/recorder/progress': '`stamp` = the sample up to which the recorder holds every '
-                                   '200 Hz topic (lockstep with `--record`: complete bags)',
+                                   '200 Hz topic (lockstep with `--record`: complete bags; '
+                                   "without a recorder `cartpole run`'s monitor publishes it)",
 }
 """Content of each graph topic (the "At a glance" table)."""
 
