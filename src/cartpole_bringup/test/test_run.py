@@ -173,7 +173,7 @@ def test_lockstep_start_recovers_when_the_first_command_is_lost(ros_context):
                           parameter_overrides=sim_time + [Parameter('lockstep', value=True)])
             self.nodes['sim'] = sim
             self.executor.add_node(sim)
-            assert self.spin_until(lambda: ekf.samples >= 1, 10.0), 'EKF did not answer sample 0'
+            assert self.spin_until(lambda: ekf.counts.samples >= 1, 10.0), 'EKF did not answer sample 0'
             manager = ControllerManagerNode(context=self.context, parameter_overrides=sim_time)
             self.nodes['controller_manager'] = manager
             self.executor.add_node(manager)

@@ -26,6 +26,7 @@ longest wall-clock gap between two samples (``longest_cycle_gap_s``).
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
@@ -44,6 +45,21 @@ from .ekf import EkfConfig, ExtendedKalmanFilter
 from .ekf_config import DISCRETISATIONS, changes_from_parameters, q_parameter
 
 JOINT_NAMES = ('cart', 'pendulum')
+
+
+@dataclass
+class EkfNodeCounts:
+    """The node's message counts, health keys of the same names (docs/estimation.md)."""
+
+    samples: int = 0
+    """Samples estimated (a state published)."""
+    bad_messages: int = 0
+    """``/joint_states`` dropped: no finite ``cart`` and ``pendulum`` positions, or
+    refused by the filter (its ``rejected_samples``)."""
+    duplicate_samples: int = 0
+    """Repeats of the latest sample (its estimate published again)."""
+    bad_commands: int = 0
+    """``/cartpole/force_command`` dropped: no finite ``cart`` effort."""
 
 
 def _stamp_seconds(stamp) -> float:
@@ -143,10 +159,7 @@ class EkfNode(Node):
         self._force_by_stamp: dict[tuple[int, int], float] = {}
         self._last_sample_stamp: tuple[int, int] | None = None
         self._last_force_used = 0.0
-        self.samples = 0
-        self.bad_messages = 0
-        self.duplicate_samples = 0
-        self.bad_commands = 0
+        self.counts = EkfNodeCounts()
         self.last_bad = ''
         self._last_estimate = None
         self._last_reset_reason = ''
@@ -230,7 +243,7 @@ class EkfNode(Node):
         except (ValueError, IndexError):
             force = math.nan
         if not math.isfinite(force):
-            self.bad_commands += 1
+            self.counts.bad_commands += 1
             self.get_logger().warning(
                 f'bad /cartpole/force_command dropped (needs a finite effort for "cart"): '
                 f'names {list(msg.name)}, effort {list(msg.effort)}',
@@ -308,7 +321,7 @@ class EkfNode(Node):
             # A repeated sample (the simulator re-publishes sample 0 until a
             # controller answers): already estimated; publish the same estimate
             # again so that a controller that missed it can still answer.
-            self.duplicate_samples += 1
+            self.counts.duplicate_samples += 1
             if self._last_estimate is not None:
                 self._state_pub.publish(self._state_msg)
             return
@@ -333,14 +346,14 @@ class EkfNode(Node):
         self._last_sample_stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
         self._last_force_used = force
         self._last_estimate = est
-        self.samples += 1
+        self.counts.samples += 1
         if est.reset:
             self._last_reset_reason = est.reset_reason
             if est.reset_reason != 'initialisation':
                 self.get_logger().warning(f'EKF re-initialised: {est.reset_reason}')
 
     def _drop(self, msg: JointState, why: str) -> None:
-        self.bad_messages += 1
+        self.counts.bad_messages += 1
         self.last_bad = why
         self.get_logger().warning(f'/joint_states sample dropped: {why}',
                                   throttle_duration_sec=1.0)
@@ -384,9 +397,7 @@ class EkfNode(Node):
             'p_theta_dot': p_diag[3], 'angle_offset': f.angle_offset,
             'p_angle_offset': float(f.covariance[4, 4]),
             'resets': f.resets, 'reset_reason': self._last_reset_reason,
-            'missed_samples': f.missed_samples_total, 'dt': dt, 'samples': self.samples,
-            'bad_messages': self.bad_messages, 'duplicate_samples': self.duplicate_samples,
-            'bad_commands': self.bad_commands,
+            'missed_samples': f.missed_samples_total, 'dt': dt, **asdict(self.counts),
             'rejected_samples': f.rejected_samples, 'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,

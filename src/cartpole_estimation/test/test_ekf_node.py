@@ -105,7 +105,7 @@ def test_free_swing_through_the_node(harness, spin_until):
     tail = errors[20:]
     rms = math.sqrt(sum(e * e for e in tail) / len(tail))
     assert rms < 0.12, rms  # the numerical derivative gives about 0.27 rad/s
-    assert h.ekf.filter.resets == 0 and h.ekf.samples == n
+    assert h.ekf.filter.resets == 0 and h.ekf.counts.samples == n
 
 
 def test_bad_messages_are_counted_and_dropped_and_names_found_by_name(harness, spin_until):
@@ -118,7 +118,7 @@ def test_bad_messages_are_counted_and_dropped_and_names_found_by_name(harness, s
     h.meas_pub.publish(joint_state(1.010, 0.3, math.pi, names=('cart', 'wheel')))
     h.meas_pub.publish(joint_state(1.015, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
-    assert h.ekf.bad_messages == 2
+    assert h.ekf.counts.bad_messages == 2
     assert stamp_s(h.states[1].header.stamp) == pytest.approx(1.015)
     assert all(math.isfinite(v) for v in h.states[1].velocity)
 
@@ -138,7 +138,7 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
     # A repeated sample is not an error and not a new estimate: the same estimate is
     # published again (so a controller that missed it can answer the simulator).
     h.meas_pub.publish(joint_state(1.005, 0.3, math.pi))
-    assert spin_until(h.executor, lambda: h.ekf.duplicate_samples == 1, timeout=5.0)
+    assert spin_until(h.executor, lambda: h.ekf.counts.duplicate_samples == 1, timeout=5.0)
     assert spin_until(h.executor, lambda: len(h.states) == 3, timeout=5.0)
     assert h.states[2].position == h.states[1].position
     assert h.states[2].header.stamp == h.states[1].header.stamp
@@ -150,7 +150,7 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
     h.meas_pub.publish(joint_state(1.065, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 5, timeout=5.0)
     assert h.ekf._last_force_used == 0.0
-    assert h.ekf.bad_messages == 0
+    assert h.ekf.counts.bad_messages == 0
 
 
 def test_refused_q_keeps_the_old_one_with_a_reason(harness, spin_until):

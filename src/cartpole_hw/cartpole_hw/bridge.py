@@ -128,6 +128,48 @@ class JointSample:
 
 
 @dataclass
+class BridgeCounts:
+    """The bridge's event counts (they only grow): the counters of the health report,
+    :meth:`BridgeCore.health` (docs/rig.md, ``/cartpole/hw/health``)."""
+
+    samples: int = 0
+    """Valid samples passed on (samples discarded while homing are not)."""
+    seq_gaps: int = 0
+    """Gaps in the sequence numbers (each one or more lost samples)."""
+    bad_lines: Counter[str] = field(default_factory=Counter)
+    """Refused lines by reason (:data:`cartpole_hw.protocol.DECODE_REASONS`)."""
+    watchdog_trips: int = 0
+    """Host watchdog trips: no fresh force command for ``command_timeout`` while armed."""
+    device_watchdog_trips: int = 0
+    """The device's ``!,16`` notices (its watchdog zeroed the current)."""
+    device_errors: Counter[int] = field(default_factory=Counter)
+    """The device's ``!`` lines by error code."""
+    ignored_commands: int = 0
+    """Force commands received while disarmed (none is forwarded)."""
+    bad_commands: int = 0
+    """Non-finite or malformed force commands."""
+    bad_samples: int = 0
+    """Checksummed samples refused for a sequence jump the device cannot have made."""
+    sequence_resyncs: int = 0
+    """Times the sequence was taken up anew after three consecutive such samples."""
+    stale_commands: int = 0
+    """Force commands stamped more than ``command_timeout`` ago."""
+    limit_inhibits: int = 0
+    """Force commands zeroed for pushing towards a closed limit switch."""
+    faults: int = 0
+    """Disarming faults (the latest one's reason is :attr:`BridgeCore.last_error`)."""
+    connects: int = 0
+    """Times the port was opened (see :attr:`reconnects`)."""
+    homes: int = 0
+    """Completed homings (each moves the position reference: x = 0 now)."""
+
+    @property
+    def reconnects(self) -> int:
+        """Re-opened ports (``connects`` after the first)."""
+        return max(0, self.connects - 1)
+
+
+@dataclass
 class Output:
     """What one event asks the link to do."""
 
@@ -147,7 +189,7 @@ STREAM_OFF = jp.encode(jp.Stream(False))
 class BridgeCore:
     """Host-side protocol state machine (see the module docstring).
 
-    Why one class of about 360 lines: the host's protocol state machine
+    Why one class of about 350 lines: the host's protocol state machine
     (disconnected, connected, armed, fault) whose transitions (connect, arm, command,
     sample, device error, watchdog tick) all read and change the same state; the
     codec is :mod:`cartpole_hw.protocol`, the device clock :mod:`cartpole_hw.device_clock`.
@@ -171,8 +213,6 @@ class BridgeCore:
         self.flags = 0
         self.tracker = jp.SequenceTracker()
         self.device_clock = DeviceClock()
-        self.seq_gaps = 0
-        """Gaps in the sequence numbers (each one or more lost samples)."""
         self._unwrap_cart = jp.CounterUnwrapper(self.config.calibration.counter_bits)
         self._unwrap_pend = jp.CounterUnwrapper(self.config.calibration.counter_bits)
         self._since_resync = 0
@@ -181,25 +221,10 @@ class BridgeCore:
         self._jump_run = 0
         self.gaps = CycleGapMeter()
         """Longest gap between two valid samples' receipts (a stall figure)."""
-        self.homes = 0
-        """Completed homings (each moves the position reference: x = 0 now)."""
         self.warm_run = 0
         """Consecutive fresh commands received while disarmed (see warm_commands)."""
         self._last_warm_command = -math.inf
-        # counters for the health report
-        self.samples = 0
-        self.bad_lines: Counter[str] = Counter()
-        self.device_errors: Counter[int] = Counter()
-        self.watchdog_trips = 0
-        self.device_watchdog_trips = 0
-        self.faults = 0
-        self.connects = 0
-        self.ignored_commands = 0
-        self.bad_commands = 0
-        self.stale_commands = 0
-        self.limit_inhibits = 0
-        self.bad_samples = 0
-        self.sequence_resyncs = 0
+        self.counts = BridgeCounts()
         self.last_error = ''
         self.latencies: deque[float] = deque(maxlen=self.config.latency_window)
         self.last_setpoint = 0
@@ -208,7 +233,7 @@ class BridgeCore:
     def on_connect(self, now: float) -> list[bytes]:
         """The port is open: make the device safe, ask who it is, start streaming."""
         self.connected = True
-        self.connects += 1
+        self.counts.connects += 1
         self.link_ready = False
         self.armed = False
         self.commands_live = False
@@ -224,10 +249,6 @@ class BridgeCore:
         self.connected = False
         self.link_ready = False
         self.homing = False
-
-    @property
-    def reconnects(self) -> int:
-        return max(0, self.connects - 1)
 
     # -- requests ----------------------------------------------------------------------------
     def arm(self, now: float) -> tuple[bool, str, list[bytes]]:
@@ -281,7 +302,7 @@ class BridgeCore:
         return out + ([STREAM_OFF] if self.connected else [])
 
     def _fault(self, reason: str) -> list[bytes]:
-        self.faults += 1
+        self.counts.faults += 1
         self.last_error = reason
         self.arm_requested = False
         if self.armed:
@@ -292,21 +313,21 @@ class BridgeCore:
     def on_command(self, force: float, now: float, latency: float | None = None) -> list[bytes]:
         """A force command [N] from the controller; ``latency`` = now - its stamp [s]."""
         if not self.armed:
-            self.ignored_commands += 1
+            self.counts.ignored_commands += 1
             fresh = math.isfinite(force) and (latency is None
                                               or latency <= 0.5 * self.config.command_timeout)
             self.warm_run = self.warm_run + 1 if fresh else 0
             self._last_warm_command = now
             return []
         if not math.isfinite(force):
-            self.bad_commands += 1
+            self.counts.bad_commands += 1
             return []
         if latency is not None and latency > self.config.command_timeout:
-            self.stale_commands += 1
+            self.counts.stale_commands += 1
             return []
         if (force > 0 and self.flags & jp.FLAG_LIMIT_RIGHT) or \
                 (force < 0 and self.flags & jp.FLAG_LIMIT_LEFT):
-            self.limit_inhibits += 1
+            self.counts.limit_inhibits += 1
             force = 0.0
         setpoint = self.config.calibration.force_to_setpoint(force)
         self.commands_live = True
@@ -325,7 +346,7 @@ class BridgeCore:
         cfg = self.config
         if self.armed and self.commands_live and \
                 now + cfg.tick_period - self.last_command > cfg.command_timeout:
-            self.watchdog_trips += 1
+            self.counts.watchdog_trips += 1
             out += self._fault(f'host watchdog: no fresh force command for '
                                f'{1e3 * (now - self.last_command):.0f} ms')
         if self.armed and now - self.last_sample > self.config.sample_timeout:
@@ -354,7 +375,7 @@ class BridgeCore:
         """One line from the splitter (or its oversize error)."""
         message = line if isinstance(line, jp.DecodeError) else jp.decode_line(line, direction='device')
         if isinstance(message, jp.DecodeError):
-            self.bad_lines[message.reason] += 1
+            self.counts.bad_lines[message.reason] += 1
             return Output()
         if isinstance(message, jp.Sample):
             return self._on_sample(message, now)
@@ -373,16 +394,16 @@ class BridgeCore:
         if self.homing:
             self.homing = False
             self.homed = True
-            self.homes += 1
+            self.counts.homes += 1
             self.gaps.last = None      # the samples discarded while homing are no stall
             self._unwrap_cart.reset()
             self._unwrap_pend.reset()
         return []
 
     def _on_device_error(self, message: jp.DeviceError) -> list[bytes]:
-        self.device_errors[message.code] += 1
+        self.counts.device_errors[message.code] += 1
         if message.code == jp.ERROR_CODES['watchdog']:
-            self.device_watchdog_trips += 1
+            self.counts.device_watchdog_trips += 1
         if message.is_fault and self.armed:
             return self._fault(f'device fault {message.code}: {message.text}')
         return []
@@ -404,10 +425,10 @@ class BridgeCore:
         self._jump_candidate = seq
         if self._jump_run >= 3:  # the device really continues from there
             self._jump_run, self._jump_candidate = 0, None
-            self.sequence_resyncs += 1
+            self.counts.sequence_resyncs += 1
             self.tracker.resync(seq)
             return False
-        self.bad_samples += 1
+        self.counts.bad_samples += 1
         return True
 
     def _on_sample(self, s: jp.Sample, now: float) -> Output:
@@ -425,10 +446,10 @@ class BridgeCore:
             self.device_clock.reset()   # its micros() started again too
             out += self._fault('sample sequence jumped back (device restarted?): re-home')
         elif jump > 0:
-            self.seq_gaps += 1
+            self.counts.seq_gaps += 1
         if self.homing:
             return Output(out)  # counts before the reset took effect
-        self.samples += 1
+        self.counts.samples += 1
         self.last_sample = now
         self.gaps.tick(now)
         previous, self.flags = self.flags, s.flags
@@ -468,6 +489,7 @@ class BridgeCore:
     def health(self) -> dict[str, str]:
         """Health figures as strings (the KeyValues of ``/cartpole/hw/health``)."""
         p50, worst = self.latency_stats()
+        counts = self.counts
         values = {
             'connected': str(self.connected).lower(),
             'link_ready': str(self.link_ready).lower(),
@@ -477,37 +499,37 @@ class BridgeCore:
             'homing': str(self.homing).lower(),
             'arm_requested': str(self.arm_requested).lower(),
             'warm_commands': str(self.warm_run),
-            'samples': str(self.samples),
+            'samples': str(counts.samples),
             'lost_samples': str(self.tracker.lost),
-            'seq_gaps': str(self.seq_gaps),
+            'seq_gaps': str(counts.seq_gaps),
             'sample_latency_s': repr(self.device_clock.latency),
             'device_clock_drift_ppm': repr(self.device_clock.drift * 1e6),
             'device_clock_slew_s': repr(self.device_clock.offset_error),
             'device_clock_resets': str(self.device_clock.resets),
-            'bad_lines': str(sum(self.bad_lines.values())),
+            'bad_lines': str(sum(counts.bad_lines.values())),
         }
         for reason in jp.DECODE_REASONS:
-            values[f'bad_lines.{reason}'] = str(self.bad_lines[reason])
+            values[f'bad_lines.{reason}'] = str(counts.bad_lines[reason])
         values.update({
-            'watchdog_trips': str(self.watchdog_trips),
+            'watchdog_trips': str(counts.watchdog_trips),
             'device_watchdog': str(bool(self.flags & jp.FLAG_WATCHDOG)).lower(),
-            'device_watchdog_trips': str(self.device_watchdog_trips),
-            'device_errors': str(sum(self.device_errors.values())),
+            'device_watchdog_trips': str(counts.device_watchdog_trips),
+            'device_errors': str(sum(counts.device_errors.values())),
             'device_enabled': str(bool(self.flags & jp.FLAG_ENABLED)).lower(),
             'limit_left': str(bool(self.flags & jp.FLAG_LIMIT_LEFT)).lower(),
             'limit_right': str(bool(self.flags & jp.FLAG_LIMIT_RIGHT)).lower(),
             'latency_p50': repr(p50),
             'latency_max': repr(worst),
             'setpoint': str(self.last_setpoint),
-            'ignored_commands': str(self.ignored_commands),
-            'bad_commands': str(self.bad_commands),
-            'bad_samples': str(self.bad_samples),
-            'sequence_resyncs': str(self.sequence_resyncs),
+            'ignored_commands': str(counts.ignored_commands),
+            'bad_commands': str(counts.bad_commands),
+            'bad_samples': str(counts.bad_samples),
+            'sequence_resyncs': str(counts.sequence_resyncs),
             'longest_cycle_gap_s': repr(self.gaps.longest),
-            'stale_commands': str(self.stale_commands),
-            'limit_inhibits': str(self.limit_inhibits),
-            'faults': str(self.faults),
-            'reconnects': str(self.reconnects),
+            'stale_commands': str(counts.stale_commands),
+            'limit_inhibits': str(counts.limit_inhibits),
+            'faults': str(counts.faults),
+            'reconnects': str(counts.reconnects),
             'last_error': self.last_error,
         })
         return values

@@ -165,7 +165,7 @@ class HwBridgeNode(Node):
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
-        homes = self.core.homes
+        homes = self.core.counts.homes
         if homes != self._homes_announced:
             self._homes_announced = homes
             self._reset_pub.publish(Header(stamp=msg.header.stamp))
@@ -206,7 +206,7 @@ class HwBridgeNode(Node):
             force = float(msg.effort[list(msg.name).index('cart')]) if msg.name else float(msg.effort[0])
         except (ValueError, IndexError):
             with self._lock:
-                self.core.bad_commands += 1
+                self.core.counts.bad_commands += 1
             return
         stamp = msg.header.stamp
         latency = None

@@ -53,7 +53,7 @@ def test_disarmed_bridge_never_sends_a_nonzero_setpoint():
     for k in range(2, 20):
         out.write += core.on_line(sample(k, flags=jp.FLAG_ENABLED), 0.02 + k * 0.005).write
     assert E_OFF in out.write and set(setpoints(out.write)) == {0}
-    assert core.ignored_commands == 1
+    assert core.counts.ignored_commands == 1
 
 
 def test_homing_discards_samples_until_the_version_answer():
@@ -74,7 +74,7 @@ def test_host_watchdog_trips_after_command_timeout_and_disarms():
     for k in range(1, 40):
         assert core.on_line(sample(k, flags=1), k * 0.005).write == [U_ZERO]
         assert core.on_tick(k * 0.005 + 0.001) == []
-    assert core.armed and core.watchdog_trips == 0
+    assert core.armed and core.counts.watchdog_trips == 0
     core = ready_core()
     core.arm(0.0)
     t = 0.0
@@ -85,7 +85,7 @@ def test_host_watchdog_trips_after_command_timeout_and_disarms():
     assert core.on_tick(t + 0.047) == []
     core.on_line(sample(5, flags=1), t + 0.047)
     lines = core.on_tick(t + 0.0485)       # the next tick (2 ms) would be past the 50 ms
-    assert lines == [U_ZERO, E_OFF] and not core.armed and core.watchdog_trips == 1
+    assert lines == [U_ZERO, E_OFF] and not core.armed and core.counts.watchdog_trips == 1
     assert 'host watchdog' in core.last_error
     assert core.on_command(2.0, t + 0.06) == []          # stays disarmed: explicit re-arm
 
@@ -112,7 +112,7 @@ def test_host_watchdog_zero_force_within_50_ms_of_the_last_command(phase, jitter
         if lines:
             break
         t += cfg.tick_period
-    assert lines[:2] == [U_ZERO, E_OFF] and core.watchdog_trips == 1
+    assert lines[:2] == [U_ZERO, E_OFF] and core.counts.watchdog_trips == 1
     assert cfg.command_timeout - cfg.tick_period < t - last <= cfg.command_timeout
 
 
@@ -135,7 +135,7 @@ def test_absurd_sequence_jump_is_a_bad_sample_not_lost_samples():
     # a checksummed line whose seq jumped by a million (a garble the XOR did not catch)
     out = core.on_line(sample(10 + 1_000_000), 0.055)
     assert out.sample is None and out.write == []
-    assert (core.bad_samples, core.tracker.lost, core.samples) == (1, 0, 10)
+    assert (core.counts.bad_samples, core.tracker.lost, core.counts.samples) == (1, 0, 10)
     assert core.on_line(sample(11), 0.056).sample is not None        # the stream goes on
     # a real gap: 30 samples lost over 155 ms is accepted and counted as lost
     assert core.on_line(sample(42), 0.056 + 0.155).sample is not None
@@ -173,7 +173,8 @@ def test_stale_and_nonfinite_commands_are_not_fresh():
     core.arm(0.0)
     assert core.on_command(math.nan, 0.001) == []
     assert core.on_command(1.0, 0.001, latency=0.2) == []
-    assert (core.bad_commands, core.stale_commands, core.commands_live) == (1, 1, False)
+    counts = core.counts
+    assert (counts.bad_commands, counts.stale_commands, core.commands_live) == (1, 1, False)
 
 
 @pytest.mark.parametrize('event', ['sample_timeout', 'device_watchdog', 'limit', 'device_fault',
@@ -194,7 +195,7 @@ def test_every_fault_zeroes_force_and_disarms(event):
     elif event == 'disconnect':
         core.on_disconnect(0.004, 'gone')
         lines = [U_ZERO, E_OFF]            # nothing can be sent; on reconnect U,0 E,0 go first
-        assert core.on_connect(0.5)[:2] == [U_ZERO, E_OFF] and core.reconnects == 1
+        assert core.on_connect(0.5)[:2] == [U_ZERO, E_OFF] and core.counts.reconnects == 1
     else:
         lines = core.on_line(sample(0, flags=1), 0.004).write
         assert not core.homed and 're-home' in core.last_error
@@ -210,7 +211,7 @@ def test_limit_switch_inhibits_force_towards_it_only():
     assert core.armed                                    # closed before arming: no crash
     assert setpoints(core.on_command(-3.0, 0.006)) == [0]
     assert setpoints(core.on_command(3.0, 0.007)) == [170]
-    assert core.limit_inhibits == 1
+    assert core.counts.limit_inhibits == 1
 
 
 def test_bad_lines_are_counted_by_reason_and_lost_samples_by_seq():

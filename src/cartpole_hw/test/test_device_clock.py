@@ -118,7 +118,7 @@ def test_bridge_counts_seq_gaps_and_stamps_them_as_the_ekf_counts_them():
         seq = t_us // 5000
         out = core.on_line(jp.encode(jp.Sample(seq, t_us, 0, 0, 0))[:-1], receipt)
         samples.append(out.sample)
-    assert core.seq_gaps == 2 and core.tracker.lost == 3
+    assert core.counts.seq_gaps == 2 and core.tracker.lost == 3
     assert [s.missed for s in samples if s.missed] == [1, 2]
     health = core.health()
     assert health['seq_gaps'] == '2' and health['lost_samples'] == '3'
@@ -156,5 +156,5 @@ def test_emulator_usb_jitter_does_not_reach_the_stamps(tmp_path):
         assert b.missed == periods - 1
         assert abs((b.stamp - a.stamp) - periods * TS) <= 1e-4, (a, b)
     gaps = sum(1 for s in samples[1:] if s.missed)
-    assert gaps > 0 and core.seq_gaps >= gaps
-    assert core.health()['seq_gaps'] == str(core.seq_gaps)
+    assert gaps > 0 and core.counts.seq_gaps >= gaps
+    assert core.health()['seq_gaps'] == str(core.counts.seq_gaps)

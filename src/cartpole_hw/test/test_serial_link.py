@@ -83,7 +83,7 @@ def test_lines_that_piled_up_during_a_host_stall_are_read_before_the_watchdogs_r
         clock.now = seq * 0.005
         port.pending += s_line(seq)
         link._poll(port)
-    assert link.core.armed and link.core.samples == 3
+    assert link.core.armed and link.core.counts.samples == 3
     # The process stalls for 200 ms in the middle of a read that then returns empty;
     # meanwhile the device went on sampling and its 40 lines wait in the port.
     port.read_times_out = True
@@ -92,8 +92,8 @@ def test_lines_that_piled_up_during_a_host_stall_are_read_before_the_watchdogs_r
     link._poll(port)
     assert link.core.armed, link.core.last_error
     link._poll(port)
-    assert link.core.armed and link.core.faults == 0
-    assert link.core.samples == 43 and link.core.tracker.lost == 0
+    assert link.core.armed and link.core.counts.faults == 0
+    assert link.core.counts.samples == 43 and link.core.tracker.lost == 0
 
 
 def test_a_silent_device_still_trips_the_sample_timeout():
