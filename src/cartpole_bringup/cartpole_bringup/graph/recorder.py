@@ -36,11 +36,11 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Header
 
 from cartpole_sim.node_runner import run_node
 
 from ..bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from .progress import LockstepProgress
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 
@@ -116,9 +116,7 @@ class RecorderNode(Node):
                          reliability=ReliabilityPolicy.RELIABLE)
         lockstep = bool(self.get_parameter('lockstep').value)
         self.ledger = RecordLedger(topics, skip_repeats=lockstep)
-        self._progress_ns = -1
-        self._progress_pub = self.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
-            depth=10, reliability=ReliabilityPolicy.RELIABLE)) if lockstep else None
+        self._progress = LockstepProgress(self, self.ledger) if lockstep else None
         for topic in topics:
             self.create_subscription(_import_type(TOPICS[topic]), topic,
                                      self._writer_for(topic), qos, raw=True)
@@ -144,13 +142,8 @@ class RecorderNode(Node):
             if not self.ledger.take(topic, cdr_stamp_ns(data)):
                 return  # a sample re-published while the graph started: written once
             self._queue.append((topic, data, self.get_clock().now().nanoseconds))
-            if self._progress_pub is not None:
-                progress = self.ledger.progress_ns()
-                if progress is not None and progress > self._progress_ns:
-                    self._progress_ns = progress
-                    msg = Header()
-                    msg.stamp.sec, msg.stamp.nanosec = divmod(progress, 1_000_000_000)
-                    self._progress_pub.publish(msg)
+            if self._progress is not None:
+                self._progress.update()
         return book_and_queue
 
     def _write_queued(self) -> None:

@@ -26,10 +26,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
 
 from ..analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
-from .record_ledger import PROGRESS_TOPIC, RecordLedger
+from .progress import LockstepProgress
+from .record_ledger import RecordLedger
 
 NODE_NAME = 'cartpole_run'
 ZERO_FORCE_N = 1e-3
@@ -59,10 +59,8 @@ class RunMonitor(Node):
                  progress: bool = False, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.builder = SeriesBuilder()
-        self._ledger = RecordLedger((state_topic, FORCE, STATUS)) if progress else None
-        self._progress_ns = -1
-        self._progress_pub = self.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
-            depth=10, reliability=ReliabilityPolicy.RELIABLE)) if progress else None
+        self._progress = (LockstepProgress(self, RecordLedger((state_topic, FORCE, STATUS)))
+                          if progress else None)
         self.last_stamp_ns: int | None = None
         """Stamp of the latest state sample (simulated time in lockstep)."""
         self.forces = 0
@@ -96,15 +94,9 @@ class RunMonitor(Node):
 
     def _book(self, topic: str, stamp_ns: int) -> None:
         """Lockstep progress: book a sample message, publish the new progress."""
-        if self._ledger is None:
-            return
-        self._ledger.take(topic, stamp_ns)
-        progress = self._ledger.progress_ns()
-        if progress is not None and progress > self._progress_ns:
-            self._progress_ns = progress
-            msg = Header()
-            msg.stamp.sec, msg.stamp.nanosec = divmod(progress, 1_000_000_000)
-            self._progress_pub.publish(msg)
+        if self._progress is not None:
+            self._progress.ledger.take(topic, stamp_ns)
+            self._progress.update()
 
     def _on_force(self, msg: JointState) -> None:
         stamp = _stamp_ns(msg.header.stamp)
