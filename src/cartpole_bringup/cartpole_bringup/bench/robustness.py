@@ -33,7 +33,7 @@ from .sweep import run_parallel
 
 NOMINAL = CartPoleParameters()
 PUSH_TIME = 12.0
-"""[s] Pushes come at 12 s: after every pair's catch (about 5 s), 8 s before the
+"""[s] Pushes come at 12 s: after every pair's catch (about 3 s), 8 s before the
 last-10-s window that decides success."""
 CART_PUSH_WIDTH = 0.1
 """[s] Width of the pushes on the cart (1 N s = 10 N for 0.1 s)."""
