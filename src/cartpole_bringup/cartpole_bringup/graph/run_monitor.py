@@ -59,8 +59,10 @@ class RunMonitor(Node):
                  progress: bool = False, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.builder = SeriesBuilder()
-        self._progress = (LockstepProgress(self, RecordLedger((state_topic, FORCE, STATUS)))
-                          if progress else None)
+        # The status is booked only where it is subscribed (collect): a ledger waiting for a
+        # topic this node never takes would hold the progress back for good.
+        booked = (state_topic, FORCE) + ((STATUS,) if collect else ())
+        self._progress = LockstepProgress(self, RecordLedger(booked)) if progress else None
         self.last_stamp_ns: int | None = None
         """Stamp of the latest state sample (simulated time in lockstep)."""
         self.forces = 0

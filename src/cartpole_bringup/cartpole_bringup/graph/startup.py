@@ -81,8 +81,8 @@ class GraphStartup:
             # stops and its summary reports the fault, as for a death later on.
             if self.should_stop() or self.fault is not None:
                 return
-            raise GraphError(self.fault or f'no state arrived within {STARTUP_TIMEOUT:g} s; '
-                                           f'{self._process_report()}')
+            raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
+                             f'{self._process_report()}')
         if self.spec.lockstep:
             self._ensure_loop_started()
         self.wall_start = time.monotonic()
@@ -111,8 +111,7 @@ class GraphStartup:
             first = self.monitor.last_stamp_ns
         if (not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop()
                 and self.fault is None):
-            raise GraphError(self.fault or 'the lockstep loop does not start; '
-                                           + self._process_report())
+            raise GraphError('the lockstep loop does not start; ' + self._process_report())
 
     def _start_in_process(self) -> None:
         for name in self.spec.nodes:
