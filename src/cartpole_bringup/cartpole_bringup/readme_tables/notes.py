@@ -38,8 +38,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         "by more than 1 um: the plant's contact state, which `end_stop_contact` is taken from)",
     ('sim', '/clock'): 'before each sample: simulated time of the sample',
     ('sim', '/cartpole/recorder/progress'):
-        'the recorder\'s progress (`recorder_window` > 0): sample k is stepped past only once '
-        'the recorder holds every sample topic up to sample k - `recorder_window`',
+        'the progress of the recorder, or without one of `cartpole run`\'s monitor '
+        '(`recorder_window` > 0): sample k is stepped past only once it holds every sample '
+        'topic up to sample k - `recorder_window`',
     ('sim', '/cartpole/force_command'):
         "`name=['cart']`, `effort=[F]` [N]; held over the next period (zero-order hold). A "
         'message without a finite effort for `cart` is counted and ignored',
