@@ -121,7 +121,10 @@ def test_installed_cartpole_run_stops_cleanly_on_sigint(ros_context, spin_until,
     node.create_subscription(JointState, '/cartpole/true_state', truth.append, 10)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
-    proc = subprocess.Popen([cartpole_exe(), 'run', '--sim', '--record', str(tmp_path), '--json'],
+    # full_energy catches at about 6.9 s (the default swing-up at 2.8 s): the probe's own
+    # discovery may take seconds under load, and the run must still end before any catch.
+    proc = subprocess.Popen([cartpole_exe(), 'run', '--sim', '--swingup', 'full_energy',
+                             '--record', str(tmp_path), '--json'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # Real time: wait for 0.5 s of samples, then Ctrl-C.
