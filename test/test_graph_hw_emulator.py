@@ -11,8 +11,12 @@ import os
 import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
+
+from cartpole_sim.child_process import reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -50,3 +54,74 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
                 os.killpg(emulator.pid, signal.SIGKILL)
                 emulator.wait()
         log.close()
+
+
+def _child(pid: int, exe: str) -> int:
+    """The child process of ``pid`` whose executable is named ``exe``."""
+    for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():
+        argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
+        if any(Path(a.decode(errors='replace')).name == exe for a in argv):
+            return int(child)
+    raise AssertionError(f'no {exe} process under {pid}')
+
+
+def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_path, ros_context,
+                                                                           spin_until):
+    # The rig path with one process a node: SIGKILL of the controller manager while it
+    # drives the cart. The run reports the death as its fault, and the bridge, still alive,
+    # disarms the device itself (U,0 then E,0, the bridge's orderly stop), not merely the
+    # device's watchdog; after the kill the device's output never drives again.
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    link, timeline = tmp_path / 'cartpole-emu', tmp_path / 'timeline.json'
+    probe_log = open(tmp_path / 'emulator.log', 'w')
+    emulator = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name('emulator_probe.py')), str(link), '300',
+         str(timeline)], stdout=subprocess.PIPE, stderr=probe_log, text=True,
+        start_new_session=True)
+    node = Node('_rig_kill_probe', context=ros_context)
+    commands: list[float] = []
+    node.create_subscription(JointState, '/cartpole/force_command',
+                             lambda m: commands.append(m.effort[0] if m.effort else 0.0), 100)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    run = None
+    try:
+        assert emulator.stdout.readline().startswith('port'), (tmp_path / 'emulator.log').read_text()
+        run = subprocess.Popen(
+            [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--hw', '--port', str(link),
+             '--hw-arm', '--processes', '--duration', '60', '--json'],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # 2 s of non-zero force commands: the bridge is armed and the cart is being driven.
+        assert spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0), \
+            'the rig was never driven'
+        os.kill(_child(run.pid, 'controller_manager'), signal.SIGKILL)
+        killed_at = time.monotonic()  # the emulator logs the same clock
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run is not None:
+            reap(run)
+        node.destroy_node()
+        if emulator.poll() is None:
+            os.killpg(emulator.pid, signal.SIGINT)  # it writes the timeline and exits
+            try:
+                emulator.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                pass
+        reap(emulator)
+        probe_log.close()
+    assert run.returncode == 1, err[-3000:]
+    assert 'Traceback' not in err, err[-3000:]
+    summary = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
+    assert summary['fault'] == 'controller_manager died (SIGKILL)', summary
+    assert summary['success'] is False
+    events = json.loads(timeline.read_text())['timeline']
+    after = [(kind, value) for t, kind, value in events if t > killed_at]
+    assert ('E', 'E,0') in after, after[:20]  # the bridge disarmed the device
+    assert ('output', 'zero') in after, after[:20]
+    last_zero = max(i for i, e in enumerate(after) if e == ('output', 'zero'))
+    assert ('output', 'nonzero') not in after[last_zero:], after
+    enables = [value for kind, value in after if kind == 'E']
+    assert enables and all(v == 'E,0' for v in enables), enables  # never re-armed

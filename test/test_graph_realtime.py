@@ -45,3 +45,4 @@ def test_real_time_sim_run_with_disturbances_still_succeeds():
     assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, summary
     assert summary['end_stop_contact'] is False, summary
     assert summary['success'] is True, summary
+    assert summary['recorder_missed'] is None, summary  # no bag, nothing counted

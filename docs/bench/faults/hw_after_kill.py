@@ -1,7 +1,7 @@
 """The device's side of a kill: the last ``U`` before it, the output going to zero after it.
 
 Usage: ``python hw_after_kill.py EMU.json KILLNODE.out`` (the outputs of
-emu_probe.py and killnode.py; both use the machine's monotonic clock).
+test/emulator_probe.py and killnode.py; both use the machine's monotonic clock).
 """
 import json
 import sys

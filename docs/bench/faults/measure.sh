@@ -16,7 +16,7 @@ done
 echo "== SIGKILL of one node, rig (cartpole emulate in this process), --processes, real time"
 for n in hw_bridge controller_manager; do
   rm -rf $R/hw_$n; LINK=$R/emu-link-$n; rm -f $LINK
-  python $HERE/emu_probe.py $LINK 45 $R/emu_$n.json > $R/emu_$n.out 2>&1 &
+  python $HERE/../../../test/emulator_probe.py $LINK 45 $R/emu_$n.json > $R/emu_$n.out 2>&1 &
   EMU=$!
   for i in $(seq 50); do [ -e $LINK ] && break; sleep 0.1; done
   python $HERE/killnode.py $n $R/hw_$n --after 8 -- --hw --port $LINK --hw-arm --processes \

@@ -91,6 +91,8 @@ def test_run_directory_is_named_by_time_and_controllers(tmp_path):
     (['--sim', '--tip-mass', '-1'], '--tip-mass must be > 0'),
     (['--sim', '--domain-id', '300'], '--domain-id must be in'),
     (['--sim', '--view', 'localhost:70000'], '--view: port must be in'),
+    (['--sim', '--realtime', 'fast'], "--realtime: CARTPOLE_REALTIME='fast': expected on, off"),
+    (['--sim', '--realtime', '60'], 'SCHED_FIFO priority 1..49'),
 ])
 def test_bad_options_are_refused_before_anything_starts(argv, reason, capsys, tmp_path):
     try:

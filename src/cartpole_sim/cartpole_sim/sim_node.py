@@ -182,8 +182,12 @@ class SimNode(Node):
         self._startup_timer = None
         period = params.sample_time
         if self._lockstep:
+            # As deep as the sample topics: a reader that stalls (a recorder frozen by the
+            # machine) must find every /clock message the sim published meanwhile (it steps
+            # at most recorder_window + one a lockstep_timeout past the recorder).
             self._pub_clock = self.create_publisher(
-                ClockMsg, '/clock', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+                ClockMsg, '/clock',
+                QoSProfile(depth=PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
             self._timeout_timer = self._make_timeout_timer()
             if not self._loop_established:
                 self._startup_timer = self.create_timer(

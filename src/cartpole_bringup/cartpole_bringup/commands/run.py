@@ -60,6 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='start even when nodes of the same names are on the domain already '
                         '(another graph: the two then drive each other\'s nodes); default: '
                         'refuse, naming the domain')
+    g.add_argument('--realtime', metavar='on|off|PRIORITY', default=None,
+                   help='SCHED_FIFO priority of the loop\'s threads in every node of the run: on '
+                        '(default: 20), off, or 1..49; the same as CARTPOLE_REALTIME, which '
+                        'this sets for the run\'s processes; not permitted: one log line, the '
+                        'run goes on at normal priority')
     g.add_argument('--log-level', default='warn',
                    choices=('debug', 'info', 'warn', 'error', 'fatal'),
                    help='ROS log level of the nodes (default warn)')
@@ -141,6 +146,12 @@ def _validate(args: argparse.Namespace) -> str | None:
         return '--lockstep needs --sim'
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         return f'--duration must be > 0, got {args.duration}'
+    if args.realtime is not None:
+        from cartpole_sim.realtime import ENVIRONMENT_SWITCH, priority_from_environment
+        try:
+            priority_from_environment({ENVIRONMENT_SWITCH: args.realtime})
+        except ValueError as exc:
+            return f'--realtime: {exc}'
     if args.plots == '' and args.record is None:
         return '--plots without DIR needs --record (the figures go into the run directory)'
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
@@ -193,6 +204,9 @@ def main(args: argparse.Namespace) -> int:
     if error:
         print(f'cartpole run: {error}', file=sys.stderr)
         return 2
+    if args.realtime is not None:  # read by every node of the run, in this process or its own
+        from cartpole_sim.realtime import ENVIRONMENT_SWITCH
+        os.environ[ENVIRONMENT_SWITCH] = args.realtime
     if args.domain_id is not None:
         os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
     if args.discovery != 'system_default':
@@ -324,8 +338,12 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
 
     try:
         if bag is None:
-            return graph.monitor.builder.summarize(params=params, x_ref=x_ref, lockstep=lockstep,
-                                                   label='run', end_ns=end_ns, fault=graph.fault)
+            series, summary = graph.monitor.builder.summarize(
+                params=params, x_ref=x_ref, lockstep=lockstep, label='run', end_ns=end_ns,
+                fault=graph.fault)
+            if summary is not None:
+                summary['recorder_missed'] = None  # no bag: nothing was recorded, nothing counted
+            return series, summary
         if needs_repair(bag):  # the recorder was killed
             print(f'cartpole run: {repair_bag(bag).describe()}', file=sys.stderr)
         update_custom_data(bag, {'run_end_ns': None if end_ns is None else str(end_ns),

@@ -1,12 +1,16 @@
-"""The emulated rig in this process, logging what the device received and its output.
+"""The emulated rig in its own process, logging what the device received and its output.
 
-Usage: ``python emu_probe.py LINK SECONDS OUT.json``. Opens the emulator on a
-pseudo-terminal linked at LINK, runs it SECONDS, then writes the timeline
-(monotonic time, ``U``/``E`` lines received, changes of the output between
-zero and non-zero) to OUT.json for hw_after_kill.py.
+Usage: ``python test/emulator_probe.py LINK SECONDS OUT.json``. Opens the
+emulator on a pseudo-terminal linked at LINK and prints ``port <pty>``; runs
+until SECONDS have passed or SIGINT/SIGTERM arrives, then writes the timeline
+(monotonic time, the ``U``/``E`` lines received, the changes of the output
+between zero and non-zero) to OUT.json. Used by test_graph_hw_emulator.py and
+docs/bench/faults (hw_after_kill.py reads the timeline).
 """
 import json
+import signal
 import sys
+import threading
 import time
 
 from cartpole_hw.emulator import Emulator
@@ -31,11 +35,14 @@ def main() -> None:
             timeline.append((time.monotonic(), 'output', 'zero' if zero else 'nonzero'))
             zero_before[0] = zero
 
+    done = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: done.set())
     emulator.device.handle_line = handle_line
     emulator.sample_period = sample_period
     emulator.start()
     print('port', emulator.port, flush=True)
-    time.sleep(seconds)
+    done.wait(seconds)
     emulator.stop()
     with open(out, 'w') as f:
         json.dump({'timeline': timeline}, f)
