@@ -109,7 +109,15 @@ def _children(pid: int) -> list[int]:
 
 
 class _Probe:
-    """Receives samples and commands; records latency = receipt (system clock) - stamp."""
+    """Receives samples and commands; records latency = receipt (system clock) - stamp.
+
+    It stands in for the command's real consumer (the simulator or the bridge,
+    which run at the loop's real-time priority), so once its threads exist it
+    takes that priority too (:func:`cartpole_sim.realtime.enter_loop`, the
+    ``CARTPOLE_REALTIME`` setting): at normal priority its receipt times held
+    its own wait behind any other process on the machine (a viewer client),
+    which is not the loop's latency.
+    """
 
     def __init__(self, sample_topic: str, command_topic: str) -> None:
         import rclpy
@@ -131,6 +139,11 @@ class _Probe:
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._recording = False
         self._thread.start()
+        from cartpole_sim.realtime import enter_loop
+        self.hygiene = enter_loop(log=lambda text: None,
+                                  warn=lambda text: print(f'latency probe: {text}',
+                                                          file=sys.stderr),
+                                  what='latency probe')
 
     def _spin(self) -> None:
         while self.context.ok():
@@ -165,6 +178,7 @@ class _Probe:
 
     def close(self) -> None:
         import rclpy
+        self.hygiene.leave()
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
