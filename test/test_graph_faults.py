@@ -16,31 +16,12 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import reap
+from cartpole_sim.child_process import child_running, reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 FORCE = '/cartpole/force_command'
 TRUTH = '/cartpole/true_state'
-
-
-def _children(pid: int) -> dict[str, int]:
-    """Child processes of ``pid`` by executable name."""
-    out = {}
-    try:
-        pids = Path(f'/proc/{pid}/task/{pid}/children').read_text().split()
-    except OSError:
-        return out
-    for child in pids:
-        try:
-            argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
-        except OSError:
-            continue
-        for arg in argv:
-            name = Path(arg.decode(errors='replace')).name
-            if name in ('sim_node', 'ekf_node', 'controller_manager', 'recorder'):
-                out[name] = int(child)
-    return out
 
 
 def _truth_probe(ros_context):
@@ -68,7 +49,7 @@ def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float
     try:
         assert spin_until(executor, lambda: seen and seen[-1] >= after_s * 1e9, 120.0), \
             'the graph did not run'
-        os.kill(_children(proc.pid)[victim], signal.SIGKILL)
+        os.kill(child_running(proc.pid, victim), signal.SIGKILL)
         killed_at = seen[-1]
         out, err = proc.communicate(timeout=120)
     finally:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import reap
+from cartpole_sim.child_process import child_running, reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -56,15 +56,6 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
         log.close()
 
 
-def _child(pid: int, exe: str) -> int:
-    """The child process of ``pid`` whose executable is named ``exe``."""
-    for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():
-        argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
-        if any(Path(a.decode(errors='replace')).name == exe for a in argv):
-            return int(child)
-    raise AssertionError(f'no {exe} process under {pid}')
-
-
 def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_path, ros_context,
                                                                            spin_until):
     # The rig path with one process a node: SIGKILL of the controller manager while it
@@ -97,7 +88,7 @@ def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_pat
         # 2 s of non-zero force commands: the bridge is armed and the cart is being driven.
         assert spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0), \
             'the rig was never driven'
-        os.kill(_child(run.pid, 'controller_manager'), signal.SIGKILL)
+        os.kill(child_running(run.pid, 'controller_manager'), signal.SIGKILL)
         killed_at = time.monotonic()  # the emulator logs the same clock
         out, err = run.communicate(timeout=120)
     finally:

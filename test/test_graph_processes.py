@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import interrupt
+from cartpole_sim.child_process import child_running, interrupt
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -82,7 +82,7 @@ def _run_with_a_frozen_recorder(args, ros_context, spin_until, timeout):
     try:
         assert spin_until(executor, lambda: seen and seen[-1] >= 3 * 10**9, 120.0), \
             'the graph did not run'
-        recorder = _recorder_pid(proc.pid)
+        recorder = child_running(proc.pid, 'recorder')
         os.kill(recorder, signal.SIGSTOP)
         try:
             stopped_at = seen[-1]
@@ -95,15 +95,6 @@ def _run_with_a_frozen_recorder(args, ros_context, spin_until, timeout):
         interrupt(proc, 10.0)
         probe.destroy_node()
     return proc.returncode, out, err, ahead_ns, ran_ahead
-
-
-def _recorder_pid(pid: int) -> int:
-    """The recorder process among the children of ``cartpole run`` (``pid``)."""
-    for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():
-        argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
-        if any(Path(a.decode(errors='replace')).name == 'recorder' for a in argv):
-            return int(child)
-    raise AssertionError('no recorder process')
 
 
 def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, ros_context,
@@ -150,15 +141,6 @@ def test_one_process_lockstep_bag_is_complete(tmp_path):
     result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
     assert result['recorder_missed'] == 0
     assert_complete(bag_stamps(Path(result['bag']))[0], 8.0)
-
-
-def _recorder_pid(pid: int) -> int:
-    """The recorder process among the children of ``cartpole run`` (``pid``)."""
-    for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():
-        argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
-        if any(Path(a.decode(errors='replace')).name == 'recorder' for a in argv):
-            return int(child)
-    raise AssertionError('no recorder process')
 
 
 SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m', 'mse_x',

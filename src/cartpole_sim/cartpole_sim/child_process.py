@@ -42,3 +42,18 @@ def reap(proc: subprocess.Popen, *, drain: bool = True) -> None:
     if proc.poll() is None:
         proc.kill()
         (proc.communicate if drain else proc.wait)()
+
+
+def child_running(pid: int, executable: str) -> int:
+    """PID of the child process of ``pid`` whose command line runs ``executable`` (by name:
+    ``controller_manager``, ``recorder``, ...), for a test or tool that signals one node of
+    ``cartpole run --processes``; LookupError if there is none (Linux /proc)."""
+    from pathlib import Path
+    for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():
+        try:
+            argv = Path(f'/proc/{child}/cmdline').read_bytes().split(b'\0')
+        except OSError:  # ended meanwhile
+            continue
+        if any(Path(arg.decode(errors='replace')).name == executable for arg in argv):
+            return int(child)
+    raise LookupError(f'no {executable} process under {pid}')
