@@ -73,7 +73,8 @@ class RunMonitor(Node):
         self.zero_force_samples = 0
         """Simulator samples whose actuator force (``effort[0]`` of the truth) is zero."""
         self._zero_stamp_ns: int | None = None
-        """Stamp of the last sample-stamped zero this node published (lockstep fault stop)."""
+        """Stamp of the last sample-stamped zero this node published (lockstep fault stop:
+        from the first, every later sample is answered with zero too)."""
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
         self.create_subscription(JointState, FORCE, self._on_force, qos)
@@ -91,6 +92,12 @@ class RunMonitor(Node):
                 self.zero_force_samples += 1
             if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
                 self.last_stamp_ns = stamp
+            if self._zero_stamp_ns is not None and stamp > self._zero_stamp_ns:
+                # Lockstep fault stop: this node stands in for the controller, so every new
+                # sample is answered at once with zero force; the simulator steps on (no
+                # lockstep_timeout per sample) and the zero reaches the plant in a few samples.
+                self._zero_stamp_ns = stamp
+                self._publish_zero(stamp)
             self._book(topic, stamp)
         return callback
 
