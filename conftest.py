@@ -49,6 +49,28 @@ def spin_until():
 
 
 @pytest.fixture
+def truth_stamps(ros_context):
+    """(stamps seen, executor): a probe node on ``/cartpole/true_state`` collecting the
+    stamps [ns] of the plant's samples, to tell how far a run started by the test has
+    come (spin the executor with ``spin_until``); destroyed after the test."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+
+    probe = Node('_truth_probe', context=ros_context)
+    seen: list[int] = []
+    probe.create_subscription(JointState, '/cartpole/true_state', lambda m: seen.append(
+        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
+    try:
+        yield seen, executor
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        probe.destroy_node()
+
+
+@pytest.fixture
 def three_ways():
     """three_ways(run, cases) -> (serial, pool, dask): a sweep runner's results on every executor.
 

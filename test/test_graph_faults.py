@@ -24,24 +24,9 @@ FORCE = '/cartpole/force_command'
 TRUTH = '/cartpole/true_state'
 
 
-def _truth_probe(ros_context):
-    """(node, stamps of /cartpole/true_state seen, executor): how far the run has come."""
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    probe = Node('_fault_probe', context=ros_context)
-    seen: list[int] = []
-    probe.create_subscription(JointState, TRUTH, lambda m: seen.append(
-        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
-    executor = SingleThreadedExecutor(context=ros_context)
-    executor.add_node(probe)
-    return probe, seen, executor
-
-
-def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float = 2.0):
+def _run_and_kill(tmp_path, truth_stamps, spin_until, victim: str, after_s: float = 2.0):
     """Start a lockstep --processes run, SIGKILL ``victim`` after ``after_s`` simulated s."""
-    probe, seen, executor = _truth_probe(ros_context)
+    seen, executor = truth_stamps
     proc = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim',
                              '--processes', '--lockstep', '--duration', '60',
                              '--record', str(tmp_path), '--json'],
@@ -54,7 +39,6 @@ def _run_and_kill(tmp_path, ros_context, spin_until, victim: str, after_s: float
         out, err = proc.communicate(timeout=120)
     finally:
         reap(proc)
-        probe.destroy_node()
     return proc.returncode, out, err, killed_at
 
 
@@ -84,9 +68,9 @@ def _assert_fault_reported(code, out, err, fault: str) -> tuple[dict, Path]:
     return result, bag
 
 
-def test_sigkill_of_the_controller_manager_is_a_reported_fault(tmp_path, ros_context,
+def test_sigkill_of_the_controller_manager_is_a_reported_fault(tmp_path, truth_stamps,
                                                                spin_until):
-    code, out, err, killed_at = _run_and_kill(tmp_path, ros_context, spin_until,
+    code, out, err, killed_at = _run_and_kill(tmp_path, truth_stamps, spin_until,
                                               'controller_manager')
     result, bag = _assert_fault_reported(code, out, err, 'controller_manager died (SIGKILL)')
     msgs = _read(bag)
@@ -112,17 +96,17 @@ def test_sigkill_of_the_controller_manager_is_a_reported_fault(tmp_path, ros_con
     assert json.loads(analysed.stdout)['fault'] == 'controller_manager died (SIGKILL)'
 
 
-def test_sigkill_at_the_first_sample_is_a_reported_fault(tmp_path, ros_context, spin_until):
+def test_sigkill_at_the_first_sample_is_a_reported_fault(tmp_path, truth_stamps, spin_until):
     # A death while the run is still starting (the run's own subscriptions can match
     # after the plant's first samples) is the same reported fault, not a start-up error.
-    code, out, err, _ = _run_and_kill(tmp_path, ros_context, spin_until, 'controller_manager',
+    code, out, err, _ = _run_and_kill(tmp_path, truth_stamps, spin_until, 'controller_manager',
                                       after_s=0.0)
     _assert_fault_reported(code, out, err, 'controller_manager died (SIGKILL)')
 
 
-def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, ros_context,
+def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, truth_stamps,
                                                                   spin_until):
-    code, out, err, killed_at = _run_and_kill(tmp_path, ros_context, spin_until, 'recorder')
+    code, out, err, killed_at = _run_and_kill(tmp_path, truth_stamps, spin_until, 'recorder')
     result, bag = _assert_fault_reported(code, out, err, 'recorder died (SIGKILL)')
     assert 'truncated MCAP recovered' in err
     truth = sorted({s for s, _ in _read(bag)[TRUTH]})
@@ -154,11 +138,11 @@ def test_a_raising_callback_in_one_process_is_the_fault(ros_context):
     assert graph.monitor.last_force == 0.0  # zero force commanded at the stop
 
 
-def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, ros_context,
+def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, truth_stamps,
                                                                     spin_until):
     """The whole `cartpole run` killed: only bag.mcap is left; `cartpole bag repair` makes it
     readable by rosbags and `cartpole analyze`, missing less than a second."""
-    probe, seen, executor = _truth_probe(ros_context)
+    seen, executor = truth_stamps
     proc = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim',
                              '--lockstep', '--duration', '60', '--record', str(tmp_path)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -169,7 +153,6 @@ def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, ro
         proc.communicate(timeout=30)
     finally:
         reap(proc)
-        probe.destroy_node()
     (bag,) = tmp_path.glob('*/bag')
     assert not (bag / 'metadata.yaml').exists()
     repaired = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'bag', 'repair',

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import child_running, reap
+from cartpole_sim.child_process import child_running, interrupt, reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -95,13 +95,7 @@ def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_pat
         if run is not None:
             reap(run)
         node.destroy_node()
-        if emulator.poll() is None:
-            os.killpg(emulator.pid, signal.SIGINT)  # it writes the timeline and exits
-            try:
-                emulator.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                pass
-        reap(emulator)
+        interrupt(emulator, 20.0)  # on SIGINT it writes the timeline and exits
         probe_log.close()
     assert run.returncode == 1, err[-3000:]
     assert 'Traceback' not in err, err[-3000:]

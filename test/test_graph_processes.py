@@ -62,21 +62,12 @@ def assert_complete(stamps, duration):
         assert in_run == expected, (topic, len(in_run), n)
 
 
-def _run_with_a_frozen_recorder(args, ros_context, spin_until, timeout):
+def _run_with_a_frozen_recorder(args, truth_stamps, spin_until, timeout):
     """``cartpole ARGS`` (a lockstep --processes --record run) whose recorder process is
     frozen (SIGSTOP) for 2.5 s once the run has passed 3 s: load's worst case for a bag,
     made on purpose. Returns (code, out, err, how far the sim ran ahead of the frozen
     recorder [ns], whether that reached 1 s)."""
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    probe = Node('_stall_probe', context=ros_context)
-    seen: list[int] = []
-    probe.create_subscription(JointState, '/cartpole/true_state', lambda m: seen.append(
-        m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 100)
-    executor = SingleThreadedExecutor(context=ros_context)
-    executor.add_node(probe)
+    seen, executor = truth_stamps
     proc = subprocess.Popen([cartpole_exe(), *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
@@ -93,18 +84,17 @@ def _run_with_a_frozen_recorder(args, ros_context, spin_until, timeout):
         out, err = proc.communicate(timeout=timeout)
     finally:
         interrupt(proc, 10.0)
-        probe.destroy_node()
     return proc.returncode, out, err, ahead_ns, ran_ahead
 
 
-def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, ros_context,
+def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, truth_stamps,
                                                                 spin_until):
     # The recorder is frozen for 2.5 s during the catch: the simulator waits for it instead
     # of running ahead (at most its recorder_window of 10 samples, plus one a
     # lockstep_timeout), and once it thaws the bag still holds every sample, each once.
     code, out, err, ahead_ns, ran_ahead = _run_with_a_frozen_recorder(
         ['run', '--sim', '--processes', '--lockstep', '--duration', '25', '--record',
-         str(tmp_path), '--json'], ros_context, spin_until, timeout=150)
+         str(tmp_path), '--json'], truth_stamps, spin_until, timeout=150)
     assert not ran_ahead and ahead_ns <= 0.25e9, ahead_ns  # window, in flight, probe lag
     assert code == 0, err
     # An orderly stop: no fault, no refusal, no error logged by any node.
