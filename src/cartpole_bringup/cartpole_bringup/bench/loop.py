@@ -59,6 +59,8 @@ BARE_ROLES = ('source', 'relay1', 'relay2')
 """The floor's chain."""
 SPIN_TIMEOUT = {'single': 0.05, 'processes': 0.1}
 """spin_once timeout of the floor: Graph.spin_until's and run_node's."""
+WARMUP_S = 3.0
+"""Default wait after the first command before a measurement starts [s]."""
 
 
 def _stamp_s(stamp) -> float:
@@ -231,7 +233,7 @@ def _cpu_by_process(procs: list[subprocess.Popen], labels: list[str]) -> dict[st
 
 
 def _measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
-             duration: float, labels: list[str], warmup: float = 3.0,
+             duration: float, labels: list[str], warmup: float = WARMUP_S,
              viewer_url: str | None = None) -> dict[str, Any]:
     """Latency and CPU of the started processes; with ``viewer_url`` a Foxglove WebSocket
     client (its own process: no GIL shared with the probe) is subscribed to the viewer
@@ -310,7 +312,8 @@ def _ratio(graph: dict[str, Any], bare: dict[str, Any], key: str) -> float | Non
 
 
 def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
-                       executors=('events', 'single'), view_rounds: int = 0) -> dict[str, Any]:
+                       executors=('events', 'single'), view_rounds: int = 0,
+                       warmup: float = WARMUP_S) -> dict[str, Any]:
     """Measure graph and floor for each mode and executor; results and a markdown table.
 
     ``results[mode][executor]`` holds ``graph``, ``bare`` (the floor) and the
@@ -319,7 +322,8 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
     ``view_rounds``, each mode's first executor (``events`` by default, what
     ``cartpole run`` spins) also holds ``view_rounds`` (the pairs without and
     with the viewer) and their median ``p99_ratio_view``
-    (:func:`cartpole_bringup.bench.loop_view.view_rounds`).
+    (:func:`cartpole_bringup.bench.loop_view.view_rounds`). Each measurement starts
+    ``warmup`` s after the first command arrived (discovery, caches, first plots).
     """
     from . import loop_view
 
@@ -329,22 +333,24 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
             if ex in executors or mode == 'processes']
     for mode, ex in runs:
         graph = _measure(_graph_cmds(mode, duration, ex), '/joint_states',
-                         '/cartpole/force_command', duration, _graph_labels(mode))
+                         '/cartpole/force_command', duration, _graph_labels(mode), warmup)
         bare = _measure(_bare_cmds(mode, ex), '/bench/source', '/bench/relay2', duration,
-                        list(BARE_ROLES) if mode == 'processes' else ['floor'])
+                        list(BARE_ROLES) if mode == 'processes' else ['floor'], warmup)
         results.setdefault(mode, {})[ex] = {
             'graph': graph, 'bare': bare, 'p50_ratio': _ratio(graph, bare, 'p50_ms'),
             'p99_ratio': _ratio(graph, bare, 'p99_ms')}
         if view_rounds and ex == next(e for m, e in runs if m == mode):
-            results[mode][ex].update(loop_view.view_rounds(mode, ex, duration, view_rounds))
-    markdown = _markdown(results, runs, duration)
+            results[mode][ex].update(loop_view.view_rounds(mode, ex, duration, view_rounds,
+                                                           warmup))
+    markdown = _markdown(results, runs, duration, warmup)
     if view_rounds:
         markdown += loop_view.markdown(results, runs, duration)
     return {'results': results, 'markdown': markdown}
 
 
-def _markdown(results: dict[str, Any], runs: list[tuple[str, str]], duration: float) -> str:
-    md = [f'Real-time graph, {duration:g} s measured per row after 3 s warm-up; latency = receipt of '
+def _markdown(results: dict[str, Any], runs: list[tuple[str, str]], duration: float,
+              warmup: float) -> str:
+    md = [f'Real-time graph, {duration:g} s measured per row after {warmup:g} s warm-up; latency = receipt of '
           'the force command - stamp of the sample it was computed from. The floor is the same '
           'chain shape (source -> relay -> relay) with no computation, on the same executor, '
           'spun the same way. CPU: each process alone (utime + stime), per node with one '

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .loop import _graph_cmds, _graph_labels, _measure
+from .loop import WARMUP_S, _graph_cmds, _graph_labels, _measure
 
 SAMPLE_TOPIC = '/joint_states'
 COMMAND_TOPIC = '/cartpole/force_command'
@@ -31,17 +31,18 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def view_rounds(mode: str, executor: str, duration: float, rounds: int) -> dict[str, Any]:
+def view_rounds(mode: str, executor: str, duration: float, rounds: int,
+                warmup: float = WARMUP_S) -> dict[str, Any]:
     """``rounds`` pairs (alone, with the view) of ``duration`` s each; returns
     ``view_rounds`` (a list of ``{graph, graph_view, p99_ratio}``) and their median
     ``p99_ratio_view`` (None when no pair has both p99s)."""
     out = []
     for _ in range(rounds):
         alone = _measure(_graph_cmds(mode, duration, executor), SAMPLE_TOPIC, COMMAND_TOPIC,
-                         duration, _graph_labels(mode))
+                         duration, _graph_labels(mode), warmup)
         port = _free_port()
         viewed = _measure(_graph_cmds(mode, duration, executor, port), SAMPLE_TOPIC,
-                          COMMAND_TOPIC, duration, _graph_labels(mode),
+                          COMMAND_TOPIC, duration, _graph_labels(mode), warmup,
                           viewer_url=f'ws://127.0.0.1:{port}')
         out.append({'graph': alone, 'graph_view': viewed,
                     'p99_ratio': (viewed['p99_ms'] / alone['p99_ms'])

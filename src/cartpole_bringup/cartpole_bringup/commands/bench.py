@@ -63,6 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     lp = sub.add_parser('loop', help='sample-to-command latency of the real node graph vs bare rclpy')
     _common(lp)
     lp.add_argument('--duration', type=float, default=60.0, metavar='S', help='wall seconds per mode')
+    lp.add_argument('--warmup', type=float, default=3.0, metavar='S',
+                    help='wall seconds after the first command before each measurement (default 3)')
     lp.add_argument('--modes', nargs='*', default=['single', 'processes'],
                     choices=['single', 'processes'])
     lp.add_argument('--executors', nargs='*', default=['events', 'single'],
@@ -264,8 +266,11 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     out = _out_dir(args, 'loop')
     if getattr(args, 'view', 0) < 0:
         raise SystemExit('--view ROUNDS must be >= 0')
+    if args.warmup < 0:
+        raise SystemExit('--warmup S must be >= 0')
     result = run_loop_benchmark(duration=args.duration, modes=args.modes,
-                                executors=args.executors, view_rounds=getattr(args, 'view', 0))
+                                executors=args.executors, view_rounds=getattr(args, 'view', 0),
+                                warmup=args.warmup)
     report = header('Loop latency (`cartpole bench loop`)', argv) + result['markdown']
     (out / 'loop.md').write_text(report)
     (out / 'loop.json').write_text(json.dumps(result['results'], indent=1))
