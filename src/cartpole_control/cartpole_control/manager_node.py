@@ -20,9 +20,12 @@ Wiring only; every decision is the manager's.
 - a stale-state timer on the node clock (the ROS clock: with
   ``use_sim_time`` it follows ``/clock``, so a lockstep simulation slower than
   real time is not "stale"): no state for ``state_timeout`` -> zero force and
-  fault ``stale state``; a check that itself comes more than ``state_timeout``
-  late (this process did not run: the states may be waiting in the
-  subscription) leaves the verdict to the next check;
+  fault ``stale state``. Only time this process ran counts: of each interval
+  between two checks at most ``STALE_CHECK_SLACK`` (two check periods) is
+  counted, the rest is a stall of this process, not silence of the EKF (the
+  states may be waiting in the subscription). So after a stall of the whole
+  graph the states have ``state_timeout`` of running time to arrive, and a
+  process that keeps running late still faults within a few checks;
 - service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
   fault; ``success`` false and the reason when there is nothing to restart;
 - subscribes ``/cartpole/plant_reset`` (std_msgs/Header, published by the
@@ -73,6 +76,9 @@ PENDULUM_JOINT = 'pendulum'
 NODE_NAME = 'controller_manager'
 STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
+STALE_CHECK_SLACK = 2 * STALE_CHECK_PERIOD
+"""Most of one interval between two stale checks counted as time without a state [s];
+a longer interval is a stall of this process (module docstring)."""
 LAST_COMMAND_ACK_TIMEOUT = 1.0
 """Longest wait on shutdown for every subscriber to acknowledge the last zero force [s]
 (a dead subscriber never does; the node goes after this)."""
@@ -189,6 +195,8 @@ class ControllerManagerNode(Node):
         self.max_cycle_compute = 0.0
         """The longest control cycle since start [s]."""
         self._last_state_ns: int | None = None
+        self._silent_ns = 0
+        """Running time without a state since the last one [ns] (see _check_stale)."""
         self._last_stamp = None
         self._last_command: JointState | None = None
         self._stale = False
@@ -227,6 +235,7 @@ class ControllerManagerNode(Node):
                 msg.header.stamp.sec == last.sec and msg.header.stamp.nanosec == last.nanosec:
             self._pub_force.publish(self._last_command)  # the same sample: the same answer
             self._last_state_ns = self.get_clock().now().nanoseconds
+            self._silent_ns = 0
             return
         try:
             c = msg.name.index(CART_JOINT)
@@ -256,6 +265,7 @@ class ControllerManagerNode(Node):
         self._pub_force.publish(force)
         self._last_command = force
         self._last_state_ns = self.get_clock().now().nanoseconds
+        self._silent_ns = 0
         self._last_stamp = msg.header.stamp
         self._stale = False
         self._publish_status(out, msg.header.stamp, 'plant_reset' if reset else '')
@@ -281,12 +291,13 @@ class ControllerManagerNode(Node):
         previous, self._last_check_ns = self._last_check_ns, now.nanoseconds
         if self._last_state_ns is None or self._stale:
             return
-        if (now.nanoseconds - self._last_state_ns) * 1e-9 <= self.manager.state_timeout:
-            return
-        if previous is not None and (now.nanoseconds - previous) * 1e-9 > self.manager.state_timeout:
-            # This check itself comes late: it is this process that did not run (the
-            # states may be waiting in the subscription). Judge at the next check,
-            # once they had their turn; the stall shows in longest_cycle_gap_s.
+        # Time without a state since the later of the last state and the last check; of
+        # an interval longer than the slack this process was stalled for the rest (the
+        # states may be waiting in the subscription: they get their turn; the stall
+        # shows in longest_cycle_gap_s).
+        since = self._last_state_ns if previous is None else max(self._last_state_ns, previous)
+        self._silent_ns += min(max(now.nanoseconds - since, 0), int(STALE_CHECK_SLACK * 1e9))
+        if self._silent_ns * 1e-9 <= self.manager.state_timeout:
             return
         self._stale = True
         stamp = now.to_msg()

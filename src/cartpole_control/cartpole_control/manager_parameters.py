@@ -59,6 +59,7 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'catch trigger see the estimate predicted this far ahead under the '
                       'last command (cartpole_control.prediction) [s]; 0 = off; about the '
                       "rig's loop latency", low=0.0, high=0.05),
-        ParameterSpec('state_timeout', 0.05, 'No state for this long: zero force, fault '
+        ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
+                      'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),
     ]

@@ -248,17 +248,36 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     assert values_of(status_array)[1]['mode'] in ('swingup', 'stabilizing')
 
 
-def test_a_late_stale_check_leaves_the_verdict_to_the_next_check(graph):
-    """A check that itself comes late means this process did not run (the states may
-    be queued): no fault then; the next, timely check still faults if none came."""
+def test_a_stall_of_the_manager_is_not_silence_of_the_ekf(graph):
+    """Only time this process ran counts towards state_timeout (50 ms): a check 200 ms
+    after the last one means this process was stalled (the states may be queued), so
+    it counts one slack (20 ms); timely checks then fault once 50 ms of running time
+    passed without a state. Check times are injected: no wall clock in the verdict."""
+    from cartpole_control.manager_node import STALE_CHECK_SLACK
     node, h = graph
     h.send_state(3.0)
-    now = node.get_clock().now().nanoseconds
-    node._last_state_ns = node._last_check_ns = now - 200_000_000   # stalled 200 ms
-    node._check_stale()
+    slack = int(STALE_CHECK_SLACK * 1e9)
+
+    def check_after(interval_ns):
+        node._last_check_ns = node.get_clock().now().nanoseconds - interval_ns
+        node._check_stale()
+
+    node._last_state_ns = node.get_clock().now().nanoseconds - 200_000_000
+    check_after(200_000_000)                  # stalled 200 ms: 20 ms counted
+    check_after(slack)                        # 40 ms
     assert not node._stale and node.manager.mode != 'fault'
-    node._check_stale()
+    check_after(slack)                        # 60 ms > 50 ms of running without a state
     assert node._stale and node.manager.mode == 'fault'
+
+
+def test_a_state_after_a_stall_clears_the_count(graph):
+    node, h = graph
+    h.send_state(3.0)
+    node._last_state_ns = node.get_clock().now().nanoseconds - 200_000_000
+    node._last_check_ns = node._last_state_ns
+    node._check_stale()
+    h.send_state(3.005)                       # the queued state got its turn
+    assert node._silent_ns == 0 and not node._stale and node.manager.mode != 'fault'
 
 
 def test_enabled_false_is_idle_with_zero_force(graph):

@@ -6,8 +6,13 @@ Publishes the encoder samples on ``/joint_states`` (quantised, at 1/Ts =
 hold. All numerical work is in :class:`~cartpole_sim.plant.Plant`, wrapped by
 :class:`~cartpole_sim.sim_runner.SimRunner`; this module only wires ROS.
 
-Real time (``lockstep:=false``): a steady wall timer at Ts steps the plant and
-publishes; stamps are the node clock.
+Real time (``lockstep:=false``): the plant is sampled on its own clock, as a
+device would be (:class:`~cartpole_sim.sim_runner.SampleClock`): a steady wall
+timer at Ts steps the plant up to the sample wall time has reached (after a
+stall of the process, several steps at once, each with the held command and
+the watchdog) and publishes every sample, stamped ``t_0 + k Ts`` from the node
+clock at the first sample: stamps exactly Ts apart, the plant's own time.
+``late_samples`` counts the samples published late (behind a stall).
 
 Lockstep (``lockstep:=true``): stamps are simulated time k Ts, also published on
 ``/clock``. After sample k the node waits for the force command whose
@@ -59,7 +64,8 @@ from std_srvs.srv import Trigger
 from .model import CartPoleParameters
 from .plant import Scenario
 from .scenario import DELAY_MAX, parse_push
-from .sim_runner import CART_JOINT, PENDULUM_JOINT, Sample, SimRunner, force_from_command
+from .sim_runner import (CART_JOINT, PENDULUM_JOINT, Sample, SampleClock, SimRunner,
+                         force_from_command)
 from .node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
@@ -145,6 +151,8 @@ class SimNode(Node):
         self.stale_commands = 0
         """Lockstep: commands whose stamp is not the awaited sample's (ignored)."""
         self.lockstep_timeouts = 0
+        self.late_samples = 0
+        """Real time: samples published in a later timer period than theirs (a stall)."""
 
         values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
         params, scenario = self._scenario_from(values)  # raises on a bad start-up value
@@ -155,6 +163,7 @@ class SimNode(Node):
         self._loop_established = not (self._lockstep
                                       and self.get_parameter('lockstep_startup_wait').value)
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._sample_clock = SampleClock(self._runner.sample_period_ns)
 
         self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
         self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
@@ -313,6 +322,8 @@ class SimNode(Node):
     def _stamp(self, sample: Sample):
         if self._lockstep:
             return Time(nanoseconds=sample.stamp_ns).to_msg()
+        if self._sample_clock.started:
+            return Time(nanoseconds=self._sample_clock.stamp_ns(sample.index)).to_msg()
         return self.get_clock().now().to_msg()
 
     def _publish(self, sample: Sample) -> None:
@@ -337,8 +348,23 @@ class SimNode(Node):
 
     # -- stepping ---------------------------------------------------------------------------
     def _on_step_timer(self) -> None:
-        """Real time: hold the latest command over [t_k, t_k + Ts), publish sample k + 1."""
-        self._publish(self._runner.advance())
+        """Real time: step to the sample that is due, holding the latest command over each
+        [t_k, t_k + Ts), and publish every sample on the way (module docstring)."""
+        now_ns = self._wall.now().nanoseconds
+        clock = self._sample_clock
+        if not clock.started:
+            # The first sample is due when this call was: the timer's schedule (it calls at
+            # or after it), so every later on-time call finds exactly one sample due.
+            until_next = self._step_timer.time_until_next_call()
+            scheduled_ns = now_ns if until_next is None else \
+                min(now_ns, now_ns + until_next - clock.period_ns)
+            clock.start(scheduled_ns, self.get_clock().now().nanoseconds - (now_ns - scheduled_ns),
+                        self._runner.index + 1)
+        due = clock.due(now_ns)
+        if due - self._runner.index > 1:
+            self.late_samples += due - self._runner.index - 1
+        while self._runner.index < due:
+            self._publish(self._runner.advance())
 
     def _make_timeout_timer(self):
         return self.create_timer(float(self.get_parameter('lockstep_timeout').value),

@@ -49,6 +49,47 @@ def force_from_command(names: Sequence[str], efforts: Sequence[float]) -> float 
     return force if math.isfinite(force) else None
 
 
+class SampleClock:
+    """Real time: the plant sampled every Ts of wall time, as a device on its own clock.
+
+    A rig samples its encoders every Ts whatever the host does; a host that
+    stalls (a loaded machine, a descheduled process) receives the samples it
+    missed late, in a burst, each stamped with its own sample time. The
+    simulator does the same: :meth:`due` says which sample index wall time
+    has reached, the node steps the plant up to it (a late timer steps it
+    several times, with the held command and the watchdog deciding the force
+    of each period), and :meth:`stamp_ns` stamps sample k with
+    ``t_0 + (k - k_0) Ts``: the stamps are the plant's time, exactly Ts apart,
+    so the EKF, which integrates over stamp differences, predicts over the
+    time the plant really moved. (Stamping each sample with the host clock
+    when it is published made a late sample look like a long period with a
+    plant that had moved only one Ts.)
+    """
+
+    def __init__(self, period_ns: int) -> None:
+        self.period_ns = int(period_ns)
+        self._origin: tuple[int, int, int] | None = None
+
+    @property
+    def started(self) -> bool:
+        return self._origin is not None
+
+    def start(self, steady_ns: int, stamp_ns: int, index: int) -> None:
+        """Sample ``index`` is due at ``steady_ns`` (a steady clock) and stamped ``stamp_ns``."""
+        self._origin = (int(steady_ns), int(stamp_ns), int(index))
+
+    def due(self, steady_ns: int) -> int:
+        """The last sample index due at ``steady_ns`` (a tenth of Ts early counts as due:
+        a timer's call that comes a hair before its period still takes its sample)."""
+        steady0, _, index0 = self._origin
+        return index0 + (int(steady_ns) - steady0 + self.period_ns // 10) // self.period_ns
+
+    def stamp_ns(self, index: int) -> int:
+        """Stamp of sample ``index`` [ns]: t_0 + (index - k_0) Ts."""
+        _, stamp0, index0 = self._origin
+        return stamp0 + (int(index) - index0) * self.period_ns
+
+
 @dataclass(frozen=True)
 class Sample:
     """One published sample: index, stamp and what the plant shows then."""

@@ -162,6 +162,26 @@ def test_real_time_applies_command_then_watchdog_zeroes_it(graph, spin_until):
     assert probe.truth[-1].position[0] > 0.3
 
 
+def test_real_time_stamps_are_the_plants_clock_and_a_stall_is_caught_up(graph, spin_until):
+    """Real time, as a rig samples on its own clock: stamps exactly Ts apart, and when
+    the process stalls (here nothing spins it for 0.1 s) the plant moves on and every
+    sample it took meanwhile is published at once, stamped with its own time."""
+    sim, probe, executor = graph(lockstep=False)
+    assert spin_until(executor, lambda: len(probe.joints) >= 20, timeout=10.0)
+    before, late_before = sim.runner.index, sim.late_samples
+    time.sleep(0.1)  # the stall under test, not a wait for anything
+    assert spin_until(executor, lambda: sim.runner.index > before, timeout=10.0)
+    assert sim.runner.index - before >= 19 and sim.late_samples - late_before >= 18
+    n = len(probe.joints)
+    assert spin_until(executor, lambda: len(probe.joints) >= n + 20, timeout=10.0)
+    stamps = probe.stamps()
+    assert all(b - a == TS_NS for a, b in zip(stamps, stamps[1:]) if b - a <= TS_NS)
+    assert all((b - a) % TS_NS == 0 for a, b in zip(stamps, stamps[1:]))  # whole periods
+    # the plant's time is the stamps' time: index and stamp advance together
+    truth = [stamp_ns(m.header.stamp) for m in probe.truth]
+    assert (truth[-1] - truth[0]) % TS_NS == 0 and truth[-1] > truth[0]
+
+
 def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(graph,
                                                                              spin_until):
     """SPEC 8 by simulated stamps: the last command answers sample 2 (it arrives at t_2);

@@ -5,7 +5,7 @@ import pytest
 
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
-from cartpole_sim.sim_runner import SimRunner, force_from_command
+from cartpole_sim.sim_runner import SampleClock, SimRunner, force_from_command
 
 NOMINAL = CartPoleParameters()
 MIDDLE = Scenario(x0=NOMINAL.x_middle)
@@ -112,3 +112,19 @@ def test_reset_restores_state_and_keeps_the_clock_going():
     assert runner.plant.integration_step == 0.0005
     with pytest.raises(ValueError, match='sample_time'):
         runner.reset(params=NOMINAL.replace(sample_time=0.01))
+
+
+def test_sample_clock_is_the_plants_own_time_through_late_and_early_calls():
+    """Real time: sample k is due at t0 + (k - k0) Ts and stamped on the same grid, so a
+    late call (a stall) finds every sample it missed due, and a call a hair early still
+    takes its own sample, never the next one."""
+    ts = 5_000_000
+    clock = SampleClock(ts)
+    assert not clock.started
+    clock.start(steady_ns=1_000_000_000, stamp_ns=7_000_000_000, index=4)
+    assert clock.due(1_000_000_000) == 4
+    assert clock.due(1_000_000_000 + ts - ts // 10 - 1) == 4      # 0.5 ms early: not yet 5
+    assert clock.due(1_000_000_000 + ts - ts // 20) == 5           # 0.25 ms early: taken
+    assert clock.due(1_000_000_000 + ts + ts // 2) == 5            # late by half a period
+    assert clock.due(1_000_000_000 + 100_000_000 + 300_000) == 24  # a 0.1 s stall: 20 due
+    assert [clock.stamp_ns(k) - 7_000_000_000 for k in (4, 5, 24)] == [0, ts, 20 * ts]

@@ -30,7 +30,9 @@ TOPIC_NOTES: dict[str, str] = {
 ENDPOINT_NOTES: dict[tuple[str, str], str] = {
     ('sim', '/joint_states'):
         "1/Ts = 200 Hz: `name=['cart','pendulum']`, `position=[x, theta]` as the encoders see "
-        'them (quantised, unwrapped; theta = pi hanging after reset)',
+        'them (quantised, unwrapped; theta = pi hanging after reset); `header.stamp` = the '
+        "sample's time on the plant's clock, exactly Ts apart (real time: t0 + k Ts, samples "
+        'missed during a stall of the process published at once; lockstep: k Ts)',
     ('sim', '/cartpole/true_state'):
         'with each sample, same stamp: ground truth `position=[x, theta]`, `velocity=[x_dot, '
         'theta_dot]`, `effort=[actuator force on the cart, end-stop force on the cart]` (the '
