@@ -5,8 +5,10 @@ stop, where round-off leaves its position at about -1e-22 m before the first
 command; that is not an end-stop contact (SPEC 5, `end_stop_contact`).
 """
 import json
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -46,3 +48,35 @@ def test_real_time_sim_run_with_disturbances_still_succeeds():
     assert summary['end_stop_contact'] is False, summary
     assert summary['success'] is True, summary
     assert summary['recorder_missed'] is None, summary  # no bag, nothing counted
+
+
+def test_a_real_time_run_stalled_again_and_again_still_succeeds():
+    """A loaded host deschedules the one process (sim, EKF and controller manager): here
+    SIGSTOP for 40 ms every 0.3 s, catch transient included, for the whole run. The
+    plant runs on its own sample clock through the stalls and the manager counts only
+    its running time as silence, so the run is caught and balanced as without them
+    (before: 0 of 10 such runs succeeded; docs/benchmarks.md)."""
+    run = subprocess.Popen(
+        [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration', '16',
+         '--swingup', 'energy_saturated', '--json'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stalls = 0
+    try:
+        while run.poll() is None:
+            time.sleep(0.3)       # the stimulus: the process runs 0.3 s, then stalls
+            run.send_signal(signal.SIGSTOP)
+            time.sleep(0.04)
+            run.send_signal(signal.SIGCONT)
+            stalls += 1
+    except ProcessLookupError:
+        pass
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGCONT)
+    out, err = run.communicate(timeout=180)
+    assert run.returncode == 0, err[-3000:]
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert stalls >= 30 and summary['longest_cycle_gap_s'] >= 0.04, (stalls, summary)
+    assert summary['fault'] is None, (summary, err[-3000:])
+    assert [c['kind'] for c in summary['controllers']] == ['swingup', 'stabilizer'], summary
+    assert summary['success'] is True and summary['end_stop_contact'] is False, summary
