@@ -79,6 +79,36 @@ def test_series_builder_takes_the_law_at_the_catch_from_a_status_series():
     assert never.swingup_law == 'pendulum_energy'
 
 
+def test_real_time_origin_is_the_start_of_control_not_the_first_recorded_sample():
+    """With one process a node, the plant can run before the controller manager's first
+    cycle, or a subscription can match seconds late: t = 0 is the first status with a
+    controller running, so the catch time is the swing-up's (here 2.8 s, recorded
+    samples from 1.5 s after the swing-up began)."""
+    from cartpole_bringup.analysis.analyze import SeriesBuilder
+    from cartpole_sim.model import CartPoleParameters
+    p = CartPoleParameters()
+    start, ts = 1_000_000_000_000, 5_000_000
+    b = SeriesBuilder()
+    for k in range(0, 4000):              # 20 s of control from `start`
+        t = start + k * ts
+        mode = 'swingup' if k < 560 else 'stabilizing'
+        b.status(t, {'mode': mode, 'event': 'catch' if k == 560 else '',
+                     'swingup': 'pendulum_energy', 'stabilizer': 'lqg',
+                     'state_stamp': repr(t * 1e-9)})
+        if k >= 300:                      # the truth matched 1.5 s late
+            b.joint_state('/cartpole/true_state', t, [p.x_middle, 0.0], [0.0, 0.0], [0.0, 0.0])
+    series, summary = b.summarize(params=p, x_ref=p.x_middle, lockstep=False)
+    assert summary['catch_time_s'] == pytest.approx(2.8, abs=1e-9)
+    assert summary['controllers'][0]['start_s'] == 0.0
+    assert series.t[0] == pytest.approx(1.5, abs=1e-9)
+    # without any status the first sample stays the origin
+    bare = SeriesBuilder()
+    for k in range(300, 4000):
+        bare.joint_state('/cartpole/true_state', start + k * ts, [p.x_middle, 0.0],
+                         [0.0, 0.0], [0.0, 0.0])
+    assert bare.summarize(params=p, x_ref=p.x_middle, lockstep=False)[0].t[0] == 0.0
+
+
 def test_x_ref_option_overrides_the_bag(known_bag):
     s = analyze_bag(known_bag, x_ref=bag_synth.X_REF + 0.2).summary
     assert s['x_err_max_m'] == pytest.approx(0.25, rel=1e-9)

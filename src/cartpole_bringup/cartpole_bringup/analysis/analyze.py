@@ -25,6 +25,8 @@ What is taken from where:
   on hardware, a limit flag ``limit_left`` / ``limit_right`` of
   ``/cartpole/hw/health`` closing after it was seen open (the cart starts on
   the left switch); with neither, the estimate outside [0, travel];
+- t = 0: in lockstep sample 0; in real time the start of control (the first
+  controller status with a swing-up or stabiliser running), else the first sample;
 - x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
   the travel;
 - the end of the run: ``run_end_ns`` of the bag's custom_data (written by
@@ -110,7 +112,8 @@ class SeriesBuilder:
     hw_health_seen: bool = False
     status_count: int = 0
     t0_ns: int = 0
-    """The stamp of t = 0 of the last :meth:`build` [ns] (0 in lockstep, else the first sample)."""
+    """The stamp of t = 0 of the last :meth:`build` [ns]: 0 in lockstep, else the start of
+    control (the first status with a controller running), else the first sample."""
     timeline: ControllerTimeline = field(default_factory=ControllerTimeline)
     """The active controller cycle by cycle (stamps in ns)."""
     faults: list[tuple[int, str]] = field(default_factory=list)
@@ -196,7 +199,13 @@ class SeriesBuilder:
             raise ValueError(f'no state up to the end of the run: nothing to analyse')
         stamps = np.array([r[0] for r in rows], dtype=np.int64)
         keep = np.concatenate(([True], np.diff(stamps) > 0))  # a sample delivered twice
-        t0 = 0 if lockstep else int(stamps[0])
+        # t = 0: lockstep, sample 0 (the plant waits for the loop); real time, the start of
+        # control. The plant may run before the controller manager's first cycle, and with
+        # one process a node a subscription may match seconds late, so the first recorded
+        # sample is no start (it made catch times of --processes runs -0.05 to 5.4 s for
+        # one swing-up of 2.8 s); the first sample is the origin only without any status.
+        started = self.timeline.first_start
+        t0 = 0 if lockstep else int(stamps[0] if started is None else started)
         self.t0_ns = t0
         t = (stamps[keep] - t0) * 1e-9
         states = np.array([r[1:] for r in rows], dtype=float).reshape(-1, 4)[keep]

@@ -47,6 +47,11 @@ class ControllerTimeline:
     def empty(self) -> bool:
         return not self._changes
 
+    @property
+    def first_start(self) -> int | float | None:
+        """When a controller first ran (the start of control); None if none did."""
+        return next((t for t, active in self._changes if active is not None), None)
+
     def spans(self, *, origin: int | float = 0, scale: float = 1.0,
               end: int | float | None = None) -> list[dict[str, Any]]:
         """``[{'kind', 'name', 'start_s', 'end_s'}, ...]`` in time order.
