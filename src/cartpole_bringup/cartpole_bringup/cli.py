@@ -4,12 +4,29 @@ Each subcommand lives in ``cartpole_bringup.commands.<name>`` with
 ``add_arguments(parser)`` and ``main(args) -> int``; this module only
 dispatches, importing the chosen subcommand alone (so ``cartpole offline``
 never imports rclpy).
+
+Exit codes (the README's "Exit codes"): 0 a correct result; 1 a run or an
+operation that failed (its summary or reason printed); 2 a refused input, one
+line ``cartpole SUB: error: ...`` on stderr and nothing else, before any work
+(an argparse error, or :class:`~cartpole_bringup.boundary.InputError` from a
+subcommand); 130 / 143 stopped by SIGINT / SIGTERM.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+
+from .boundary import InputError
+
+
+class Parser(argparse.ArgumentParser):
+    """An argparse parser whose error is one line, ``PROG: error: MESSAGE``, exit 2
+    (the usage is in ``--help``)."""
+
+    def error(self, message: str):
+        self.exit(2, f'{self.prog}: error: {message}\n')
 
 SUBCOMMANDS = {
     'run': 'start the node graph on the simulator or the rig (optionally recorded)',
@@ -25,12 +42,12 @@ SUBCOMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog='cartpole', description='Cart-pole swing-up and stabilisation on ROS 2 Jazzy.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
     for name, help_text in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=f'cartpole_bringup.commands.{name}')
+        p.set_defaults(_module=f'cartpole_bringup.commands.{name}', _parser=p)
         if name == 'emulate':
             # The emulator parses its own options (cartpole_hw.emulator).
             p.add_argument('emulator_args', nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
@@ -54,7 +71,41 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, '_unavailable', None):
         parser.error(f'{args.command} is not available: {args._unavailable}')
     module = importlib.import_module(args._module)
-    return module.main(args) or 0
+    prog = getattr(args, '_prog', None) or args._parser.prog
+    stop_signals = _raise_on_sigterm() if args.command != 'run' else {}
+    try:
+        return module.main(args) or 0
+    except InputError as error:
+        print(f'{prog}: error: {error}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'{prog}: stopped by {_Stopped.name}', file=sys.stderr)
+        return 128 + _Stopped.signum
+    finally:
+        for sig, handler in stop_signals.items():
+            signal.signal(sig, handler)
+
+
+class _Stopped:
+    """The signal that stopped the subcommand (SIGINT unless SIGTERM came)."""
+    signum = int(signal.SIGINT)
+    name = 'SIGINT'
+
+
+def _raise_on_sigterm() -> dict:
+    """SIGTERM stops like Ctrl-C (KeyboardInterrupt; ``cartpole run`` has its own stop)."""
+    def handler(signum, frame):
+        _Stopped.signum, _Stopped.name = int(signum), signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    def on_sigint(signum, frame):
+        _Stopped.signum, _Stopped.name = int(signal.SIGINT), 'SIGINT'
+        raise KeyboardInterrupt
+    try:
+        return {signal.SIGTERM: signal.signal(signal.SIGTERM, handler),
+                signal.SIGINT: signal.signal(signal.SIGINT, on_sigint)}
+    except ValueError:  # not the main thread (an embedding test): leave the handlers alone
+        return {}
 
 
 if __name__ == '__main__':

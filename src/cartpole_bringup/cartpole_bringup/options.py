@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -10,6 +9,8 @@ from typing import Any, Callable
 from cartpole_sim import scenario_options
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.scenario import Scenario
+
+from . import boundary
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,51 +53,83 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def nominal_parameters(args: argparse.Namespace) -> CartPoleParameters:
-    path = getattr(args, 'plant_params', None)
-    return CartPoleParameters.from_yaml(path) if path else CartPoleParameters()
+    """``--plant-params`` (thesis values without it); InputError naming the file if bad."""
+    return boundary.plant_parameters(getattr(args, 'plant_params', None))
 
 
-def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The scenario of the options; SystemExit with the reason if one is invalid."""
+def scenario_from_args(args: argparse.Namespace, nominal: CartPoleParameters | None = None,
+                       duration: float | None = None) -> Scenario:
+    """The scenario of the options, checked whole (InputError naming the option).
+
+    With ``nominal`` also against the rail (``--x0`` on it) and the plant
+    (the scenario's true parameters valid); with ``duration`` [s] against the
+    run: every ``--push`` starts inside it, and with ``--drop`` some sample
+    reaches the host (the scenario's own seeded draws, so exactly as the run
+    would lose them).
+    """
     try:
-        return scenario_options.scenario_from_args(args)
+        scenario = scenario_options.scenario_from_args(args)
     except ValueError as error:
-        raise SystemExit(str(error)) from None
+        raise boundary.InputError(str(error)) from None
+    if nominal is not None:
+        if not 0.0 <= scenario.x0 <= nominal.travel:
+            raise boundary.InputError(f'--x0 {scenario.x0:g} m is outside the travel [0, '
+                                      f'{nominal.travel:g}] m')
+        try:
+            scenario.plant_parameters(nominal)
+        except ValueError as error:
+            raise boundary.InputError(f'the scenario gives no valid plant: {error}') from None
+    if duration is not None:
+        for push in scenario.pushes:
+            if push.t >= duration:
+                raise boundary.InputError(f'--push {push}: starts at {push.t:g} s, after the end '
+                                          f'of the {duration:g} s run')
+        if scenario.drop and nominal is not None and no_sample_arrives(scenario, nominal,
+                                                                       duration):
+            raise boundary.InputError(
+                f'--drop {scenario.drop:g}: with --seed {scenario.seed} every sample of the '
+                f'{duration:g} s run is lost; nothing would reach the controller')
+    return scenario
+
+
+def no_sample_arrives(scenario: Scenario, nominal: CartPoleParameters, duration: float) -> bool:
+    """Whether ``scenario``'s drop loses every sample of a ``duration`` run (its own seeded
+    draws, one a sample, as the offline loop and the simulator draw them)."""
+    from cartpole_sim.plant import Plant
+    plant = Plant(nominal, scenario.replace(pushes=()))
+    steps = int(round(duration / nominal.sample_time)) + 1
+    return all(plant.sample_lost() for _ in range(steps))
 
 
 def load_ros_parameters(path: Path | None, node_name: str) -> dict[str, Any]:
-    """The ``ros__parameters`` of ``node_name`` in a ROS 2 parameters YAML file, flattened.
-
-    Nested mappings become dotted names (``lqg: {q: [...]}`` -> ``lqg.q``), as
-    rclpy does. Sections for ``/**`` apply to every node.
-    """
-    if path is None:
-        return {}
-    import yaml
-    data = yaml.safe_load(Path(path).read_text()) or {}
-    out: dict[str, Any] = {}
-    for key in ('/**', node_name, '/' + node_name):
-        section = data.get(key)
-        if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
-            out.update(_flatten(section['ros__parameters']))
-    return out
+    """The ``ros__parameters`` of ``node_name`` in ``--params``, flattened (InputError if bad)."""
+    return boundary.ros_parameters(path, node_name)
 
 
-def _flatten(d: dict[str, Any], prefix: str = '') -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        name = f'{prefix}{k}'
-        if isinstance(v, dict):
-            out.update(_flatten(v, name + '.'))
-        else:
-            out[name] = tuple(v) if isinstance(v, list) else v
-    return out
+def manager_parameters(nominal: CartPoleParameters, parameters: dict[str, Any],
+                       option: str = '--params') -> dict[str, Any]:
+    """``parameters`` if the controller manager takes them all, else InputError with its reason."""
+    from cartpole_control.manager import ControllerManager
+    manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
+    try:
+        result = manager.set_parameters(dict(parameters))
+    except (ValueError, TypeError) as error:
+        raise boundary.InputError(f'controller_manager parameters: {error}') from None
+    if not result.successful:
+        raise boundary.InputError(f'controller_manager parameters: {result.reason}')
+    return parameters
+
+
+def print_json(obj: Any) -> None:
+    """The one way a ``--json`` object is printed: strict JSON (no NaN, no Infinity; such a
+    value is null, with its reason under ``null_reasons``)."""
+    print(boundary.json_text(obj), flush=True)
 
 
 def print_summary(summary: dict[str, Any], as_json: bool) -> None:
     """The run summary as a table, or one JSON object with ``--json``."""
     if as_json:
-        print(json.dumps(summary, sort_keys=False))
+        print_json(summary)
         return
     width = max(len(k) for k in summary)
     for key, value in summary.items():

@@ -41,6 +41,23 @@ DELAY_MAX = 0.04
 """[s] Largest sensor-to-actuator delay (and largest jitter) a scenario takes (SPEC 8)."""
 ACTUATOR_TAU_MAX = 1.0
 """[s] Largest extra amplifier time constant a scenario takes."""
+DROP_MAX = 0.99
+"""Largest probability of a lost sample: one sample in a hundred still arrives, so the
+simulator's lockstep (which steps past each lost sample at once) never spins on lost ones."""
+POSITION_MAX = 100.0
+"""[m] Largest |initial cart position| (the rail check needs the plant's travel: the caller's)."""
+ANGLE_MAX = 100.0
+"""[rad] Largest |initial angle| and |encoder offset| (about 16 turns)."""
+SPEED_MAX = 1000.0
+"""[m/s, rad/s] Largest |initial velocity|."""
+MASS_MAX = 1000.0
+"""[kg] Largest tip or cart mass."""
+SCALE_MAX = 1000.0
+"""Largest friction scale, amplifier gain error and parameter scale."""
+FORCE_MAX = 1.0e4
+"""[N, N m] Largest force noise std and push amplitude."""
+TIME_MAX = 1.0e6
+"""[s] Latest push start and longest push."""
 PUSH_TARGETS = ('cart', 'pendulum')
 
 
@@ -74,9 +91,9 @@ class Push:
     def __post_init__(self) -> None:
         if self.target not in PUSH_TARGETS:
             raise ValueError(f'push target must be one of {PUSH_TARGETS}, got {self.target!r}')
-        _finite('push time', self.t, 0.0)
-        _finite('push amplitude', self.amplitude)
-        _finite('push width', self.width, 0.0, low_open=True)
+        _finite('push time', self.t, 0.0, TIME_MAX)
+        _finite('push amplitude', self.amplitude, -FORCE_MAX, FORCE_MAX)
+        _finite('push width', self.width, 0.0, TIME_MAX, low_open=True)
 
     @property
     def impulse(self) -> float:
@@ -146,7 +163,7 @@ class Scenario:
     jitter: float = 0.0
     """Extra latency per sample, uniform in [0, jitter] [s], 0 to :data:`DELAY_MAX`."""
     drop: float = 0.0
-    """Probability that a sample is lost on the way to the host, in [0, 1)."""
+    """Probability that a sample is lost on the way to the host, 0 to :data:`DROP_MAX`."""
     force_noise: float = 0.0
     """Standard deviation [N] of the force noise on the cart (one draw per sample period)."""
     actuator_gain: float = 1.0
@@ -157,19 +174,22 @@ class Scenario:
     """Rectangular pushes on the cart or the pendulum (:class:`Push`)."""
 
     def __post_init__(self) -> None:
-        for name in ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'encoder_offset'):
-            _finite(name, getattr(self, name))
-        _finite('friction_scale', self.friction_scale, 0.0)
-        _finite('noise_std_cart', self.noise_std_cart, 0.0)
-        _finite('noise_std_pendulum', self.noise_std_pendulum, 0.0)
+        _finite('x0', self.x0, -POSITION_MAX, POSITION_MAX)
+        for name in ('theta0', 'encoder_offset'):
+            _finite(name, getattr(self, name), -ANGLE_MAX, ANGLE_MAX)
+        for name in ('x_dot0', 'theta_dot0'):
+            _finite(name, getattr(self, name), -SPEED_MAX, SPEED_MAX)
+        _finite('friction_scale', self.friction_scale, 0.0, SCALE_MAX)
+        _finite('noise_std_cart', self.noise_std_cart, 0.0, POSITION_MAX)
+        _finite('noise_std_pendulum', self.noise_std_pendulum, 0.0, ANGLE_MAX)
         for name in ('tip_mass', 'cart_mass'):
             if getattr(self, name) is not None:
-                _finite(name, getattr(self, name), 0.0, low_open=True)
+                _finite(name, getattr(self, name), 0.0, MASS_MAX, low_open=True)
         _finite('delay', self.delay, 0.0, DELAY_MAX)
         _finite('jitter', self.jitter, 0.0, DELAY_MAX)
-        _finite('drop', self.drop, 0.0, 1.0, high_open=True)
-        _finite('force_noise', self.force_noise, 0.0)
-        _finite('actuator_gain', self.actuator_gain, 0.0, low_open=True)
+        _finite('drop', self.drop, 0.0, DROP_MAX)
+        _finite('force_noise', self.force_noise, 0.0, FORCE_MAX)
+        _finite('actuator_gain', self.actuator_gain, 0.0, SCALE_MAX, low_open=True)
         _finite('actuator_tau', self.actuator_tau, 0.0, ACTUATOR_TAU_MAX)
         if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) \
                 or self.seed < 0:
@@ -180,7 +200,7 @@ class Scenario:
             if name not in _FLOAT_PARAMETERS:
                 raise ValueError(f'parameter_scales: {name!r} is not a float plant parameter; '
                                  f'known: {list(_FLOAT_PARAMETERS)}')
-            _finite(f'parameter_scales[{name}]', factor, 0.0)
+            _finite(f'parameter_scales[{name}]', factor, 0.0, SCALE_MAX)
         object.__setattr__(self, 'parameter_scales', scales)
         pushes = tuple(p if isinstance(p, Push) else parse_push(p) for p in self.pushes)
         object.__setattr__(self, 'pushes', tuple(sorted(pushes, key=lambda p: p.t)))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from .scenario import DELAY_MAX, Scenario, parse_push
+from .scenario import DELAY_MAX, DROP_MAX, Scenario, parse_push
 
 
 def _push(text: str):
@@ -24,8 +24,10 @@ def _probability(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f'a probability in [0, 1) is needed, got {value}')
+    if not 0.0 <= value <= DROP_MAX:  # (NaN fails too)
+        raise argparse.ArgumentTypeError(f'a probability in [0, {DROP_MAX:g}] is needed, got '
+                                         f'{value} (at most {DROP_MAX:g}: some sample must '
+                                         'reach the host)')
     return value
 
 
@@ -56,7 +58,7 @@ def add_scenario_arguments(parser: argparse.ArgumentParser,
                    help='extra latency per sample, uniform in [0, S]')
     g.add_argument('--drop', type=_probability, default=0.0, metavar='P',
                    help='each sample is lost on its way to the host with probability P in '
-                        '[0, 1) (the EKF sees a gap)')
+                        f'[0, {DROP_MAX:g}] (the EKF sees a gap)')
     g.add_argument('--force-noise', type=float, default=0.0, metavar='N',
                    help='Gaussian force noise of this std on the cart, one draw per sample')
     g.add_argument('--actuator-gain', type=float, default=1.0, metavar='G',
@@ -84,6 +86,8 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
         name, _, rest = message.partition(' ')
         if name in _OPTION_FIELDS:  # 'cart_mass must be ...' -> '--cart-mass must be ...'
             message = f'--{name.replace("_", "-")} {rest}'
+        elif name == 'push':  # 'push time must be ...' -> '--push: time must be ...'
+            message = f'--push: {rest}'
         raise ValueError(message) from None
 
 

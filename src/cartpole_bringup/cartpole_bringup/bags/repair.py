@@ -39,7 +39,7 @@ _RECORD_HEADER = struct.Struct('<BQ')
 
 
 class RepairError(RuntimeError):
-    """The bag cannot be repaired (no MCAP file, not an MCAP file, ...)."""
+    """The bag cannot be repaired (no MCAP file, not an MCAP file, ...); the message says why."""
 
 
 @dataclass
@@ -58,6 +58,8 @@ class RepairResult:
     dropped_bytes: int = 0
     """Bytes at the end of the damaged file that held no complete record."""
     damaged_copy: Path | None = None
+    metadata_problem: str | None = None
+    """What was wrong with the ``metadata.yaml`` that was replaced (None: there was none)."""
 
     @property
     def message_count(self) -> int:
@@ -67,7 +69,9 @@ class RepairResult:
         span = ('' if self.start_ns is None else
                 f', {(self.end_ns - self.start_ns) * 1e-9:.3f} s of log time')
         text = {'intact': 'intact, nothing to repair',
-                'metadata': 'metadata.yaml rebuilt',
+                'metadata': 'metadata.yaml rebuilt' + (
+                    f' (the old one, {self.metadata_problem}, kept as metadata.yaml.damaged)'
+                    if self.metadata_problem else ''),
                 'recovered': 'truncated MCAP recovered'}[self.action]
         out = f'{self.bag}: {text}: {self.message_count} messages{span}'
         if self.action == 'recovered':
@@ -89,8 +93,8 @@ def _bag_file(bag: Path) -> Path:
             return files[0]
     candidates = sorted(bag.glob('*.mcap'))
     if len(candidates) != 1:
-        raise RepairError(f'{bag}: expected one .mcap file, found '
-                          f'{[p.name for p in candidates] or "none"}')
+        raise RepairError(f'{bag}: cannot repair: expected one .mcap file, found '
+                          f'{", ".join(p.name for p in candidates) or "none"}')
     return candidates[0]
 
 
@@ -99,7 +103,9 @@ def complete_prefix(path: Path) -> tuple[int, bool]:
     size = path.stat().st_size
     with path.open('rb') as f:
         if f.read(len(MAGIC)) != MAGIC:
-            raise RepairError(f'{path} is not an MCAP file (no magic)')
+            raise RepairError(f'{path} is not an MCAP file (it does not start with the MCAP '
+                              'magic); nothing in it can be recovered'
+                              if size else f'{path} is empty; nothing in it can be recovered')
         pos = len(MAGIC)
         while pos + _RECORD_HEADER.size <= size:
             f.seek(pos)
@@ -207,6 +213,17 @@ def _copy(path: Path, limit: int, out: McapBagFile | None) -> tuple[BagStats, di
     return stats, metadata
 
 
+def _copy_or_refuse(path: Path, limit: int, out: McapBagFile | None) -> tuple[BagStats, dict]:
+    """:func:`_copy`; a record that cannot be parsed is a RepairError saying so."""
+    try:
+        return _copy(path, limit, out)
+    except (RepairError, OSError):
+        raise
+    except Exception as error:  # mcap's own errors (bad CRC, a garbled record)
+        raise RepairError(f'{path}: cannot repair: a record in it is garbled ({error}); the '
+                          'records after it cannot be recovered by this tool') from None
+
+
 def repair_bag(bag: str | Path) -> RepairResult:
     """Make a bag readable again; see the module docstring. Raises RepairError."""
     bag = Path(bag)
@@ -214,21 +231,29 @@ def repair_bag(bag: str | Path) -> RepairResult:
         bag = bag.parent
     if not bag.is_dir():
         raise RepairError(f'{bag}: no such bag directory')
+    from .check import damage
+
     path = _bag_file(bag)
     limit, complete = complete_prefix(path)
     size = path.stat().st_size
     if complete:
-        if (bag / 'metadata.yaml').is_file():
-            return _result(bag, path, 'intact', *_copy(path, limit, None)[:1])
-        stats, metadata = _copy(path, limit, None)
-        write_metadata(bag, bagfile_information(path.name, stats,
-                                                _custom_data_of(metadata, bag)))
-        return _result(bag, path, 'metadata', stats)
+        meta = bag / 'metadata.yaml'
+        problem = damage(bag) if meta.is_file() else None
+        if meta.is_file() and problem is None:
+            return _result(bag, path, 'intact', *_copy_or_refuse(path, limit, None)[:1])
+        stats, metadata = _copy_or_refuse(path, limit, None)
+        info = bagfile_information(path.name, stats, _custom_data_of(metadata, bag))
+        if problem is not None:  # metadata that does not describe the file: kept aside
+            os.replace(meta, meta.with_name('metadata.yaml.damaged'))
+        write_metadata(bag, info)
+        result = _result(bag, path, 'metadata', stats)
+        result.metadata_problem = problem
+        return result
     tmp = path.with_name(path.name + '.repairing')
     tmp.unlink(missing_ok=True)
     out = McapBagFile(tmp, flush_period=float('inf'))
     try:
-        stats, metadata = _copy(path, limit, out)
+        stats, metadata = _copy_or_refuse(path, limit, out)
         custom = _custom_data_of(metadata, bag)
         out.set_custom_data(custom)
         info = bagfile_information(path.name, stats, custom)

@@ -2,12 +2,15 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from .. import boundary
+from ..boundary import InputError
 from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
-                       nominal_parameters, print_summary)
+                       nominal_parameters, print_json, print_summary)
+
+ANIMATION_SUFFIXES = ('.gif', '.mp4')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,32 +81,77 @@ def controllers_that_ran(analysis) -> dict[str, str]:
     return out
 
 
+def checked_bag(bag: Path) -> Path:
+    """``bag`` if it is a whole bag directory; InputError with the one "damaged" line if not
+    (the same check as ``cartpole bag info``)."""
+    from ..bags.check import damage, damaged_line
+
+    if not bag.exists():
+        raise InputError(f'{bag}: no such bag (not a rosbag2 bag)')
+    if bag.is_file():
+        if bag.name == 'metadata.yaml' or bag.suffix == '.mcap':
+            bag = bag.parent
+        else:
+            raise InputError(f'{bag}: is a file, a bag directory is needed')
+    problem = damage(bag)
+    if problem:
+        raise InputError(damaged_line(bag, problem))
+    return bag
+
+
+def check(args: argparse.Namespace):
+    """Every input, checked before any bag is analysed (InputError naming it): the nominal
+    parameters and the bags."""
+    params = nominal_parameters(args)
+    if args.x_ref is not None:
+        boundary.number('--x-ref', args.x_ref, 0.0, params.travel, unit='m')
+    if args.animate is not None:
+        if len(args.bags) != 1:
+            raise InputError('--animate takes one bag')
+        if not (args.speed > 0 and args.fps > 0):  # (NaN fails too)
+            raise InputError(f'--speed and --fps must be > 0, got {args.speed:g}, {args.fps:g}')
+        boundary.number('--speed', args.speed, 0.0, 1000.0, low_open=True)
+        boundary.number('--fps', args.fps, 0.0, 100.0, low_open=True)
+        boundary.number('--width', args.width, 120, 3840)
+        args.animate = boundary.output_file(args.animate, '--animate', ANIMATION_SUFFIXES)
+        if args.animate.suffix.lower() == '.mp4':
+            import shutil
+            if shutil.which('ffmpeg') is None:
+                raise InputError('--animate: an MP4 needs ffmpeg on the PATH (not found); '
+                                 'write a .gif instead')
+    if args.plots is not None:
+        boundary.output_directory(args.plots, '--plots')
+    return params, [checked_bag(bag) for bag in args.bags]
+
+
 def main(args: argparse.Namespace) -> int:
     from ..analysis.analyze import analyze_bag, comparison_table
+    from ..bags.check import damaged_line
 
-    params = nominal_parameters(args)
-    if args.animate is not None and len(args.bags) != 1:
-        print('cartpole analyze: --animate takes one bag', file=sys.stderr)
-        return 2
-    if not (args.speed > 0 and args.fps > 0):
-        print(f'cartpole analyze: --speed and --fps must be > 0, got {args.speed:g}, '
-              f'{args.fps:g}', file=sys.stderr)
-        return 2
+    params, bags = check(args)
     analyses = []
-    for bag in args.bags:
+    for given, bag in zip(args.bags, bags):
         try:
             analyses.append(analyze_bag(bag, x_ref=args.x_ref, params=params))
         except (OSError, ValueError, KeyError) as error:
-            print(f'cartpole analyze: {bag}: {error}', file=sys.stderr)
-            return 2
-    plots = write_figures(analyses, args.plots) if args.plots else []
+            raise InputError(f'{given}: {error}') from None
+        except Exception as error:  # rosbags' own errors: a bag damaged inside its records
+            raise InputError(damaged_line(given, f'cannot be read ({type(error).__name__}: '
+                                                 f'{error})')) from None
+    try:
+        plots = write_figures(analyses, args.plots) if args.plots else []
+    except OSError as error:
+        print(f'cartpole analyze: --plots {args.plots}: not written: {error}', file=sys.stderr)
+        return 1
     animation = None
     if args.animate is not None:
         try:
             animation = write_animation(analyses[0], args)
-        except (ValueError, RuntimeError, OSError) as error:
-            print(f'cartpole analyze: --animate: {error}', file=sys.stderr)
-            return 2
+        except ValueError as error:  # e.g. a run of fewer than two samples
+            raise InputError(f'--animate: {error}') from None
+        except (RuntimeError, OSError) as error:
+            print(f'cartpole analyze: --animate: not written: {error}', file=sys.stderr)
+            return 1
     if args.json:
         runs = [dict(a.summary, bag=str(a.path), source=a.source, **controllers_that_ran(a))
                 for a in analyses]
@@ -111,7 +159,7 @@ def main(args: argparse.Namespace) -> int:
         out['plots'] = [str(p) for p in plots]
         if animation is not None:
             out['animation'] = animation
-        print(json.dumps(out))
+        print_json(out)
         return 0
     for a in analyses:
         controllers = ', '.join(f'{k} {v}' for k, v in controllers_that_ran(a).items())

@@ -8,9 +8,11 @@ prints (for installs without the ros2 CLI). No ROS needed.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
+
+from ..boundary import InputError
+from ..options import print_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,72 +24,86 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     'file is kept as <file>.damaged. An intact bag is left alone.')
     repair.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bag directories')
     repair.add_argument('--json', action='store_true', help='one JSON object a bag')
+    repair.set_defaults(_prog=repair.prog)
     info = verbs.add_parser('info', help='topics, types, counts and time span of a bag',
                             description='What ros2 bag info prints: topics, types, counts, '
                                         'time span and custom_data of a bag.')
     info.add_argument('bags', nargs='+', type=Path, metavar='BAG', help='bag directories')
     info.add_argument('--json', action='store_true', help='one JSON object a bag')
+    info.set_defaults(_prog=info.prog)
+
+
+def _existing(bags: list[Path]) -> None:
+    """Refuse (exit 2) a BAG that is not there at all, before any bag is touched."""
+    for bag in bags:
+        if not bag.exists():
+            raise InputError(f'{bag}: no such bag directory')
+        if bag.is_file() and bag.name != 'metadata.yaml' and bag.suffix != '.mcap':
+            raise InputError(f'{bag}: is a file, a bag directory is needed')
 
 
 def _repair(args: argparse.Namespace) -> int:
     from ..bags.repair import RepairError, repair_bag
 
+    _existing(args.bags)
     code = 0
     for bag in args.bags:
         try:
             result = repair_bag(bag)
         except (RepairError, OSError, ValueError) as error:
             print(f'cartpole bag repair: {error}', file=sys.stderr)
-            code = 2
+            code = 1  # the bag could not be repaired: a failed operation, not a refused input
             continue
         if args.json:
-            print(json.dumps({'bag': str(result.bag), 'action': result.action,
+            print_json({'bag': str(result.bag), 'action': result.action,
                               'messages': result.message_count, 'counts': result.counts,
                               'start_ns': result.start_ns, 'end_ns': result.end_ns,
                               'dropped_bytes': result.dropped_bytes,
                               'damaged_copy': (str(result.damaged_copy)
-                                               if result.damaged_copy else None)}))
+                                               if result.damaged_copy else None),
+                              'metadata_problem': result.metadata_problem})
         else:
             print(result.describe())
     return code
 
 
 def bag_info(bag: Path) -> dict:
-    """The facts of ``metadata.yaml`` (and whether the bag needs ``cartpole bag repair``)."""
-    import yaml
+    """The facts of ``metadata.yaml``, checked against the bag's files; ValueError with the
+    one line "BAG: damaged: ..., run `cartpole bag repair BAG`" if they disagree."""
+    from ..bags.check import damage, damaged_line, read_metadata
 
-    from ..bags.repair import needs_repair
-
-    meta = bag / 'metadata.yaml'
-    if not meta.is_file():
-        raise FileNotFoundError(f'{bag}: no metadata.yaml (a recording cut short? run '
-                                f'`cartpole bag repair {bag}`)')
-    info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
+    bag = bag.parent if bag.is_file() else bag
+    problem = damage(bag)
+    if problem:
+        raise ValueError(damaged_line(bag, problem))
+    info, _ = read_metadata(bag)
     return {
         'bag': str(bag), 'files': info['relative_file_paths'],
-        'storage': info['storage_identifier'], 'version': info['version'],
+        'storage': info.get('storage_identifier'), 'version': info.get('version'),
         'start_ns': info['starting_time']['nanoseconds_since_epoch'],
         'duration_s': info['duration']['nanoseconds'] * 1e-9,
         'messages': info['message_count'],
         'topics': {t['topic_metadata']['name']: {'type': t['topic_metadata']['type'],
                                                  'count': t['message_count']}
                    for t in info['topics_with_message_count']},
-        'custom_data': info.get('custom_data') or {},
-        'needs_repair': needs_repair(bag),
+        'custom_data': info.get('custom_data') if isinstance(info.get('custom_data'), dict)
+        else {},
+        'needs_repair': False,
     }
 
 
 def _info(args: argparse.Namespace) -> int:
+    _existing(args.bags)
     code = 0
     for bag in args.bags:
         try:
             facts = bag_info(bag)
-        except (OSError, KeyError, TypeError, ValueError) as error:
+        except (OSError, ValueError) as error:
             print(f'cartpole bag info: {error}', file=sys.stderr)
-            code = 2
+            code = 1
             continue
         if args.json:
-            print(json.dumps(facts))
+            print_json(facts)
             continue
         print(f'bag:       {facts["bag"]} ({facts["storage"]}, version {facts["version"]}, '
               f'files {", ".join(facts["files"])})')
@@ -98,8 +114,6 @@ def _info(args: argparse.Namespace) -> int:
             print(f'  {topic:<{width}}  {t["count"]:>7}  {t["type"]}')
         for key, value in facts['custom_data'].items():
             print(f'custom_data {key}: {value}')
-        if facts['needs_repair']:
-            print(f'the MCAP file is incomplete: run `cartpole bag repair {bag}`')
     return code
 
 

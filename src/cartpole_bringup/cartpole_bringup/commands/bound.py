@@ -14,10 +14,10 @@ No ROS.
 from __future__ import annotations
 
 import argparse
-import json
 
+from .. import boundary
 from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
-                       nominal_parameters)
+                       nominal_parameters, print_json)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,10 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from cartpole_control.trajectory_optimization import BOUND_CASES, ISSUE_BOUNDS, swingup_bounds
-    if args.intervals < 5:
-        raise SystemExit(f'--intervals must be >= 5, got {args.intervals}')
-    if args.refine < 0:
-        raise SystemExit(f'--refine must be >= 0, got {args.refine}')
+    boundary.number('--intervals', args.intervals, 5, 2000)
+    boundary.number('--refine', args.refine, 0, 4000)
     params = nominal_parameters(args)
     cases = tuple(args.case) if args.case else BOUND_CASES
     results = swingup_bounds(params, cases, n_intervals=args.intervals,
@@ -59,7 +57,7 @@ def main(args: argparse.Namespace) -> int:
                      'solve_s': round(traj.solve_time, 2),
                      'issue_s': ISSUE_BOUNDS[case] if params == type(params)() else None}
     if args.json:
-        print(json.dumps(out))
+        print_json(out)
         return 0 if all(v['converged'] for v in out.values()) else 1
     print(f'{"case":<16} {"bound [s]":>9} {"issue [s]":>9} {"switches":>8} {"x range [m]":>16} {"solve [s]":>9}')
     for case, v in out.items():

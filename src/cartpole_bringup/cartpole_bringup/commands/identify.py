@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
+import math
 import os
 import sys
 import tempfile
 from pathlib import Path
 
+from .. import boundary
+from ..boundary import InputError
 from ..options import (add_number_argument, add_output_arguments, add_plant_params_argument,
-                       nominal_parameters)
+                       nominal_parameters, print_json)
 
 PROG = 'cartpole identify'
 
@@ -106,8 +108,46 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
 
 
 def _fail(message: str) -> int:
-    print(f'{PROG}: {message}', file=sys.stderr)
+    """A refused input: the one line ``cartpole identify: error: ...``, exit 2."""
+    print(f'{PROG}: error: {message}', file=sys.stderr)
     return 2
+
+
+def check_bounds(bounds: dict[str, tuple[float, float]], nominal) -> None:
+    """Each ``--bound`` finite, low < high, and both ends valid values of the parameter."""
+    for name, (lo, hi) in bounds.items():
+        item = f'--bound {name}={lo:g}:{hi:g}'
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise InputError(f'{item}: the bounds must be finite numbers')
+        if not lo < hi:
+            raise InputError(f'{item}: the bounds must have low < high')
+        if not hasattr(nominal, name):
+            continue  # not a parameter: the fit names it (with the known ones)
+        for end in (lo, hi):
+            try:
+                nominal.replace(**{name: end})
+            except (ValueError, TypeError) as error:
+                raise InputError(f'{item}: {error}') from None
+
+
+def check_fit_inputs(args: argparse.Namespace) -> None:
+    """The numbers and output paths of a fit, before any bag is read (InputError naming one)."""
+    boundary.number('--weight-cart', args.weight_cart, 0.0, 1e6, low_open=True)
+    if args.weight_pendulum is not None:
+        boundary.number('--weight-pendulum', args.weight_pendulum, 0.0, 1e6, low_open=True)
+    boundary.number('--integration-step', args.integration_step, 0.0, 0.005, low_open=True,
+                    unit='s')
+    boundary.number('--max-nfev', args.max_nfev, 1, 100_000)
+    for name in ('t_start', 't_end'):
+        if getattr(args, name) is not None:
+            boundary.number(f'--{name.replace("_", "-")}', getattr(args, name), 0.0,
+                            boundary.MAX_DURATION_S, unit='s')
+    if args.t_start is not None and args.t_end is not None and not args.t_end > args.t_start:
+        raise InputError(f'--t-end {args.t_end:g} s must be after --t-start {args.t_start:g} s')
+    if args.output is not None:
+        args.output = boundary.output_file(args.output, '--output', ('.yaml', '.yml'))
+    if args.plot is not None:
+        args.plot = boundary.figure_file(args.plot, '--plot')
 
 
 def write_parameters(result, path: Path, bags: list[Path]) -> None:
@@ -179,11 +219,11 @@ def pulse_main(args: argparse.Namespace) -> int:
 
     if args.bags:
         return _fail('give either BAGs to fit or --pulse-plan to play, not both')
+    params = nominal_parameters(args)
     try:
-        params = nominal_parameters(args)
         pulses = parse_pulse_plan(args.pulse_plan, params)
     except (OSError, ValueError) as error:
-        return _fail(str(error))
+        return _fail(f'--pulse-plan: {error}' if '--pulse-plan' not in str(error) else str(error))
     for name in ('margin', 'settle', 'lead_in', 'timeout'):
         value = getattr(args, name)
         if not (math.isfinite(value) and value >= 0):
@@ -191,7 +231,9 @@ def pulse_main(args: argparse.Namespace) -> int:
     if not 0.0 <= args.x0 <= params.travel:
         return _fail(f'--x0 must be within the travel [0, {params.travel}] m')
     if args.record is not None and args.record.exists():
-        return _fail(f'{args.record} already exists; choose a new bag directory')
+        return _fail(f'--record {args.record}: already exists; choose a new bag directory')
+    if args.record is not None:
+        boundary.output_directory(args.record.parent, '--record')
     options = dict(lead_in=args.lead_in, settle=args.settle, margin=args.margin)
 
     def check(x0: float, theta0: float) -> tuple[list[str], object]:
@@ -206,7 +248,7 @@ def pulse_main(args: argparse.Namespace) -> int:
         'x_after_pulses': stops, 'duration_s': rec.duration, 'problems': problems}}
     if args.rehearse:
         if args.json:
-            print(json.dumps(summary))
+            print_json(summary)
         else:
             print(f'rehearsal on the model from x = {args.x0:g} m: cart between '
                   f'{rec.x.min():.3f} and {rec.x.max():.3f} m, stands after the pulses at '
@@ -223,13 +265,15 @@ def pulse_main(args: argparse.Namespace) -> int:
         played = run_pulse_plan(player, record=args.record, arm=args.arm, timeout=args.timeout,
                                 check=lambda x0, theta0: check(x0, theta0)[0],
                                 log=lambda line: print(line, file=sys.stderr))
-    except RuntimeError as error:
-        return _fail(str(error))
+    except RuntimeError as error:  # the test failed while it played
+        print(f'{PROG}: the pulse test failed: {error}', file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        return _fail('interrupted; zero force sent')
+        print(f'{PROG}: interrupted; zero force sent', file=sys.stderr)
+        return 130
     summary['played'] = played
     if args.json:
-        print(json.dumps(summary))
+        print_json(summary)
     else:
         print(f'played {played["pulses"]} pulse(s) over {played["samples"]} samples'
               + (f'; {played["guard"]}' if played['guard'] else ''))
@@ -261,17 +305,19 @@ def main(args: argparse.Namespace) -> int:
         return pulse_main(args)
     if not args.bags:
         return _fail('give one or more BAGs to fit (or --pulse-plan to record a test)')
+    nominal = nominal_parameters(args)
     try:
-        nominal = nominal_parameters(args)
         free = parse_free(args.free)
         bounds = parse_bounds(args.bound)
     except (OSError, ValueError) as error:
         return _fail(str(error))
-    for target in (args.output, args.plot):
-        if target is not None and not Path(target).resolve().parent.is_dir():
-            return _fail(f'{target}: the directory does not exist')
-    if args.max_nfev < 1:
-        return _fail('--max-nfev must be >= 1')
+    check_bounds(bounds, nominal)
+    check_fit_inputs(args)
+    from .analyze import checked_bag
+    for bag in args.bags:
+        if bag.is_dir() and not (bag / 'metadata.yaml').exists() and not any(bag.glob('*.mcap')):
+            continue  # not a bag at all: load_recording says so
+        checked_bag(bag)
     recordings = []
     for bag in args.bags:
         try:
@@ -297,7 +343,8 @@ def main(args: argparse.Namespace) -> int:
         if args.plot is not None:
             written.append(str(write_plot(result, recordings, args.plot)))
     except OSError as error:
-        return _fail(f'cannot write: {error}')
+        print(f'{PROG}: cannot write: {error}', file=sys.stderr)
+        return 1
     if not result.success:
         print(f'{PROG}: warning: the fit did not converge ({result.message}); the result is the '
               'best point found, raise --max-nfev or check the data', file=sys.stderr)
@@ -306,7 +353,7 @@ def main(args: argparse.Namespace) -> int:
         out['bags'] = [str(b) for b in args.bags]
         out['output'] = str(args.output) if args.output is not None else None
         out['plot'] = str(args.plot) if args.plot is not None else None
-        print(json.dumps(out))
+        print_json(out)
         return 0
     print('\n'.join(format_report(result)))
     for path in written:

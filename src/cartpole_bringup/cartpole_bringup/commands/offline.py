@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 
-from .. import options
+from .. import boundary, options
 
 LINGER_S = 1.0
 """With --view: wall seconds the server stays up after the run, so that its last messages
@@ -34,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def manager_parameters_from_args(args: argparse.Namespace) -> dict:
     """controller_manager parameters: the --params file's section, then --swingup/--stabilizer."""
-    params = options.load_ros_parameters(args.params, 'controller_manager')
+    params = dict(options.load_ros_parameters(args.params, 'controller_manager'))
     if args.swingup:
         params['swingup'] = args.swingup
     if args.stabilizer:
@@ -45,45 +44,65 @@ def manager_parameters_from_args(args: argparse.Namespace) -> dict:
 def ekf_config_from_args(args: argparse.Namespace):
     """The filter's configuration: the --params file's ``ekf`` section (the node's parameters)."""
     from cartpole_estimation.ekf_config import EkfConfig, changes_from_parameters
-    return EkfConfig(**changes_from_parameters(options.load_ros_parameters(args.params, 'ekf')))
+    try:
+        return EkfConfig(**changes_from_parameters(boundary.ekf_parameters(args.params)))
+    except (ValueError, TypeError) as error:
+        if isinstance(error, boundary.InputError):
+            raise
+        raise boundary.InputError(f'--params {args.params}: ekf: {error}') from None
+
+
+def checked(args: argparse.Namespace):
+    """Every input of the run, checked before it starts (InputError naming the option):
+    (nominal parameters, scenario, manager parameters, EKF configuration, plot path)."""
+    boundary.duration(args.duration)
+    boundary.number('--speed', args.speed, 0.0, 1000.0, low_open=True)
+    plot = boundary.figure_file(args.plot, '--plot') if args.plot else None
+    if args.view is not None:
+        from ..viewer.server import parse_address
+        try:
+            parse_address(args.view)
+        except ValueError as exc:
+            raise boundary.InputError(f'--view {args.view}: {exc}') from None
+    nominal = options.nominal_parameters(args)
+    scenario = options.scenario_from_args(args, nominal, args.duration)
+    manager = options.manager_parameters(nominal, manager_parameters_from_args(args))
+    return nominal, scenario, manager, ekf_config_from_args(args), plot
 
 
 def main(args: argparse.Namespace) -> int:
     from ..offline.closed_loop import run_closed_loop
 
-    if not args.duration > 0:
-        raise SystemExit('--duration must be > 0')
-    if not (args.speed > 0 and math.isfinite(args.speed)):
-        raise SystemExit(f'--speed must be > 0, got {args.speed}')
-    nominal = options.nominal_parameters(args)
+    nominal, scenario, manager, ekf_config, plot = checked(args)
     server = observer = None
     if args.view is not None:
-        server, observer = _start_view(args, nominal)
+        server, observer = _start_view(args, nominal, manager)
     try:
-        run = run_closed_loop(nominal, options.scenario_from_args(args),
-                              duration=args.duration,
-                              manager_parameters=manager_parameters_from_args(args),
-                              ekf_config=ekf_config_from_args(args),
+        run = run_closed_loop(nominal, scenario, duration=args.duration,
+                              manager_parameters=manager, ekf_config=ekf_config,
                               progress=options.progress_printer('cartpole offline'),
                               observer=observer)
-    except ValueError as exc:
-        raise SystemExit(f'cartpole offline: {exc}') from None
-    except KeyboardInterrupt:
-        raise SystemExit(130) from None
+    except ValueError as exc:  # checked above; a plugin's own refusal at its start
+        print(f'cartpole offline: the run failed: {exc}', file=sys.stderr)
+        return 1
     finally:
         if server is not None:
             time.sleep(LINGER_S)  # let the last messages reach the clients
             server.stop()
     options.print_summary(run.summary, args.json)
-    if args.plot:
+    if plot is not None:
         from ..analysis.plots import plot_offline_run
-        plot_offline_run(run, args.plot)
+        try:
+            plot_offline_run(run, plot)
+        except (OSError, ValueError) as error:
+            print(f'cartpole offline: --plot {plot}: not written: {error}', file=sys.stderr)
+            return 1
         if not args.json:
-            print(f'plot: {args.plot}')
+            print(f'plot: {plot}')
     return 0
 
 
-def _start_view(args: argparse.Namespace, nominal):
+def _start_view(args: argparse.Namespace, nominal, manager: dict):
     """The viewer's server and the loop's real-time observer (waits for a client unless told)."""
     from cartpole_sim.geometry import RigGeometry
 
@@ -93,9 +112,11 @@ def _start_view(args: argparse.Namespace, nominal):
     try:
         host, port = parse_address(args.view)
         server = ViewerServer(host, port)
-    except (ValueError, RuntimeError) as exc:
-        raise SystemExit(f'cartpole offline: --view: {exc}') from None
-    x_ref = options.load_ros_parameters(args.params, 'controller_manager').get('x_ref')
+    except ValueError as exc:
+        raise boundary.InputError(f'--view {args.view}: {exc}') from None
+    except RuntimeError as exc:
+        raise boundary.InputError(f'--view {args.view}: {exc}') from None
+    x_ref = manager.get('x_ref')
     view = LiveView(server, RigGeometry.from_parameters(nominal),
                     float(x_ref) if x_ref is not None else nominal.x_middle)
     print(f'cartpole offline: live view on {server.url} (Foxglove WebSocket)', file=sys.stderr,

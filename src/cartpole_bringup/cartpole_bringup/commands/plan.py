@@ -14,13 +14,12 @@ Also here: :func:`prepare_for_run`, the plugins' slow work before a lockstep
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
 from typing import Any
 
-from .. import options
+from .. import boundary, options
 
 BOUND_INTERVALS = (70, 140)
 """Shooting intervals of the bound's multi-start solves and of its refinement (`cartpole bound`)."""
@@ -78,17 +77,20 @@ def main(args: argparse.Namespace) -> int:
 
     say = options.progress_printer('cartpole plan')
     nominal = options.nominal_parameters(args)
-    parameters = options.load_ros_parameters(args.params, 'controller_manager')
+    parameters = dict(options.load_ros_parameters(args.params, 'controller_manager'))
     parameters['swingup'] = TimeOptimalSwingUp.name
     try:
         values = _manager(nominal, parameters).get_parameters()
-    except ValueError as error:
-        raise SystemExit(f'cartpole plan: {error}') from None
+    except (ValueError, TypeError) as error:
+        raise boundary.InputError(f'--params {args.params}: controller_manager: {error}') \
+            from None
     prefix = TimeOptimalSwingUp.name + '.'
     gains = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
     x0 = float(gains['plan_x0'] if args.x0 is None else args.x0)
     if not (math.isfinite(x0) and 0.0 <= x0 <= nominal.travel):
-        raise SystemExit(f'cartpole plan: --x0 {x0} m is outside the travel [0, {nominal.travel}] m')
+        option = '--x0' if args.x0 is not None else f'--params {args.params}: time_optimal.plan_x0'
+        raise boundary.InputError(f'{option} {x0} m is outside the travel [0, '
+                                  f'{nominal.travel}] m')
     x_ref, ts = float(values['x_ref']), nominal.sample_time
     problem = plan_problem(nominal, x_ref, x0, gains)
     cache = TrajectoryCache(gains['cache_dir'] or None)
@@ -123,7 +125,7 @@ def main(args: argparse.Namespace) -> int:
            'solved': result.solved, 'solve_time_s': round(plan.solve_time, 2),
            'file': str(result.path)}
     if args.json:
-        print(json.dumps(out))
+        options.print_json(out)
     else:
         print(f'time_optimal plan from hanging rest at x = {out["x0_m"]:.2f} m (x* = {x_ref:.4g} m)')
         print(f'  minimum-time bound (full force, whole rail): '

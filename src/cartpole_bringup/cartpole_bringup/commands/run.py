@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import math
 import os
 import signal
@@ -14,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .. import options
+from .. import boundary, options
 
 DISCOVERY_RANGES = ('localhost', 'subnet', 'system_default')
 
@@ -138,44 +137,52 @@ def run_directory(root: Path, names: dict[str, str], now: _dt.datetime | None = 
 
 
 def _validate(args: argparse.Namespace) -> str | None:
+    """The reason the options are refused (one line), None if they are fine."""
+    try:
+        check(args)
+    except boundary.InputError as error:
+        return str(error)
+    return None
+
+
+def check(args: argparse.Namespace) -> None:
+    """Every input of the run, checked before anything starts (InputError naming the option)."""
     if args.hw and not args.port:
-        return '--hw needs --port DEV'
+        raise boundary.InputError('--hw needs --port DEV')
     if args.sim and (args.port or args.hw_arm):
-        return '--port and --hw-arm are for --hw'
+        raise boundary.InputError('--port and --hw-arm are for --hw')
     if args.lockstep and not args.sim:
-        return '--lockstep needs --sim'
-    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
-        return f'--duration must be > 0, got {args.duration}'
+        raise boundary.InputError('--lockstep needs --sim')
+    if args.duration is not None:
+        boundary.duration(args.duration)
     if args.realtime is not None:
         from cartpole_sim.realtime import ENVIRONMENT_SWITCH, priority_from_environment
         try:
             priority_from_environment({ENVIRONMENT_SWITCH: args.realtime})
         except ValueError as exc:
-            return f'--realtime: {exc}'
+            raise boundary.InputError(f'--realtime: {exc}') from None
     if args.plots == '' and args.record is None:
-        return '--plots without DIR needs --record (the figures go into the run directory)'
+        raise boundary.InputError('--plots without DIR needs --record (the figures go into the '
+                                  'run directory)')
+    if args.plots:
+        boundary.output_directory(args.plots, '--plots')
+    if args.record is not None:
+        boundary.output_directory(args.record, '--record')
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
-        return f'--domain-id must be in [0, 232], got {args.domain_id}'
-    if args.params is not None and not args.params.is_file():
-        return f'--params {args.params}: no such file'
-    if args.plant_params is not None and not args.plant_params.is_file():
-        return f'--plant-params {args.plant_params}: no such file'
+        raise boundary.InputError(f'--domain-id must be in [0, 232], got {args.domain_id}')
     if args.view is not None:
         from ..viewer.server import parse_address
         try:
             parse_address(args.view)
         except ValueError as error:
-            return f'--view: {error}'
+            raise boundary.InputError(f'--view: {error}') from None
+    nominal = options.nominal_parameters(args)
+    manager = dict(options.load_ros_parameters(args.params, 'controller_manager'))
+    manager.update({k: getattr(args, k) for k in ('swingup', 'stabilizer') if getattr(args, k)})
+    options.manager_parameters(nominal, manager)
+    boundary.ekf_parameters(args.params)
     if args.sim:
-        try:
-            scenario = options.scenario_from_args(args)
-            nominal = options.nominal_parameters(args)
-            scenario.plant_parameters(nominal)
-        except (ValueError, OSError) as error:
-            return str(error)
-        if not 0.0 <= args.x0 <= nominal.travel:
-            return f'--x0 {args.x0} m is outside the travel [0, {nominal.travel}] m'
-    return None
+        options.scenario_from_args(args, nominal, args.duration)
 
 
 class _StopRequest:
@@ -200,10 +207,7 @@ class _StopRequest:
 
 
 def main(args: argparse.Namespace) -> int:
-    error = _validate(args)
-    if error:
-        print(f'cartpole run: {error}', file=sys.stderr)
-        return 2
+    check(args)  # InputError: `cartpole run: error: ...`, exit 2
     if args.realtime is not None:  # read by every node of the run, in this process or its own
         from cartpole_sim.realtime import ENVIRONMENT_SWITCH
         os.environ[ENVIRONMENT_SWITCH] = args.realtime
@@ -228,9 +232,9 @@ def main(args: argparse.Namespace) -> int:
         from .plan import prepare_for_run
         try:
             parameters['controller_manager'].update(prepare_for_run(args, nominal, 'cartpole run'))
-        except ValueError as error:
-            print(f'cartpole run: {error}', file=sys.stderr)
-            return 2
+        except ValueError as error:  # checked above: the plugin's own refusal of its start
+            print(f'cartpole run: the run failed before it started: {error}', file=sys.stderr)
+            return 1
     run_dir = bag = None
     if args.record is not None:
         run_dir = run_directory(args.record, names)
@@ -252,8 +256,7 @@ def main(args: argparse.Namespace) -> int:
             viewer = start_viewer(args.view, plant_params=args.plant_params,
                                   log_level=args.log_level)
         except RuntimeError as exc:
-            print(f'cartpole run: --view: {exc}', file=sys.stderr)
-            return 2
+            raise boundary.InputError(f'--view: {exc}') from None
         print(f'cartpole run: live view on {viewer.url} (Foxglove WebSocket)', file=sys.stderr,
               flush=True)
     ros_args = ['--ros-args', '--log-level', args.log_level]
@@ -280,7 +283,7 @@ def main(args: argparse.Namespace) -> int:
         elapsed = graph.elapsed()
         warnings += graph.close()
     except DuplicateNodeError as exc:
-        print(f'cartpole run: refused: {exc}', file=sys.stderr)
+        print(f'cartpole run: error: refused: {exc}', file=sys.stderr)
         return 2
     except GraphError as exc:
         print(f'cartpole run: {exc}', file=sys.stderr)
@@ -375,9 +378,9 @@ def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
     result = dict(summary) if summary is not None else {'fault': fault, 'success': False}
     result.update(extra)
     if run_dir is not None:
-        (run_dir / 'summary.json').write_text(json.dumps(result, indent=2) + '\n')
+        (run_dir / 'summary.json').write_text(boundary.json_text(result, indent=2) + '\n')
     if args.json:
-        print(json.dumps(result))
+        options.print_json(result)
     else:
         if summary is not None:
             options.print_summary(summary, as_json=False)
