@@ -33,6 +33,7 @@ setup(
             'lqg = cartpole_control.controllers.lqg:LqgStabilizer',
             'pid = cartpole_control.controllers.pid:PidStabilizer',
             'smc = cartpole_control.controllers.smc:SlidingModeStabilizer',
+            'mpc = cartpole_control.controllers.mpc:MpcStabilizer',
         ],
     },
 )

@@ -1,0 +1,197 @@
+"""Constrained model-predictive stabiliser (MPC) on the upright linearisation, with integral action.
+
+The model, the weights and the integral action are the LQI's
+(:mod:`.lqg`): the linearisation about upright rest (8.13)/(8.14)
+(:func:`cartpole_sim.model.linearise_upright`, with the 1/m_c the printed A44
+lacks), augmented with the integral of the cart error ``xi = int (x - x*) dt``,
+the state ``z = [x - x*, theta_w, x_dot, theta_dot, xi]`` and the weights
+``q = [10, 10000, 10, 1, 400]``, ``r = 0.01`` of the cost (8.15). What the
+MPC adds are the constraints the LQR (8.16)-(8.18) cannot see:
+
+- the force: the amplifier's range [force_min, force_max] (Appendix C, -37.4 /
+  +34.2 N) less the largest Coulomb level of the friction feedforward (6.12)
+  that the manager adds to this raw force (``context.feedforward``), so that
+  ``u + B_ff`` is always inside the range: hard bounds on every predicted move;
+- the cart: inside ``[margin + reserve + clearance, travel - margin - reserve -
+  clearance]`` (``context.rail_margin``, ``context.rail_reserve``, the
+  manager's ``rail.margin`` / ``rail.limit_reserve``, and ``mpc.rail_clearance``):
+  where the rail guard's limiter (:mod:`cartpole_control.rail_guard`) starts
+  bending a moving cart's command. Kept there, the cart never needs the
+  guard, whose trip (``[margin, travel - margin]``) loses the pendulum. Soft,
+  with an exact penalty: the QP is always feasible.
+
+Each cycle (Mayne et al., "Constrained model predictive control: stability and
+optimality", Automatica 36, 2000; Rawlings, Mayne and Diehl, "Model Predictive
+Control: Theory, Computation, and Design", 2nd ed., 2017, chapter 2) the QP
+of :mod:`cartpole_control.mpc_qp` is solved over ``horizon`` steps of the
+exactly discretised model (zero-order hold at Ts = ``context.sample_time``)
+with the terminal cost P of the discrete Riccati equation of the same model
+and weights (the discrete counterpart of (8.18)); its first move is applied.
+Without an active constraint that move is exactly the terminal LQR's
+``u = -K_d z`` (the finite-horizon cost with terminal cost P *is* the
+infinite-horizon cost): the MPC only departs from the LQR where a constraint
+bites. The predictions are written about the terminal LQR,
+``u_k = -K_d z_k + c_k`` (Rossiter, Kouvaritakis and Rice, "A numerically
+robust state-space approach to stable-predictive control strategies",
+Automatica 34(1), 1998): the open-loop unstable pendulum's powers of A_d never
+enter the QP, the Hessian is diagonal and the unconstrained optimum is c = 0.
+
+The actuator's current loop (4.4), pole at a = 1.058e4 1/s, is left out of
+the model: it settles in 0.1 ms, a fiftieth of the sample time, and its pole
+discretised at Ts = 5 ms is exp(-a Ts) ~ 1e-23: it adds a state that is gone
+within every sample and a DC gain of 1.0066 (10650/10580) that the integral
+takes up. Including it would only make the QP larger (a sixth state).
+
+Integral action, anti-windup and bumplessness are the LQI's: ``xi`` starts at
+zero at every activation, the increment ``(x - x*) dt`` is taken at once and
+taken back when the manager reports the command as cut in the direction it
+pushed it, or held (:class:`~cartpole_control.controllers.ConditionalIntegrator`,
+with the terminal LQR's d(force)/d(xi) = -K_d,xi as its effect), or when the
+MPC's own first move sits on a force bound.
+
+A solve that fails (status not optimal, an exception, a non-finite answer)
+or takes longer than ``budget_us`` (wall time of the solve with its Python
+calls) applies the terminal LQR law ``-K_d z`` for that cycle and is counted
+(``mpc_fallbacks`` of :meth:`MpcStabilizer.status_values`): never a fault,
+never a stale command. The QP is built once per configure (never in
+:meth:`update`); a cycle only computes the bounds from z_0 and warm-starts.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from cartpole_sim.model import linearise_upright
+
+from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
+from ..mpc_qp import SOLVERS, CondensedQp, QpSettings, discretise
+from . import ConditionalIntegrator, StepClock
+from .lqg import augmented_model
+
+DEFAULT_HORIZON = 100
+"""Prediction steps (0.5 s at 5 ms); see docs/controllers.md for the measurement behind it."""
+DEFAULT_BLOCK = 5
+"""Steps a free move is held (25 ms): 20 free moves over the default horizon."""
+
+
+class MpcStabilizer(Controller):
+    """Constrained MPC about upright with integral action; the unconstrained case is the discrete LQI."""
+
+    kind = STABILIZER
+    name = 'mpc'
+    running_state = ('_integral', '_clock')
+    parameters = (
+        ParameterSpec('q', (10.0, 10000.0, 10.0, 1.0, 400.0),
+                      'diagonal of the state weight Q of (8.15) for [x - x*, theta, x_dot, '
+                      'theta_dot, int (x - x*) dt] [1/m^2, 1/rad^2, s^2/m^2, s^2/rad^2, '
+                      '1/(m^2 s^2)], as lqg.q; the integral weight must be > 0',
+                      low=0.0, high=1e8, length=5),
+        ParameterSpec('r', 0.01, 'input weight R of (8.15) [1/N^2], as lqg.r', low=1e-8, high=1e6),
+        ParameterSpec('horizon', DEFAULT_HORIZON,
+                      'prediction horizon N [samples of Ts] over which the force and rail '
+                      'constraints are imposed; beyond it the terminal LQR cost', low=1, high=400),
+        ParameterSpec('block', DEFAULT_BLOCK,
+                      'move blocking [samples]: the correction to the terminal LQR is held '
+                      'over blocks of this many steps, and the force and rail constraints are '
+                      'imposed once a block (horizon / block free moves)', low=1, high=400),
+        ParameterSpec('solver', 'daqp', f'QP solver, one of {list(SOLVERS)} (casadi_* are '
+                      'the solvers bundled with CasADi; daqp and osqp their own wheels)',
+                      choices=SOLVERS),
+        ParameterSpec('budget_us', 2000.0,
+                      'solve time [us] (wall, Python calls included) above which the '
+                      'solution is not used: the terminal LQR law instead, counted in '
+                      'mpc_fallbacks', low=50.0, high=1e6),
+        ParameterSpec('rail_penalty', 1e5,
+                      'exact-penalty weight rho on the rail slack [cost per m of excursion '
+                      'per step]; larger than any multiplier of the rail constraint',
+                      low=1.0, high=1e9),
+        ParameterSpec('rail_clearance', 0.0,
+                      'extra distance [m] kept inside the rail guard\'s limiter boundary '
+                      '[margin + reserve, travel - margin - reserve]; negative lets the MPC '
+                      'use that much of the reserve', low=-0.1, high=0.3),
+    )
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.qp: CondensedQp | None = None
+        self.gain = np.zeros(5)
+        """K_d of the terminal LQR on z = [x - x*, theta_w, x_dot, theta_dot, xi]."""
+        self._integral = ConditionalIntegrator()
+        self._clock = StepClock()
+        self._z = np.zeros(5)
+        self._force_low = self._force_high = 0.0
+        self.fallbacks = 0
+        """Cycles whose solve failed or overran the budget (the terminal LQR was applied)."""
+        self.solve_us = 0.0
+        """Wall time of the last solve [us]."""
+        self.last_reason = ''
+
+    @property
+    def integral(self) -> float:
+        """xi = int (x - x*) dt [m s]."""
+        return self._integral.value
+
+    def on_configure(self) -> None:
+        """Discretise, solve the discrete Riccati equation and build the QP (once)."""
+        ctx = self.context
+        p = ctx.plant
+        q = [float(v) for v in self.gains['q']]
+        if q[4] <= 0.0:
+            raise ValueError('mpc: the integral weight q[4] must be > 0 (the integrator\'s mode '
+                             'must be seen by the cost for the Riccati equation to have a '
+                             'stabilising solution)')
+        ts = float(ctx.sample_time)
+        a, b = augmented_model(*linearise_upright(p))
+        a_d, b_d = discretise(a, b, ts)
+        q_d = np.diag(q) * ts
+        r_d = np.array([[float(self.gains['r']) * ts]])
+        ff = ctx.feedforward
+        coulomb = max(ff.c_right, ff.c_left)
+        force_low, force_high = p.force_min + coulomb, p.force_max - coulomb
+        inset = ctx.rail_margin + ctx.rail_reserve + float(self.gains['rail_clearance'])
+        low, high = inset - ctx.x_ref, p.travel - inset - ctx.x_ref
+        if not low < 0.0 < high:
+            raise ValueError(f'mpc: x* = {ctx.x_ref:g} m is outside the rail bounds '
+                             f'[{inset:g}, {p.travel - inset:g}] m')
+        if int(self.gains['block']) > int(self.gains['horizon']):
+            raise ValueError(f'mpc: block ({self.gains["block"]}) must not exceed the horizon '
+                             f'({self.gains["horizon"]})')
+        settings = QpSettings(int(self.gains['horizon']), force_low, force_high, low, high,
+                              float(self.gains['rail_penalty']), str(self.gains['solver']),
+                              1e-6 * float(self.gains['budget_us']), int(self.gains['block']))
+        self.qp = CondensedQp(a_d, b_d, q_d, r_d, settings)
+        self.gain = self.qp.gain_row.copy()
+        self._force_low, self._force_high = force_low, force_high
+
+    def on_activate(self, state: ControllerState) -> None:
+        """Bumpless start: the integral from zero at this state, the solver cold."""
+        self._integral.reset()
+        self._clock.reset(state.t)
+        self.qp.reset()
+
+    def update(self, state: ControllerState) -> float:
+        """The first move of the constrained QP for z = [x - x*, theta_w, x_dot, theta_dot, xi]."""
+        error_x = state.x - self.context.x_ref
+        dt = self._clock.step(state.t, self.context.sample_time)
+        k_i = float(self.gain[4])
+        xi = self._integral.step(error_x, dt, -k_i)
+        z = self._z
+        z[0], z[1], z[2], z[3], z[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
+        solution = self.qp.solve(z)
+        self.solve_us = solution.solve_time * 1e6
+        if not solution.ok:
+            self.fallbacks += 1
+            self.last_reason = solution.reason
+        u = solution.force
+        effect = -k_i * error_x
+        if (u >= self._force_high - 1e-9 and effect > 0.0) or \
+                (u <= self._force_low + 1e-9 and effect < 0.0):
+            self._integral.hold()  # the MPC's own bound: no windup against it
+        return u
+
+    def command_applied(self, feedback: CommandFeedback) -> None:
+        """Anti-windup: take back this cycle's integration if the command was cut or held."""
+        self._integral.feedback(feedback)
+
+    def status_values(self) -> dict[str, float]:
+        """``mpc_solve_us`` (the last solve's wall time) and ``mpc_fallbacks`` (count)."""
+        return {'mpc_solve_us': self.solve_us, 'mpc_fallbacks': self.fallbacks}

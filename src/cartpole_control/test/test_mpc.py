@@ -1,0 +1,143 @@
+"""The mpc stabiliser: the unconstrained MPC is the terminal LQR, the rail constraint keeps the
+cart where the LQR leaves it, the QP is built once per configure, a failed solve falls back."""
+import math
+
+import numpy as np
+import pytest
+
+from cartpole_control.controller import ControlContext, ControllerState
+from cartpole_control.controllers.lqg import augmented_model
+from cartpole_control.controllers.mpc import MpcStabilizer
+from cartpole_control.manager import ControllerManager
+from cartpole_control.mpc_qp import CondensedQp, discretise
+from cartpole_sim.model import CartPoleParameters, linearise_upright
+
+P = CartPoleParameters()
+CONTEXT = ControlContext(plant=P, x_ref=P.x_middle, sample_time=P.sample_time)
+
+
+def configured(**gains):
+    plugin = MpcStabilizer()
+    plugin.configure(gains, CONTEXT)
+    return plugin
+
+
+def z_of(plugin, state):
+    return np.array([state.x - CONTEXT.x_ref, state.theta_w, state.x_dot, state.theta_dot,
+                     plugin.integral])
+
+
+@pytest.mark.parametrize('solver', ['daqp', 'casadi_qpoases'])
+def test_without_an_active_constraint_the_mpc_is_the_terminal_lqr(solver):
+    plugin = configured(solver=solver, budget_us=1e6)  # the first qpOASES call is slow
+    start = ControllerState(0.0, P.x_middle, 0.0, 0.0, 0.0)
+    plugin.activate(start)
+    rng = np.random.default_rng(4)
+    for k in range(1, 9):
+        dx, th, dxd, thd = rng.normal(size=4) * [0.01, 0.003, 0.02, 0.02]
+        state = ControllerState(k * P.sample_time, P.x_middle + dx, th, dxd, thd)
+        u = plugin.update(state)
+        lqr = -float(plugin.gain @ z_of(plugin, state))
+        assert abs(u) < 20.0 and abs(u - lqr) < 1e-6, (k, u, lqr)
+    assert plugin.status_values()['mpc_fallbacks'] == 0
+
+
+def test_the_terminal_lqr_is_the_discrete_lqi_of_the_same_weights():
+    plugin = configured()
+    a, b = augmented_model(*linearise_upright(P))
+    a_d, b_d = discretise(a, b, P.sample_time)
+    k = plugin.gain[np.newaxis]
+    # stable, and close to the continuous LQI's gain of the same weights (sampled at 5 ms)
+    assert np.max(np.abs(np.linalg.eigvals(a_d - b_d @ k))) < 1.0
+    from cartpole_control.controllers.lqg import LqgStabilizer
+    lqi = LqgStabilizer()
+    lqi.configure({}, CONTEXT)
+    continuous = np.append(lqi.gain, lqi.integral_gain)
+    np.testing.assert_allclose(plugin.gain, continuous, rtol=0.15)
+
+
+def _linear_run(law, z0, steps=600):
+    """The discretised linear model closed with ``law(z) -> u``, forces saturated as the
+    manager saturates the raw force (feedforward left out)."""
+    a, b = augmented_model(*linearise_upright(P))
+    a_d, b_d = discretise(a, b, P.sample_time)
+    z = np.array(z0, dtype=float)
+    out = [z.copy()]
+    for _ in range(steps):
+        u = min(max(law(z), P.force_min), P.force_max)
+        z = a_d @ z + b_d[:, 0] * u
+        out.append(z.copy())
+    return np.array(out)
+
+
+@pytest.mark.xfail(strict=True, reason='issue 20 item 1 open: with the rail infeasible for the '
+                   'linear model the exact penalty trades the pendulum for the rail and the '
+                   'prediction diverges; with it feasible the MPC keeps the cart only 6 mm '
+                   'further in than the LQR (horizon 0.5 s)')
+def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_it():
+    """A cart 17 cm right of x* moving right at 0.9 m/s (e.g. after a push): the terminal LQR
+    (the same weights, unconstrained) runs past the rail guard's limiter boundary
+    (travel - margin - reserve = 0.699 m); the MPC brakes in time and keeps the pendulum up."""
+    plugin = configured()
+    qp = plugin.qp
+    high = P.travel - CONTEXT.rail_margin - CONTEXT.rail_reserve
+    z0 = [0.17, 0.0, 0.9, 0.0, 0.0]
+    lqr = _linear_run(lambda z: -float(plugin.gain @ z), z0)
+    mpc = _linear_run(lambda z: qp.solve(z).force, z0)
+    assert CONTEXT.x_ref + lqr[:, 0].max() > high + 0.01
+    assert CONTEXT.x_ref + mpc[:, 0].max() <= high + 1e-3
+    assert np.abs(mpc[:, 1]).max() < math.radians(20.0)        # the pendulum stays up
+    assert np.abs(mpc[-1, :4]).max() < 0.05                     # and it settles back at x*
+
+
+def test_the_qp_is_built_once_per_configure_and_never_in_update():
+    before = CondensedQp.constructions
+    plugin = configured()
+    assert CondensedQp.constructions == before + 1
+    plugin.activate(ControllerState(0.0, P.x_middle, 0.02, 0.0, 0.0))
+    for k in range(200):
+        plugin.update(ControllerState(k * P.sample_time, P.x_middle + 0.001 * k, 0.02, 0.3, 0.0))
+    plugin.deactivate()
+    plugin.activate(ControllerState(2.0, P.x_middle, 0.0, 0.0, 0.0))
+    plugin.update(ControllerState(2.005, P.x_middle, 0.0, 0.0, 0.0))
+    assert CondensedQp.constructions == before + 1
+    plugin.configure({'horizon': 40}, CONTEXT)
+    assert CondensedQp.constructions == before + 2
+
+
+def test_a_failed_solve_applies_the_terminal_lqr_and_is_counted():
+    plugin = configured()
+    state = ControllerState(0.0, P.x_middle + 0.01, 0.02, 0.1, -0.1)
+    plugin.activate(state)
+    plugin.qp.backend.solve = lambda: (math.nan, False, 'injected failure')
+    u = plugin.update(state)
+    assert u == pytest.approx(-float(plugin.gain @ z_of(plugin, state)), abs=1e-9)
+    assert plugin.status_values() == {'mpc_solve_us': pytest.approx(plugin.solve_us),
+                                      'mpc_fallbacks': 1}
+
+    def raises():
+        raise RuntimeError('solver crashed')
+    plugin.qp.backend.solve = raises
+    u = plugin.update(ControllerState(0.005, P.x_middle + 0.01, 0.02, 0.1, -0.1))
+    assert math.isfinite(u) and plugin.status_values()['mpc_fallbacks'] == 2
+
+
+def test_bad_gains_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match='integral weight'):
+        configured(q=(10.0, 10000.0, 10.0, 1.0, 0.0))
+    with pytest.raises(ValueError, match='block'):
+        configured(horizon=4, block=5)
+    with pytest.raises(ValueError, match='solver'):
+        configured(solver='gurobi')
+
+
+def test_the_manager_switches_lqg_to_mpc_bumplessly_and_the_integrator_starts_at_zero():
+    manager = ControllerManager(P, sample_time=P.sample_time, real_time=False)
+    out = manager.update_values(0.0, P.x_middle, 0.02, 0.0, 0.0)
+    assert out.mode == 'stabilizing' and out.stabilizer == 'lqg'
+    assert manager.set_parameters({'stabilizer': 'mpc'}).successful
+    out = manager.update_values(0.005, P.x_middle, 0.02, 0.0, 0.0)
+    mpc = manager.active_plugins()['stabilizer']
+    assert out.stabilizer == 'mpc' and 'switch:stabilizer=mpc' in out.event
+    assert mpc.active and mpc.integral == 0.0
+    assert out.raw_force == pytest.approx(-mpc.gain[1] * 0.02, abs=1e-6)
