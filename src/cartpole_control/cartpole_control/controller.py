@@ -29,16 +29,21 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping, Sequence, final
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Mapping, Sequence, final
 
 from cartpole_sim.model import CartPoleParameters, wrap_angle
 
 from .feedforward import FrictionFeedforward
 
+if TYPE_CHECKING:
+    from .natural_frequency import NaturalFrequencyEstimator
+
 API_VERSION = 2
 """Version of this contract. Bump on any incompatible change (2: activate/deactivate
 became template methods around the on_activate/on_deactivate hooks)."""
 
+AUTO = 'auto'
+"""The value of an ``auto`` parameter that the loop measures itself (:class:`ParameterSpec`)."""
 SWINGUP = 'swingup'
 STABILIZER = 'stabilizer'
 KINDS = (SWINGUP, STABILIZER)
@@ -50,7 +55,9 @@ class ParameterSpec:
 
     ``default`` fixes the type: float, int, bool, str or a tuple of floats
     (a double array). ``low``/``high`` bound numbers (and every element of a
-    double array); ``length`` fixes the length of a double array.
+    double array); ``length`` fixes the length of a double array. With
+    ``auto`` the parameter is a number in ``[low, high]`` or the string
+    ``'auto'`` (a value the loop measures itself); its default is ``'auto'``.
     """
 
     name: str
@@ -60,10 +67,17 @@ class ParameterSpec:
     high: float | None = None
     length: int | None = None
     choices: tuple[str, ...] | None = None
+    auto: bool = False
 
     def validate(self, value: Any) -> Any:
         """Return ``value`` converted to this parameter's type, or raise ValueError with the reason."""
         d = self.default
+        if self.auto:
+            if isinstance(value, str):
+                if value != AUTO:
+                    raise ValueError(f"{self.name} must be 'auto' or a number, got {value!r}")
+                return value
+            return self._number(value)
         if isinstance(d, bool):
             if not isinstance(value, bool):
                 raise ValueError(f'{self.name} must be a bool, got {value!r}')
@@ -142,6 +156,18 @@ class ControlContext:
     (a plan) is started in the background. False for batch and lockstep runs,
     which call :meth:`Controller.prepare` before their first cycle: nothing is
     started in the background then."""
+    rail_margin: float = 0.02
+    """The distance the manager's rail guard keeps from each end stop [m]
+    (``rail.margin``); a law that plans the cart's path keeps it inside
+    ``[rail_margin, travel - rail_margin]``."""
+    rail_reserve: float = 0.05
+    """How much further in the guard's limiter starts bending a moving cart's
+    command (``rail.limit_reserve``) [m]."""
+    pendulum: 'NaturalFrequencyEstimator | None' = None
+    """The manager's on-line estimate of the pendulum's natural frequency and the
+    energy (7.3) and target (6.8) it gives (:mod:`cartpole_control.natural_frequency`);
+    updated by the manager while the plugin runs. None outside a manager: the
+    energy laws then use the nominal model."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting
@@ -266,6 +292,14 @@ class Controller(ABC):
         return {}
 
     @property
+    def adaptive_target(self) -> bool:
+        """The swing-up aims at the energy target of the estimated pendulum
+        (:attr:`ControlContext.pendulum`), and the catch trigger (6.4) with it:
+        the plugin's ``adaptive_target`` gain (the energy laws have one), else False
+        (the nominal E* (6.8))."""
+        return bool(self.gains.get('adaptive_target', False))
+
+    @property
     def law(self) -> str:
         """What produces the output now (``swingup_law`` of the status and summary, SPEC 8).
 
@@ -316,6 +350,15 @@ class Controller(ABC):
         ``feedback.blocks(effect)`` (see :class:`CommandFeedback`). A plugin
         used without the manager simply never hears of it.
         """
+
+    def status_values(self) -> Mapping[str, float]:
+        """Figures of the running law for the controller status and the run summary.
+
+        Plain numbers by name (e.g. ``{'mpc_solve_us': 212.0, 'mpc_fallbacks': 0}``),
+        read by the manager once per cycle after :meth:`update`: keep it
+        cheap. Default: none.
+        """
+        return {}
 
     @final
     def deactivate(self) -> None:

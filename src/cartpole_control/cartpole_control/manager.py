@@ -8,8 +8,12 @@ One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
    change was set (:mod:`cartpole_control.staging`); a switch is bumpless:
    the new plugin is activated from the current state, the old one
    deactivated; new gains of the running plugin take over its integrators;
-2. complete the state with the model accelerations under the last applied
-   force (4.18), which (7.10) needs;
+2. predict the estimate over the loop's latency under the commands still in
+   flight (:mod:`cartpole_control.prediction`; ``predict.horizon``: ``auto``
+   is the latency measured from the plant's reports of when each command
+   took effect, :meth:`ControllerManager.command_applied`,
+   :mod:`cartpole_control.latency`), and complete it with the model
+   accelerations under the last applied force (4.18), which (7.10) needs;
 3. catch trigger (6.4) in swing-up, fall detector in stabilisation
    (:mod:`cartpole_control.catch`);
 4. the active plugin's raw force ``u``; only one controller runs (section 6.4);
@@ -20,6 +24,12 @@ One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
    (:meth:`~cartpole_control.controller.Controller.command_applied`): cut by
    the saturation or the rail guard, or held; its integrators stop then
    (anti-windup).
+
+Beside the cycle, :meth:`ControllerManager.measured` takes the encoders'
+samples: while no stabiliser runs they feed the estimate of the pendulum's
+natural frequency (:mod:`cartpole_control.natural_frequency`), whose energy
+target the energy swing-up laws (with ``adaptive_target``) and then the catch
+trigger use.
 
 Modes: ``idle`` (disabled, zero force), ``swingup``, ``stabilizing`` and
 ``fault`` (zero force until :meth:`~ControllerManager.restart`; the one
@@ -42,7 +52,9 @@ from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller,
     ControllerState, ParameterSpec
 from .manager_parameters import manager_parameter_specs
 from .rail_guard import BRAKING, STOPPED
-from .prediction import predict_state
+from .latency import CommandsInFlight, LatencyEstimator
+from .natural_frequency import NaturalFrequencyEstimator
+from .prediction import predict_over_commands
 from .registry import load_controllers
 from .staging import StagedChange, Stager, plugin_gains
 
@@ -59,6 +71,17 @@ DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
 
 _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
+
+STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
+               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
+               'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s',
+               'latency_s', 'predict_horizon_s', 'omega0_sq')
+"""The KeyValues of the controller status, in this order (docs/architecture.md), published by the node as
+``/cartpole/controller_status``; the
+active plugin's own figures (:meth:`Controller.status_values`, e.g. ``mpc_solve_us``)
+follow them."""
+LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq')
+"""What the manager learns of the loop and reports in the status and the run summary."""
 
 MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'predict', 'rail')
 """Parameter groups of the manager itself; a plugin cannot take these names."""
@@ -103,6 +126,15 @@ class ManagerOutput:
     """What the swing-up plugin runs (:attr:`Controller.law`): its name, or e.g.
     ``time_optimal:plan`` / ``time_optimal:fallback(no plan)``; the last one
     that ran while another mode is active."""
+    latency: float = 0.0
+    """The loop's measured sensor-to-actuator latency [s] (0 before enough reports)."""
+    horizon: float = 0.0
+    """The prediction horizon this cycle used [s]: the latency with ``predict.horizon``
+    ``auto``, else the fixed value."""
+    omega_sq: float = 0.0
+    """The estimate of the pendulum's omega_0^2 = m_p g l / J [1/s^2]."""
+    plugin_status: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    """The active plugin's :meth:`Controller.status_values` (e.g. ``mpc_solve_us``)."""
 
 
 _new_object = object.__new__
@@ -134,7 +166,8 @@ def _command_feedback(raw: float, force: float, limited: int, held: bool) -> Com
 
 def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
                     raw_force, feedforward, event, catch_count, fall_count, catch_time,
-                    fault_reason, swingup_law) -> ManagerOutput:
+                    fault_reason, swingup_law, latency, horizon, omega_sq,
+                    plugin_status) -> ManagerOutput:
     """``ManagerOutput(...)`` with every field positional, built directly (see
     :func:`_controller_state`); a test checks it equals the dataclass's own."""
     out = _new_object(ManagerOutput)
@@ -143,7 +176,8 @@ def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy
         'enabled': enabled, 'energy': energy, 'energy_error': energy_error,
         'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
         'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
-        'fault_reason': fault_reason, 'swingup_law': swingup_law})
+        'fault_reason': fault_reason, 'swingup_law': swingup_law, 'latency': latency,
+        'horizon': horizon, 'omega_sq': omega_sq, 'plugin_status': plugin_status})
     return out
 
 
@@ -182,7 +216,13 @@ class ControllerManager:
         self._upright_energy = plant.upright_energy
         self._registry = self._checked_registry(registry)
         self._specs = self._build_specs()
-        self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time)
+        self.latency = LatencyEstimator()
+        """The loop's latency from the plant's reports (:meth:`command_applied`)."""
+        self.natural_frequency = NaturalFrequencyEstimator(plant, self.sample_time)
+        """omega_0^2 of the pendulum on the rig, from the encoders (:meth:`measured`)."""
+        self._in_flight = CommandsInFlight()
+        self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
+                              self.natural_frequency)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
         self._lock = threading.Lock()  # values, pending change, restart request: short holds
         self._staging = threading.RLock()  # serialises staging: each change on the one before
@@ -331,6 +371,24 @@ class ControllerManager:
                 raise ValueError(f'prepared parameters refused: {result.reason}')
         return changes
 
+    # -- what the plant reports -----------------------------------------------------------
+    def command_applied(self, source: float, applied: float) -> None:
+        """The command computed from the sample stamped ``source`` took effect at ``applied`` [s].
+
+        The plant's report (the simulator's sample-and-hold, the rig's device
+        clock): one sample of the loop's latency.
+        """
+        self.latency.report(source, applied)
+
+    def measured(self, t: float, x: float, theta: float) -> None:
+        """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped).
+
+        Feeds the natural-frequency estimate while no stabiliser runs (a
+        balanced pendulum says little about how it swings).
+        """
+        if self.mode != STABILIZING:
+            self.natural_frequency.update(t, x, theta)
+
     # -- requests -----------------------------------------------------------------------
     def restart(self) -> SetResult:
         """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
@@ -382,6 +440,9 @@ class ControllerManager:
         self.catch_time: float | None = None
         self._last_force = 0.0
         self._energy = math.nan
+        self._target = self._upright_energy
+        self._horizon = 0.0
+        self._in_flight.reset()
         self._guard.reset()
         with self._lock:
             self._restart_requested = False
@@ -469,20 +530,29 @@ class ControllerManager:
             return self._output(t, 0.0, 0.0, 0.0, events)
         guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
         horizon = self._values['predict.horizon']
+        if horizon == 'auto':
+            horizon = self.latency.latency
+        self._horizon = horizon
         if horizon > 0.0:
-            x, theta, x_dot, theta_dot = predict_state(self._acc, x, theta, x_dot, theta_dot,
-                                                       self._last_force, horizon)
+            x, theta, x_dot, theta_dot = predict_over_commands(
+                self._acc, x, theta, x_dot, theta_dot, self._in_flight.segments(t, horizon))
         x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
         state = _controller_state(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
-        p = self.plant
-        self._energy = energy = pendulum_energy(theta, theta_dot, p)
 
         self._apply_pending(state, events)
 
+        # (7.3) and (6.8): of the estimated pendulum if the swing-up aims at its target
+        if self._plugins[SWINGUP].adaptive_target:
+            natural = self.natural_frequency
+            energy, self._target = natural.energy(theta, theta_dot), natural.upright_energy
+        else:
+            energy, self._target = pendulum_energy(theta, theta_dot, self.plant), \
+                self._upright_energy
+        self._energy = energy
         mode = self.mode
         trigger = self._trigger
         # (6.4): CatchTrigger.should_catch with the energy (7.3) computed above.
-        if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._upright_energy) \
+        if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._target) \
                 and trigger.angle_condition(theta):
             self._set_mode(STABILIZING, state)
             self.catch_count += 1
@@ -524,6 +594,7 @@ class ControllerManager:
                 and not self._tell_plugin(active, raw, raw + feedforward, force, events):
             force = 0.0
         self._last_force = force
+        self._in_flight.sent(t, force)
         return self._output(t, force, raw, feedforward, events)
 
     def _tell_plugin(self, plugin: Controller, raw: float, wanted: float, force: float,
@@ -551,6 +622,11 @@ class ControllerManager:
         return float(self._values['state_timeout'])
 
     @property
+    def prediction_horizon(self) -> float:
+        """The prediction horizon of the last cycle [s] (``predict.horizon``, ``auto``: the latency)."""
+        return self._horizon
+
+    @property
     def enabled(self) -> bool:
         return self._enabled
 
@@ -567,8 +643,12 @@ class ControllerManager:
                 events: list[str]) -> ManagerOutput:
         energy = self._energy
         names = self._names
+        active = self._active
         return _manager_output(t, force, self.mode, names[SWINGUP], names[STABILIZER],
-                               self._enabled, energy, self._upright_energy - energy, raw,
+                               self._enabled, energy, self._target - energy, raw,
                                feedforward, ';'.join(events) if events else '',
                                self.catch_count, self.fall_count, self.catch_time,
-                               self.fault_reason, self._plugins[SWINGUP].law)
+                               self.fault_reason, self._plugins[SWINGUP].law,
+                               self.latency.latency, self._horizon,
+                               self.natural_frequency.omega_sq,
+                               active.status_values() if active is not None else {})

@@ -49,6 +49,7 @@ Wiring only; every decision is the manager's.
 from __future__ import annotations
 
 import array
+import math
 import sys
 import time
 from pathlib import Path
@@ -60,7 +61,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -68,7 +69,7 @@ from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
 
 from .controller import ControllerState, ParameterSpec
-from .manager import FAULT, IDLE, ControllerManager, ManagerOutput
+from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
 from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
@@ -82,10 +83,6 @@ a longer interval is a stall of this process (module docstring)."""
 LAST_COMMAND_ACK_TIMEOUT = 1.0
 """Longest wait on shutdown for every subscriber to acknowledge the last zero force [s]
 (a dead subscriber never does; the node goes after this)."""
-STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
-               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
-               'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s')
-"""The KeyValues of the controller status, in this order (docs/architecture.md)."""
 
 
 def load_plant_parameters(path: str) -> CartPoleParameters:
@@ -99,9 +96,12 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
 
 def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
     """A ROS parameter descriptor from a :class:`ParameterSpec` (ranges, constraints text)."""
-    d = ParameterDescriptor(description=spec.description, dynamic_typing=False)
+    d = ParameterDescriptor(description=spec.description, dynamic_typing=spec.auto)
     default = spec.default
     constraints = []
+    if spec.auto:  # a string or a double: the range is checked by the manager
+        d.additional_constraints = f"'auto' or a number in [{_fmt(spec.low)}, {_fmt(spec.high)}]"
+        return d
     if spec.choices is not None:
         constraints.append('one of: ' + ', '.join(spec.choices))
     if isinstance(default, bool) or isinstance(default, str):
@@ -129,6 +129,8 @@ def _fmt(value: float | None) -> str:
 
 def ros_value(spec: ParameterSpec, value: Any) -> Any:
     """A manager value as the ROS parameter type fixed by the spec's default."""
+    if spec.auto:
+        return value if isinstance(value, str) else float(value)
     if isinstance(spec.default, (tuple, list)):
         return [float(v) for v in value]
     if isinstance(spec.default, bool) or isinstance(spec.default, str):
@@ -185,6 +187,12 @@ class ControllerManagerNode(Node):
         self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
                                  PLANT_RESET_QOS)
         self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
+        # What the plant reports: when each command took effect (the loop's latency), and
+        # the encoders' samples (the pendulum's natural frequency).
+        self.create_subscription(TimeReference, '/cartpole/command_applied',
+                                 self._on_command_applied, PUBLISH_DEPTH)
+        self.create_subscription(JointState, '/joint_states', self._on_joint_states,
+                                 PUBLISH_DEPTH)
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
         self._reset_from: float | None = None
         """Stamp [s] of a plant reset not yet handed over (see _on_plant_reset)."""
@@ -270,6 +278,19 @@ class ControllerManagerNode(Node):
         self._stale = False
         self._publish_status(out, msg.header.stamp, 'plant_reset' if reset else '')
         collect_when_idle()  # the command is out: the loop has time until the next sample
+
+    def _on_command_applied(self, msg: TimeReference) -> None:
+        self.manager.command_applied(_stamp_seconds(msg.time_ref), _stamp_seconds(msg.header.stamp))
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        try:
+            c = msg.name.index(CART_JOINT)
+            p = msg.name.index(PENDULUM_JOINT)
+            x, theta = float(msg.position[c]), float(msg.position[p])
+        except (ValueError, IndexError):
+            return  # the EKF reports a bad measurement; the estimate just skips it
+        if math.isfinite(x) and math.isfinite(theta):
+            self.manager.measured(_stamp_seconds(msg.header.stamp), x, theta)
 
     def _on_plant_reset(self, msg: Header) -> None:
         self._reset_from = _stamp_seconds(msg.stamp)
@@ -374,10 +395,15 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
         'longest_cycle_gap_s': repr(float(longest_cycle_gap)),
         'cycle_compute_s': repr(float(cycle_compute)),
         'max_cycle_compute_s': repr(float(max_cycle_compute)),
+        'latency_s': repr(float(out.latency)),
+        'predict_horizon_s': repr(float(out.horizon)),
+        'omega0_sq': repr(float(out.omega_sq)),
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',
-                              values=[KeyValue(key=k, value=values[k]) for k in STATUS_KEYS])
+                              values=[KeyValue(key=k, value=values[k]) for k in STATUS_KEYS]
+                              + [KeyValue(key=k, value=repr(float(v)))
+                                 for k, v in out.plugin_status.items()])
     array_msg = DiagnosticArray(status=[status])
     array_msg.header.stamp = stamp
     return array_msg

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from cartpole_sim.model import CartPoleParameters
 
-from .controller import ParameterSpec
+from .controller import AUTO, ParameterSpec
 
 
 def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterSpec]:
@@ -55,10 +55,12 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
         ParameterSpec('rail.limit_reserve', 0.05, 'Rail guard: the limiter keeps the '
                       'stopping position this much further from the stops than the trip '
                       'test [m]', low=0.0, high=0.3),
-        ParameterSpec('predict.horizon', 0.0, 'Delay compensation: the controllers and the '
+        ParameterSpec('predict.horizon', AUTO, 'Delay compensation: the controllers and the '
                       'catch trigger see the estimate predicted this far ahead under the '
-                      'last command (cartpole_control.prediction) [s]; 0 = off; about the '
-                      "rig's loop latency", low=0.0, high=0.05),
+                      'commands in flight (cartpole_control.prediction) [s]; auto = the '
+                      "loop's latency measured from the plant's reports of when each command "
+                      'took effect (0 until 20 reports; a plant that reports nothing: 0); a '
+                      'number fixes it, 0 = off', low=0.0, high=0.1, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
                       'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),

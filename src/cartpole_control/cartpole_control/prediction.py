@@ -22,15 +22,23 @@ flight; with a zero-order hold it is the one the plant applies next):
 
 ``tau = 0`` is the thesis's loop (no prediction). An over-estimate of the
 delay acts as a phase lead, an under-estimate leaves the rest of the delay
-uncompensated; neither is exact, which is why the horizon is a parameter
-(``predict.horizon``), to be set to a rig's measured loop latency
-(``cartpole bench loop``).
+uncompensated. The horizon is the parameter ``predict.horizon``: ``auto``
+(the default) is the latency the loop measures while it runs
+(:mod:`cartpole_control.latency`: the plant reports when each command took
+effect), a number fixes it.
+
+With a horizon longer than a sample period several commands are in flight:
+the cart feels, over ``[t, t + tau]``, the commands computed from the samples
+of ``[t - tau, t)``, each from its own arrival on.
+:func:`predict_over_commands` integrates under that piecewise-constant force
+(:meth:`cartpole_control.latency.CommandsInFlight.segments`), one midpoint
+step a piece; :func:`predict_state` is the one-piece case.
 
 No ROS import.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Sequence
 
 Acceleration = Callable[[float, float, float, float, float], tuple[float, float]]
 
@@ -53,3 +61,19 @@ def predict_state(acceleration: Acceleration, x: float, theta: float, x_dot: flo
                                      xm_dot, thm_dot, force)
     return (x + horizon * xm_dot, theta + horizon * thm_dot,
             x_dot + horizon * xm_ddot, theta_dot + horizon * thm_ddot)
+
+
+def predict_over_commands(acceleration: Acceleration, x: float, theta: float, x_dot: float,
+                          theta_dot: float, segments: Sequence[tuple[float, float]]
+                          ) -> tuple[float, float, float, float]:
+    """The state at the end of ``segments`` ``[(duration, force), ...]``, one midpoint step each.
+
+    The prediction of the module docstring with the commands in flight:
+    each piece holds one command over its duration (a piece is at most a
+    sample period long, where one midpoint step is as good as
+    :func:`predict_state`).
+    """
+    for duration, force in segments:
+        x, theta, x_dot, theta_dot = predict_state(acceleration, x, theta, x_dot, theta_dot,
+                                                   force, duration)
+    return x, theta, x_dot, theta_dot

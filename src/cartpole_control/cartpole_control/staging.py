@@ -36,10 +36,11 @@ from cartpole_sim.model import CartPoleParameters
 from .catch import CatchTrigger
 from .controller import KINDS, ControlContext, Controller, ParameterSpec
 from .feedforward import FrictionFeedforward
+from .natural_frequency import NaturalFrequencyEstimator
 from .rail_guard import RailGuard
 
 CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
-                'feedforward.velocity_band')
+                'feedforward.velocity_band', 'rail.margin', 'rail.limit_reserve')
 """Manager parameters that the plugins see through their ControlContext."""
 
 
@@ -89,12 +90,16 @@ class Stager:
         Every parameter of the manager and the plugins, by full name.
     real_time
         :attr:`ControlContext.real_time` of the contexts built.
+    pendulum
+        :attr:`ControlContext.pendulum` of the contexts built (the manager's estimate).
     """
 
     def __init__(self, plant: CartPoleParameters, sample_time: float,
                  registry: Mapping[str, Mapping[str, type[Controller]]],
-                 specs: Mapping[str, ParameterSpec], real_time: bool = True) -> None:
+                 specs: Mapping[str, ParameterSpec], real_time: bool = True,
+                 pendulum: NaturalFrequencyEstimator | None = None) -> None:
         self.plant = plant
+        self.pendulum = pendulum
         self.real_time = real_time
         self.sample_time = sample_time
         self.registry = registry
@@ -105,7 +110,10 @@ class Stager:
     def context(self, values: Mapping[str, Any]) -> ControlContext:
         return ControlContext(plant=self.plant, x_ref=float(values['x_ref']),
                               sample_time=self.sample_time,
-                              feedforward=friction_feedforward(values), real_time=self.real_time)
+                              feedforward=friction_feedforward(values), real_time=self.real_time,
+                              rail_margin=float(values['rail.margin']),
+                              rail_reserve=float(values['rail.limit_reserve']),
+                              pendulum=self.pendulum)
 
     def blocks(self, v: Mapping[str, Any]) -> tuple[CatchTrigger, FrictionFeedforward, RailGuard]:
         """Catch trigger (6.4), feedforward (6.12), rail guard; ValueError on a bad combination."""

@@ -187,7 +187,7 @@ def test_the_parameter_service_builds_the_new_instance_once_and_the_cycle_only_s
 
 def test_bad_values_are_refused_with_reasons_and_old_values_kept(graph):
     node, h = graph
-    (result,) = h.set(stabilizer='mpc')
+    (result,) = h.set(stabilizer='lqr')
     assert not result.successful
     assert 'mpc' in result.reason and "'lqg'" in result.reason and "'smc'" in result.reason
     (result,) = h.set(lqg__r=-1.0)  # out of the descriptor's range: rclpy refuses

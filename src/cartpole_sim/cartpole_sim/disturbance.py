@@ -63,33 +63,42 @@ class CommandDelayLine:
         self.reset()
 
     def reset(self) -> None:
-        self._queue: deque[tuple[int, float]] = deque()
+        self._queue: deque[tuple[int, float, float | None]] = deque()
         self._last_arrival = -1
         self.applied = 0.0
         """The command in force (0 N until the first one arrives)."""
+        self.arrived: list[tuple[float, int]] = []
+        """``(source, arrival_ns)`` of each tagged command that has taken effect (the
+        plant's report of when each command was applied; its reader clears it)."""
         self._jitter = RandomStream(self._seed, STREAM_JITTER, 'uniform') \
             if self.jitter_ns else None
 
-    def send(self, t_ns: int, command: float) -> int:
-        """Queue ``command`` sent at ``t_ns``; returns its arrival time [ns]."""
+    def send(self, t_ns: int, command: float, source: float | None = None) -> int:
+        """Queue ``command`` sent at ``t_ns``; returns its arrival time [ns].
+
+        ``source`` (the stamp of the sample the command was computed from)
+        tags it: its arrival is then listed in :attr:`arrived`.
+        """
         arrival = t_ns + self.delay_ns
         if self._jitter is not None:
             arrival += int(round(self._jitter.next() * self.jitter_ns))
         if arrival < self._last_arrival:
             arrival = self._last_arrival
         self._last_arrival = arrival
-        self._queue.append((arrival, command))
+        self._queue.append((arrival, command, source))
         return arrival
 
     def arrivals_between(self, t0_ns: int, t1_ns: int) -> list[int]:
         """Arrival times strictly inside (t0, t1): where a hold must be split."""
-        return [a for a, _ in self._queue if t0_ns < a < t1_ns]
+        return [a for a, _, _ in self._queue if t0_ns < a < t1_ns]
 
     def command_at(self, t_ns: int) -> float:
         """The command in force from ``t_ns`` on (every arrival up to ``t_ns`` applied)."""
         queue = self._queue
         while queue and queue[0][0] <= t_ns:
-            self.applied = queue.popleft()[1]
+            arrival, self.applied, source = queue.popleft()
+            if source is not None:
+                self.arrived.append((source, arrival))
         return self.applied
 
 
@@ -135,7 +144,8 @@ class DisturbedHold:
     :meth:`_step_disturbed` when any of these disturbances is on.
     """
 
-    def _step_disturbed(self, force_command: float, duration: float | None) -> None:
+    def _step_disturbed(self, force_command: float, duration: float | None,
+                        source: float | None = None) -> None:
         """:meth:`step` with delay, jitter, force noise, extra lag or pushes.
 
         The command enters the delay line at the start of the hold; the hold
@@ -147,7 +157,7 @@ class DisturbedHold:
         t1 = t0 + (self._period_ns if duration is None else max(1, int(round(duration * 1e9))))
         self.force_command = force_command
         line = self._delay_line
-        line.send(t0, force_command)
+        line.send(t0, force_command, source)
         noise = (self._force_noise_draws.next() * self.scenario.force_noise
                  if self._force_noise_draws is not None else 0.0)
         cuts = line.arrivals_between(t0, t1)

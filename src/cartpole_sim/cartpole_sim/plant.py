@@ -148,6 +148,7 @@ class Plant(DisturbedHold):
         self.lost_samples = 0
         """Samples lost on the way to the host since the reset (:meth:`sample_lost`)."""
         self._delay_line = CommandDelayLine(sc.delay, sc.jitter, sc.seed)
+        self._applied: list[tuple[float, float]] = []
         self._drop_draws = RandomStream(sc.seed, STREAM_DROP, 'uniform') if sc.drop else None
         self._force_noise_draws = (RandomStream(sc.seed, STREAM_FORCE_NOISE, 'normal')
                                    if sc.force_noise else None)
@@ -253,19 +254,26 @@ class Plant(DisturbedHold):
                     deepest = travel - x
         return x, th, v, w, deepest
 
-    def step(self, force_command: float, duration: float | None = None) -> None:
+    def step(self, force_command: float, duration: float | None = None,
+             source: float | None = None) -> None:
         """Advance by ``duration`` (one sample period by default) holding ``force_command``.
 
         The command is held (ZOH); the current follows it through (4.4)
         exactly; the mechanics advance with RK4 at :attr:`integration_step`.
         With a scenario delay the command takes effect that much later (the
         previous one is held until then, :meth:`_step_disturbed`).
+
+        ``source``, the stamp of the sample a new command was computed from,
+        asks for the report of when it took effect (:meth:`applied_commands`);
+        leave it None for a command held again (a lost sample).
         """
         if not math.isfinite(force_command):
             force_command = 0.0
         if self._disturbed:
-            self._step_disturbed(force_command, duration)
+            self._step_disturbed(force_command, duration, source)
             return
+        if source is not None:
+            self._applied.append((source, self.t))
         if duration is None:
             n, h, decay, mean_factor = self._default_substeps
         else:
@@ -289,6 +297,21 @@ class Plant(DisturbedHold):
         self.contact_penetration = deepest
         if deepest:
             self.end_stop_contact = True
+
+    def applied_commands(self) -> list[tuple[float, float]]:
+        """``[(source, applied), ...]``: when each tagged command took effect [s], since the last call.
+
+        The plant's report of the loop's latency (``applied - source``): with
+        no delay a command acts from the start of its hold, with a scenario
+        delay (and jitter) that much later.
+        """
+        out = self._applied
+        arrived = self._delay_line.arrived
+        if arrived:
+            out.extend((source, arrival * 1e-9) for source, arrival in arrived)
+            arrived.clear()
+        self._applied = []
+        return out
 
     def sample_lost(self) -> bool:
         """Whether the sample taken now is lost on its way to the host (scenario ``drop``).

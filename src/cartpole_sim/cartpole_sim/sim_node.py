@@ -57,7 +57,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -168,6 +168,8 @@ class SimNode(Node):
         self._pub_joints = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
         self._pub_truth = self.create_publisher(JointState, 'cartpole/true_state', PUBLISH_DEPTH)
         self._pub_reset = self.create_publisher(Header, 'cartpole/plant_reset', PLANT_RESET_QOS)
+        self._pub_applied = self.create_publisher(TimeReference, 'cartpole/command_applied',
+                                                  PUBLISH_DEPTH)
         self._reset_stamp_ns = -1
         """Commands stamped before this [ns] answer the run before the last reset."""
         self._pub_clock = None
@@ -326,7 +328,27 @@ class SimNode(Node):
             return Time(nanoseconds=self._sample_clock.stamp_ns(sample.index)).to_msg()
         return self.get_clock().now().to_msg()
 
+    def _stamp_ns_of(self, index: int) -> int:
+        """The stamp [ns] of sample ``index`` (as :meth:`_stamp` gives it, once the clock runs)."""
+        if self._lockstep or not self._sample_clock.started:
+            return index * self._runner.sample_period_ns
+        return self._sample_clock.stamp_ns(index)
+
+    def _publish_applied(self) -> None:
+        """Tell when each command took effect (TimeReference: ``header.stamp`` the time it
+        acted, ``time_ref`` the stamp of the sample it was computed from): the loop's latency."""
+        applied = self._runner.applied
+        for source_ns, index, offset_ns in applied:
+            msg = TimeReference()
+            msg.header.stamp = Time(nanoseconds=self._stamp_ns_of(index) + offset_ns).to_msg()
+            msg.time_ref = Time(nanoseconds=source_ns).to_msg()
+            msg.source = 'sim'
+            self._pub_applied.publish(msg)
+        applied.clear()
+
     def _publish(self, sample: Sample) -> None:
+        if self._runner.applied:
+            self._publish_applied()
         stamp = self._stamp(sample)
         if self._pub_clock is not None:
             self._pub_clock.publish(ClockMsg(clock=stamp))
@@ -452,12 +474,12 @@ class SimNode(Node):
             if stamp_ns < self._reset_stamp_ns:
                 self.stale_commands += 1
                 return
-            self._runner.command(force)
+            self._runner.command(force, stamp_ns)
             return
         if stamp_ns != self._runner.stamp_ns:
             self.stale_commands += 1
             return
-        self._runner.command(force)
+        self._runner.command(force, stamp_ns)
         self._answered = True
         self._try_advance()
 

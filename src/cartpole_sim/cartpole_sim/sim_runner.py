@@ -134,6 +134,12 @@ class SimRunner:
         self._held_force = 0.0
         self._command_index: int | None = None
         self._watchdog_tripped = False
+        self._source_ns: int | None = None
+        self.applied: list[tuple[int, int, int]] = []
+        """``(source_ns, index, offset_ns)``: the command computed from the sample
+        stamped ``source_ns`` took effect ``offset_ns`` after sample ``index`` (at the
+        start of the next period, or later with a scenario delay): the plant's report
+        of the loop's latency; its reader clears it."""
         self._sample = self._take_sample()
 
     # -- clock ---------------------------------------------------------------------
@@ -152,9 +158,14 @@ class SimRunner:
         return self._sample
 
     # -- commands ------------------------------------------------------------------
-    def command(self, force: float) -> None:
-        """Hold ``force`` [N] from now on (received while the current sample is out)."""
+    def command(self, force: float, source_ns: int | None = None) -> None:
+        """Hold ``force`` [N] from now on (received while the current sample is out).
+
+        ``source_ns``: the stamp of the sample the command was computed from;
+        when the command takes effect it is listed in :attr:`applied`.
+        """
         self._held_force = float(force) if math.isfinite(force) else 0.0
+        self._source_ns = source_ns
         self._command_index = self.index
         self._watchdog_tripped = False
 
@@ -184,7 +195,14 @@ class SimRunner:
     # -- stepping ------------------------------------------------------------------
     def advance(self) -> Sample:
         """Step the plant one Ts with the held command and sample it (index + 1)."""
-        self.plant.step(self.held_force())
+        force = self.held_force()
+        source = self._source_ns if force == self._held_force else None
+        self._source_ns = None
+        plant = self.plant
+        start = plant.t
+        plant.step(force, None, source)
+        for tag, applied in plant.applied_commands():
+            self.applied.append((tag, self.index, int(round((applied - start) * 1e9))))
         self.index += 1
         self.steps += 1
         self._sample = self._take_sample()
@@ -212,6 +230,7 @@ class SimRunner:
         self._held_force = 0.0
         self._command_index = None
         self._watchdog_tripped = False
+        self._source_ns = None
         self.index += 1
         self._sample = self._take_sample()
         return self._sample

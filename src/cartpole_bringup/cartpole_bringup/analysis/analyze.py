@@ -42,7 +42,10 @@ What is taken from where:
   status, else the first fault the hardware bridge counted (its
   ``last_error``), before the end of the run;
 - ``longest_cycle_gap_s``: the largest ``longest_cycle_gap_s`` of the
-  controller status (null when the manager does not report it).
+  controller status (null when the manager does not report it);
+- ``latency_s``, ``predict_horizon_s``, ``omega0_sq`` and the active plugin's
+  own figures (e.g. ``mpc_fallbacks``): their last value in the controller
+  status up to the end of the run (what the manager measured and used).
 """
 from __future__ import annotations
 
@@ -52,6 +55,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from cartpole_control.manager import LOOP_FIGURES, STATUS_KEYS
 from cartpole_sim.model import CartPoleParameters
 
 from . import metrics
@@ -120,6 +124,8 @@ class SeriesBuilder:
     """(stamp [ns], reason) of each fault the manager or the bridge reported."""
     cycle_gaps: list[tuple[int, float]] = field(default_factory=list)
     """(stamp [ns], longest_cycle_gap_s) whenever the reported value grew."""
+    figures: list[tuple[int, dict[str, float]]] = field(default_factory=list)
+    """(stamp [ns], {key: value}): the loop figures and the plugin's own of each status."""
     _limit_open: dict[str, bool] = field(default_factory=dict)
     _hw_faults: int = 0
 
@@ -150,6 +156,14 @@ class SeriesBuilder:
         gap = _float_or_none(values.get('longest_cycle_gap_s'))
         if gap is not None and (not self.cycle_gaps or gap > self.cycle_gaps[-1][1]):
             self.cycle_gaps.append((cycle_ns, gap))
+        figures = {}
+        for key, text in values.items():
+            if key in LOOP_FIGURES or key not in STATUS_KEYS:
+                value = _float_or_none(text)
+                if value is not None:
+                    figures[key] = value
+        if figures:
+            self.figures.append((cycle_ns, figures))
         if self.catch_ns is None and values.get('swingup_law'):
             self.swingup_law = values['swingup_law']
         if self.catch_ns is None and (CATCH_EVENT in events or is_stabilising(mode)):
@@ -235,6 +249,14 @@ class SeriesBuilder:
         gaps = [g for ns, g in self.cycle_gaps if end_ns is None or ns <= end_ns]
         return max(gaps) if gaps else None
 
+    def last_figures(self, end_ns: int | None = None) -> dict[str, float]:
+        """The loop and plugin figures of the last status up to ``end_ns`` ({} if none)."""
+        last: dict[str, float] = {}
+        for ns, figures in self.figures:
+            if end_ns is None or ns <= end_ns:
+                last.update(figures)
+        return last
+
     def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
                   label: str = '', end_ns: int | None = None,
                   fault: str | None = None) -> tuple[RunSeries, dict[str, Any]]:
@@ -248,6 +270,7 @@ class SeriesBuilder:
                                     longest_cycle_gap_s=self.longest_cycle_gap(end_ns),
                                     swingup_law=self.swingup_law,
                                     force=series.force, t_force=series.t_force)
+        summary.update(self.last_figures(end_ns))
         return series, summary
 
 

@@ -123,6 +123,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     # Bound once: this loop runs 200 times a simulated second.
     measure, step, ekf_update = plant.measure, plant.step, ekf.update
     control = manager.update_values  # manager.update(ControllerState(...)) without the object
+    measured, applied_commands = manager.measured, plant.applied_commands
+    command_applied = manager.command_applied
     add_row, add_mode = samples.append, modes.append
     clock = time.perf_counter if profile is not None else None
     t_plant = t_ekf = t_ctrl = 0.0
@@ -132,6 +134,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     mode = manager.mode
     lost_at: list[float] = []
     stopped_at = None
+    plugin_status: Mapping[str, float] = {}
     for k in range(steps):
         if clock:
             t0 = clock()
@@ -147,6 +150,9 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             if k + 1 < steps:
                 step(force)  # the held command
             continue
+        for source, applied in applied_commands():  # the plant's reports, as on the graph
+            command_applied(source, applied)
+        measured(t, meas.x, meas.theta)
         est = ekf_update(t, meas.x, meas.theta, force)
         if clock:
             t2 = clock()
@@ -159,6 +165,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_ctrl += t3 - t2
         force = out.force
         mode = out.mode
+        if out.plugin_status:
+            plugin_status = out.plugin_status
         s = plant.state
         if observer is not None:
             observer(meas, est, out, s)
@@ -174,10 +182,10 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         if k + 1 < steps:
             if clock:
                 t0 = clock()
-                step(force)
+                step(force, None, t)
                 t_plant += clock() - t0
             else:
-                step(force)
+                step(force, None, t)
     if profile is not None:
         for key, value in (('plant', t_plant), ('ekf', t_ekf), ('controller', t_ctrl)):
             profile[key] = profile.get(key, 0.0) + value
@@ -199,12 +207,25 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
                                      started_with['stabilizer']),
         swingup_law=out.swingup_law if law is None else law, force=run.force)
+    run.summary.update(loop_summary(manager, plugin_status))
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)
     if stopped_at is not None:
         run.summary.update(success=False, stopped_at_s=stopped_at)
     return run
+
+
+def loop_summary(manager: ControllerManager,
+                 plugin_status: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """What the manager learnt of the loop, for the run summary: the latency it measured and
+    the prediction horizon it used [s], the pendulum's omega_0^2 [1/s^2] it estimated, and
+    the last status of a plugin that reports figures (e.g. ``mpc_fallbacks``)."""
+    out = {'latency_s': round(manager.latency.latency, 6),
+           'predict_horizon_s': round(manager.prediction_horizon, 6),
+           'omega0_sq': round(manager.natural_frequency.omega_sq, 4)}
+    out.update(plugin_status or {})
+    return out
 
 
 def first_fault(events: list[tuple[float, str]]) -> str | None:

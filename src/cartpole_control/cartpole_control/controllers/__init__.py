@@ -21,11 +21,32 @@ from __future__ import annotations
 
 import math
 
+from cartpole_sim import model
 from cartpole_sim.model import CartPoleParameters, force_for_acceleration
 
-from ..controller import CommandFeedback, ControllerState
+from ..controller import CommandFeedback, ControlContext, ControllerState, ParameterSpec
 
-__all__ = ['acceleration_to_force', 'saturation', 'StepClock', 'ConditionalIntegrator']
+__all__ = ['acceleration_to_force', 'saturation', 'StepClock', 'ConditionalIntegrator',
+           'ADAPTIVE_TARGET', 'energy_and_target']
+
+ADAPTIVE_TARGET = ParameterSpec(
+    'adaptive_target', True, "aim at the energy that reaches the top of the pendulum on the "
+    "rig: E_p (7.3) and E* (6.8) with its natural frequency omega_0^2 = m_p g l / J estimated "
+    "on line from the encoders (cartpole_control.natural_frequency), which the catch trigger "
+    "(6.4) then uses too; false: the thesis's fixed E* = 2 m_p g l [J] of the nominal model")
+"""The energy laws' switch between the estimated pendulum's target and the thesis's."""
+
+
+def energy_and_target(theta: float, theta_dot: float, context: ControlContext,
+                      adaptive: bool) -> tuple[float, float]:
+    """(E_p, E*) of (7.3)/(6.8): of the estimated pendulum if ``adaptive`` and the
+    context carries the manager's estimate, else of the nominal model."""
+    pendulum = context.pendulum
+    if adaptive and pendulum is not None:
+        return pendulum.energy(theta, theta_dot), pendulum.upright_energy
+    p = context.plant
+    # (model.pendulum_energy: the name pendulum_energy here is the submodule of that law)
+    return model.pendulum_energy(theta, theta_dot, p), p.upright_energy
 
 
 def acceleration_to_force(u: float, state: ControllerState, params: CartPoleParameters) -> float:

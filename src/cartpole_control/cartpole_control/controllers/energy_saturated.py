@@ -42,7 +42,7 @@ from typing import Any, Mapping
 from cartpole_sim.model import CartPoleParameters, pendulum_energy
 
 from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
-from . import saturation
+from . import ADAPTIVE_TARGET, energy_and_target, saturation
 
 DEFAULT_GAINS: dict[str, float] = {
     'k': 10.0,
@@ -73,7 +73,8 @@ def exact_force_for_acceleration(a: float, theta: float, theta_dot: float,
 
 def saturated_energy_acceleration(x: float, theta: float, x_dot: float, theta_dot: float,
                                   params: CartPoleParameters, x_ref: float,
-                                  gains: Mapping[str, Any] | None = None) -> float:
+                                  gains: Mapping[str, Any] | None = None,
+                                  energy: tuple[float, float] | None = None) -> float:
     """The law's cart acceleration a [m/s^2] (module docstring; pumping term after [15], (7.4)).
 
     Parameters
@@ -86,12 +87,16 @@ def saturated_energy_acceleration(x: float, theta: float, x_dot: float, theta_do
         Cart reference x* [m].
     gains
         Any subset of :data:`DEFAULT_GAINS`; the rest take their defaults.
+    energy
+        (E_p, E*) to pump with; default (7.3)/(6.8) of ``params``.
     """
     g = dict(DEFAULT_GAINS)
     if gains:
         g.update(gains)
-    e_star = params.upright_energy
-    e_p = pendulum_energy(theta, theta_dot, params)
+    if energy is None:
+        e_p, e_star = pendulum_energy(theta, theta_dot, params), params.upright_energy
+    else:
+        e_p, e_star = energy
     pump = theta_dot * math.cos(theta)
     direction = saturation(pump / g['sign_width'])
     if abs(pump) < g['sign_width'] and e_p < g['kick_energy'] * e_star:
@@ -139,6 +144,7 @@ class EnergySaturatedSwingUp(Controller):
                       'deceleration assumed and commanded [m/s^2]', low=0.5, high=20.0),
         ParameterSpec('dead_time', DEFAULT_GAINS['dead_time'], 'rail brake: latency before a '
                       'brake acts [s]', low=0.0, high=0.2),
+        ADAPTIVE_TARGET,
     )
 
     def on_configure(self) -> None:
@@ -149,8 +155,11 @@ class EnergySaturatedSwingUp(Controller):
 
     def acceleration(self, state: ControllerState) -> float:
         """The law's cart acceleration [m/s^2]."""
+        energy = energy_and_target(state.theta, state.theta_dot, self.context,
+                                   self.gains['adaptive_target'])
         return saturated_energy_acceleration(state.x, state.theta, state.x_dot, state.theta_dot,
-                                             self.context.plant, self.context.x_ref, self.gains)
+                                             self.context.plant, self.context.x_ref, self.gains,
+                                             energy)
 
     def update(self, state: ControllerState) -> float:
         """Raw force [N]: the acceleration through (7.10)/(7.2)."""

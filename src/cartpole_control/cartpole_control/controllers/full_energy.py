@@ -44,9 +44,10 @@ import math
 
 import numpy as np
 
-from cartpole_sim.model import system_energy
+from cartpole_sim.model import pendulum_energy, system_energy
 
 from ..controller import ControllerState, ParameterSpec
+from . import ADAPTIVE_TARGET, energy_and_target
 from .energy_integral import EnergyIntegralSwingUp, i_max_parameter
 
 
@@ -70,6 +71,7 @@ class FullEnergySwingUp(EnergyIntegralSwingUp):
         i_max_parameter(20.0, 'E'),
         ParameterSpec('d_min', 0.0, 'floor of the denominator of (7.27) [J]; 0 is the '
                       'thesis law (not in the thesis)', low=0.0, high=10.0),
+        ADAPTIVE_TARGET,
     )
 
     def __init__(self) -> None:
@@ -89,10 +91,18 @@ class FullEnergySwingUp(EnergyIntegralSwingUp):
         self.denominator_min = g['k_v'] / (p.m_c + p.m_p) - g['k_e'] * p.upright_energy
 
     def energy_error(self, state: ControllerState) -> float:
-        """E* - E with E the full system energy (7.11) [J]."""
+        """E* - E with E the full system energy (7.11) [J].
+
+        With ``adaptive_target`` the pendulum's part of (7.11), (7.3), and E* are
+        those of the estimated pendulum (the cart's kinetic energy and the
+        coupling term stay nominal).
+        """
         p = self.context.plant
         e = system_energy(np.array([state.x, state.theta, state.x_dot, state.theta_dot]), p)
-        return p.upright_energy - e
+        if not self.gains['adaptive_target'] or self.context.pendulum is None:
+            return p.upright_energy - e
+        energy, target = energy_and_target(state.theta, state.theta_dot, self.context, True)
+        return target - (e - pendulum_energy(state.theta, state.theta_dot, p) + energy)
 
     def update(self, state: ControllerState) -> float:
         g, p = self.gains, self.context.plant

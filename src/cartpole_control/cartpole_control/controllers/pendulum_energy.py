@@ -42,10 +42,8 @@ from __future__ import annotations
 
 import math
 
-from cartpole_sim.model import pendulum_energy
-
 from ..controller import ControllerState, ParameterSpec
-from . import acceleration_to_force
+from . import ADAPTIVE_TARGET, acceleration_to_force, energy_and_target
 from .energy_integral import EnergyIntegralSwingUp, i_max_parameter
 
 
@@ -64,12 +62,14 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
         ParameterSpec('a_max', 4.0, 'bound of the pumping term of (7.32), the cart '
                       'acceleration [m/s^2] (Astrom-Furuta saturation, not in the thesis; 100: '
                       'unbounded, the thesis law)', low=0.0, high=100.0),
+        ADAPTIVE_TARGET,
     )
 
     def energy_error(self, state: ControllerState) -> float:
-        """E* - E_p, (6.8) and (7.3) [J]."""
-        p = self.context.plant
-        return p.upright_energy - pendulum_energy(state.theta, state.theta_dot, p)
+        """E* - E_p, (6.8) and (7.3) [J] (of the estimated pendulum with ``adaptive_target``)."""
+        energy, target = energy_and_target(state.theta, state.theta_dot, self.context,
+                                           self.gains['adaptive_target'])
+        return target - energy
 
     def acceleration(self, state: ControllerState) -> float:
         """The law's cart acceleration u [m/s^2], (7.32); updates the integral."""

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import math
 
-from cartpole_sim.model import pendulum_energy
-
 from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
-from . import acceleration_to_force, saturation
+from . import ADAPTIVE_TARGET, acceleration_to_force, energy_and_target, saturation
 
 
 class SignBasedSwingUp(Controller):
@@ -39,12 +37,15 @@ class SignBasedSwingUp(Controller):
         ParameterSpec('width', 0.05, 'width w of the saturation replacing sgn in (7.36) '
                       '[J rad/s]; small is close to the sign (not in the thesis)',
                       low=1e-6, high=100.0),
+        ADAPTIVE_TARGET,
     )
 
     def acceleration(self, state: ControllerState) -> float:
         """The law's cart acceleration u [m/s^2], (7.36)."""
-        g, p = self.gains, self.context.plant
-        error = p.upright_energy - pendulum_energy(state.theta, state.theta_dot, p)
+        g = self.gains
+        energy, target = energy_and_target(state.theta, state.theta_dot, self.context,
+                                           g['adaptive_target'])
+        error = target - energy
         direction = error * state.theta_dot * math.cos(state.theta)
         return (g['u_max'] * saturation(direction / g['width'])
                 + g['k_c'] * (self.context.x_ref - state.x))

@@ -1,0 +1,188 @@
+"""The pendulum's natural frequency, estimated on line, and the energy target it gives.
+
+The energy laws of chapter 7 bring the pendulum energy (7.3)
+
+    E_p = 1/2 J theta_dot^2 + m_p g l (cos theta + 1),   J = m_p l^2
+
+to E* = 2 m_p g l (6.8), the energy of the upright pendulum at rest. Computed
+with the *nominal* m_p and l, that target belongs to the nominal pendulum: a
+pendulum 10 % longer than the model reaches the top with the nominal E* to
+spare (it arrives with 3.5 rad/s and falls through), one 20 % shorter never
+gets there. What the target really depends on is one number, the square of
+the natural frequency of the hanging pendulum,
+
+    omega_0^2 = m_p g l / J  (= g / l for the tip mass of (7.3)),
+
+because E_p / J = 1/2 theta_dot^2 + omega_0^2 (cos theta + 1): the pendulum
+swings over the top exactly when 1/2 theta_dot^2 + omega_0^2 (cos theta + 1)
+reaches 2 omega_0^2, whatever its mass.
+
+Estimating omega_0^2. The pendulum row of (4.17)/(4.18),
+``J theta_ddot - m_p l cos(theta) x_ddot - m_p g l sin(theta) + B_p(theta_dot) = 0``,
+divided by J is linear in the one unknown (m_p l / J = omega_0^2 / g)::
+
+    theta_ddot = omega_0^2 (sin theta + cos(theta) x_ddot / g) - B_p(theta_dot) / J.
+
+Accelerations are not measured, and the EKF's velocities are not to be
+trusted here: its model is the nominal pendulum, so its theta_dot leans
+towards the nominal dynamics (the estimate from them came out 10 % short
+for a pendulum 25 % shorter). Only positions are used: the second difference
+of the angle over a window ``[t - T, t + T]`` is the acceleration weighed by
+the triangle ``k(s) = T - |s|``, and by parts (k vanishes at both ends) the
+cart's acceleration turns into its displacements::
+
+    y   = theta(t + T) - 2 theta(t) + theta(t - T) + int k B_p / J ds
+    phi = int k sin(theta) ds
+          + (1/g) (- int k'(s) cos(theta) dx + int k sin(theta) dtheta dx / ds)
+    y   = omega_0^2 phi
+
+(sums over the samples of the window; k' = +1 before t, -1 after; B_p with
+the nominal friction (4.21), a small correction). Each window of
+``window`` seconds gives one (phi, y); recursive least squares with a prior
+(the nominal omega_0^2, worth ``prior_weight`` windows of a small swing) and
+exponential forgetting gives ``omega_0^2 = sum(phi y) / sum(phi^2)``. The
+hanging pendulum at rest gives phi = 0 and changes nothing; the first
+oscillations the swing-up excites, and every swing after them, do. The
+estimate is held inside ``[1/4, 4]`` times the nominal (a pendulum between
+four times shorter and four times longer).
+
+:class:`NaturalFrequencyEstimator` runs in the controller manager, fed while
+no stabiliser runs (idle and swing-up: a balanced pendulum barely moves
+around it); the energy laws with ``adaptive_target`` (the default) and the
+catch trigger (6.4) use its :meth:`energy` and :attr:`upright_energy`,
+which equal (7.3) and (6.8) of the nominal model while the estimate is the
+nominal omega_0^2. ``adaptive_target: false`` gives back the thesis's fixed
+target.
+
+No ROS import.
+"""
+from __future__ import annotations
+
+import math
+
+from cartpole_sim.model import CartPoleParameters
+
+HALF_WINDOW = 20
+"""T of the window, in samples (0.1 s at 5 ms)."""
+EVERY = 5
+"""A window is taken every this many samples (they overlap)."""
+FORGETTING = 0.995
+"""Weight kept by the past per window (memory about 20 s)."""
+PRIOR_WEIGHT = 1.0e-4
+"""sum(phi^2) the nominal value counts for [s^4] (phi of a T = 0.1 s window of a
+0.1 rad swing is about 1e-3 s^2, so the prior weighs about a hundred such windows)."""
+BOUNDS = (0.25, 4.0)
+"""The estimate stays within these factors of the nominal omega_0^2."""
+MAX_GAP_FACTOR = 1.5
+"""Samples further apart than this many sample periods (a lost sample, a pause)
+start a new window: the sums assume evenly spaced samples."""
+
+
+class NaturalFrequencyEstimator:
+    """omega_0^2 = m_p g l / J of the pendulum on the rig, from the swings; see the module docstring.
+
+    Parameters
+    ----------
+    plant
+        The nominal model: the prior omega_0^2 = g / l, J = m_p l^2 and the
+        pendulum friction (4.21).
+    """
+
+    def __init__(self, plant: CartPoleParameters, sample_time: float | None = None,
+                 half_window: int = HALF_WINDOW, forgetting: float = FORGETTING,
+                 prior_weight: float = PRIOR_WEIGHT) -> None:
+        if not (half_window >= 2 and 0.0 < forgetting <= 1.0 and prior_weight > 0.0):
+            raise ValueError('half_window >= 2, forgetting in (0, 1] and prior_weight > 0 needed')
+        self.g = plant.g
+        self.inertia = plant.m_p * plant.l * plant.l
+        """J of (7.3) with the nominal tip mass and length [kg m^2]."""
+        self.nominal = plant.m_p * plant.g * plant.l / self.inertia
+        """omega_0^2 of the nominal model, g / l [1/s^2]."""
+        self._c_p = plant.c_p
+        self._k_p = plant.friction_steepness_pendulum
+        self._v_p = plant.v_p
+        self.sample_time = float(sample_time or plant.sample_time)
+        self.half_window = int(half_window)
+        self.forgetting = float(forgetting)
+        self.prior_weight = float(prior_weight)
+        self._low, self._high = BOUNDS[0] * self.nominal, BOUNDS[1] * self.nominal
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the nominal omega_0^2, no data."""
+        self._sum_pp = self.prior_weight
+        self._sum_py = self.prior_weight * self.nominal
+        self.omega_sq = self.nominal
+        """The estimate of omega_0^2 [1/s^2]."""
+        self.windows = 0
+        """Windows taken into the estimate."""
+        self._t: list[float] = []
+        self._x: list[float] = []
+        self._theta: list[float] = []
+        self._since = 0
+
+    @property
+    def omega(self) -> float:
+        """The estimated natural frequency omega_0 [rad/s]."""
+        return math.sqrt(self.omega_sq)
+
+    def energy(self, theta: float, theta_dot: float) -> float:
+        """E_p of (7.3) with the estimated omega_0^2: J (1/2 theta_dot^2 + omega_0^2 (cos theta + 1)) [J]."""
+        return self.inertia * (0.5 * theta_dot * theta_dot + self.omega_sq * (math.cos(theta) + 1.0))
+
+    @property
+    def upright_energy(self) -> float:
+        """E* of (6.8) for the estimated omega_0^2: 2 J omega_0^2 [J]."""
+        return 2.0 * self.inertia * self.omega_sq
+
+    def _friction(self, theta_dot: float) -> float:
+        """B_p(theta_dot) / J of (4.21) with the nominal friction [1/s^2]."""
+        return (self._c_p * math.tanh(self._k_p * theta_dot) + self._v_p * theta_dot) / self.inertia
+
+    def update(self, t: float, x: float, theta: float) -> None:
+        """Take the estimated cart position and (unwrapped) angle of one sample at ``t`` [s]."""
+        ts = self.sample_time
+        times = self._t
+        if times and not (0.0 < t - times[-1] <= MAX_GAP_FACTOR * ts):
+            times.clear()
+            self._x.clear()
+            self._theta.clear()
+        times.append(t)
+        self._x.append(x)
+        self._theta.append(theta)
+        n = 2 * self.half_window + 1
+        if len(times) > n:
+            del times[0], self._x[0], self._theta[0]
+        self._since += 1
+        if len(times) < n or self._since < EVERY:
+            return
+        self._since = 0
+        self._take_window()
+
+    def _take_window(self) -> None:
+        """One (phi, y) from the 2T + 1 samples held, into the least squares."""
+        xs, ths = self._x, self._theta
+        m = self.half_window
+        h = (self._t[-1] - self._t[0]) / (2 * m)
+        sin, cos = math.sin, math.cos
+        g = self.g
+        phi_gravity = 0.0
+        phi_cart = 0.0
+        friction = 0.0
+        for i in range(2 * m):  # the interval [s_i, s_i+1], by its midpoint
+            k_mid = (m - abs(i + 0.5 - m)) * h
+            slope = 1.0 if i < m else -1.0
+            th_mid = 0.5 * (ths[i] + ths[i + 1])
+            d_th = ths[i + 1] - ths[i]
+            d_x = xs[i + 1] - xs[i]
+            s_mid = sin(th_mid)
+            phi_gravity += k_mid * s_mid * h
+            phi_cart += -slope * cos(th_mid) * d_x + k_mid * s_mid * d_th * d_x / h
+            friction += k_mid * self._friction(d_th / h) * h
+        phi = phi_gravity + phi_cart / g
+        y = ths[2 * m] - 2.0 * ths[m] + ths[0] + friction
+        lam = self.forgetting
+        self._sum_pp = lam * self._sum_pp + phi * phi
+        self._sum_py = lam * self._sum_py + phi * y
+        self.windows += 1
+        self.omega_sq = min(max(self._sum_py / self._sum_pp, self._low), self._high)
