@@ -20,6 +20,9 @@ TOPIC_NOTES: dict[str, str] = {
     '/cartpole/hw/health': 'lost samples, bad lines, watchdog trips, latency, limit switches',
     '/cartpole/plant_reset': 'the plant (simulator reset) or the position reference (bridge '
                              'homing) moved; reliable, transient local',
+    '/cartpole/command_applied': 'sensor_msgs/TimeReference: when each force command took '
+                                 'effect (`header.stamp`) and the stamp of the sample it was '
+                                 "computed from (`time_ref`): the loop's latency",
     '/clock': 'simulated time for `use_sim_time` (lockstep)',
     '/cartpole/recorder/progress': '`stamp` = the sample up to which the recorder holds every '
                                    '200 Hz topic (lockstep with `--record`: complete bags; '
@@ -39,6 +42,12 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         "stops' peak spring force over the period, 0.0 unless the cart was pressed into a stop "
         "by more than 1 um: the plant's contact state, which `end_stop_contact` is taken from)",
     ('sim', '/clock'): 'before each sample: simulated time of the sample',
+    ('sim', '/cartpole/command_applied'):
+        'when each force command took effect on the plant: `header.stamp` = that time, '
+        '`time_ref` = the stamp of the sample the command was computed from (the command\'s '
+        '`header.stamp`), `source` = `sim`; the difference is the loop\'s latency (0 without a '
+        'scenario delay: this plant applies a command from its own sample\'s time; the scenario\'s '
+        '`delay` and `jitter` on top)',
     ('sim', '/cartpole/recorder/progress'):
         'the progress of the recorder, or without one of `cartpole run`\'s monitor '
         '(`recorder_window` > 0): sample k is stepped past only once it holds every sample '
@@ -80,10 +89,21 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         '`time_optimal:fallback(<why>)`; while stabilising, the law that swung up), '
         '`longest_cycle_gap_s` (the longest wall-clock gap between two cycles since start), '
         '`cycle_compute_s` / `max_cycle_compute_s` (the compute time of this cycle / the '
-        'longest since start [s]). '
+        'longest since start [s]), `latency_s` (the latency measured from '
+        '`/cartpole/command_applied`: the mean of the last 200 reports, 0 before 20), '
+        '`predict_horizon_s` (the horizon the prediction used: `latency_s` with '
+        '`predict.horizon` `auto`), `omega0_sq` (the estimate of the pendulum\'s m_p g l / J '
+        '[1/s^2]), then the active plugin\'s own figures (e.g. `mpc_solve_us`, '
+        '`mpc_fallbacks`). '
         'Numbers are `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
         '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
         'joined by `;`',
+    ('controller_manager', '/cartpole/command_applied'):
+        'the plant\'s report of when each command took effect: `header.stamp - time_ref` is '
+        'one sample of the loop\'s latency (`latency_s`)',
+    ('controller_manager', '/joint_states'):
+        'the encoders\' samples (`cart`, `pendulum` by name), while no stabiliser runs: the '
+        'estimate of the pendulum\'s natural frequency (`omega0_sq`)',
     ('controller_manager', '/cartpole/plant_reset'):
         'a new run from the first state stamped at or after `stamp` (see "Plant reset")',
     ('controller_manager', '/controller_manager/restart_swingup'):
@@ -109,6 +129,6 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
 
 MENTIONED_KEYS: dict[tuple[str, str], tuple[str, str]] = {
     ('controller_manager', '/cartpole/controller_status'):
-        ('cartpole_control.manager_node', 'STATUS_KEYS'),
+        ('cartpole_control.manager', 'STATUS_KEYS'),
 }
 """Notes that must name every key of a tuple in the code (module, attribute), in backticks."""
