@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, '_unavailable', None):
         parser.error(f'{args.command} is not available: {args._unavailable}')
+    _refuse_dash_values(args._parser, args)
     module = importlib.import_module(args._module)
     prog = getattr(args, '_prog', None) or args._parser.prog
     stop_signals = _raise_on_sigterm() if args.command != 'run' else {}
@@ -84,6 +85,26 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for sig, handler in stop_signals.items():
             signal.signal(sig, handler)
+
+
+def _refuse_dash_values(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--x0=--``: argparse drops the value '--' and stores []; refuse it like a bad value."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            chosen = action.choices.get(getattr(args, action.dest, None))
+            if chosen is not None:
+                _refuse_dash_values(chosen, args)
+            continue
+        if action.nargs is not None or not action.option_strings:
+            continue
+        value = getattr(args, action.dest, None)
+        if isinstance(action, argparse._AppendAction):
+            dashed = isinstance(value, list) and any(v == [] for v in value)
+        else:
+            dashed = isinstance(value, list) and value == []
+        if dashed:
+            parser.error(f"argument {'/'.join(action.option_strings)}: expected one value, "
+                         "got '--'")
 
 
 class _Stopped:

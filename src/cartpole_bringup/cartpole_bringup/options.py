@@ -106,18 +106,28 @@ def load_ros_parameters(path: Path | None, node_name: str) -> dict[str, Any]:
     return boundary.ros_parameters(path, node_name)
 
 
-def manager_parameters(nominal: CartPoleParameters, parameters: dict[str, Any],
-                       option: str = '--params') -> dict[str, Any]:
-    """``parameters`` if the controller manager takes them all, else InputError with its reason."""
+def manager_parameters(nominal: CartPoleParameters, args: argparse.Namespace) -> dict[str, Any]:
+    """controller_manager parameters: the ``--params`` file's section, then ``--swingup`` and
+    ``--stabilizer``; InputError with the manager's reason, naming the file or the option."""
+    params = dict(load_ros_parameters(getattr(args, 'params', None), 'controller_manager'))
+    if params:
+        _manager_takes(nominal, params, f'--params {args.params}: controller_manager')
+    for name in ('swingup', 'stabilizer'):
+        if getattr(args, name, None):
+            params[name] = getattr(args, name)
+            _manager_takes(nominal, params, f'--{name} {getattr(args, name)}')
+    return params
+
+
+def _manager_takes(nominal: CartPoleParameters, parameters: dict[str, Any], source: str) -> None:
     from cartpole_control.manager import ControllerManager
     manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False)
     try:
         result = manager.set_parameters(dict(parameters))
     except (ValueError, TypeError) as error:
-        raise boundary.InputError(f'controller_manager parameters: {error}') from None
+        raise boundary.InputError(f'{source}: {error}') from None
     if not result.successful:
-        raise boundary.InputError(f'controller_manager parameters: {result.reason}')
-    return parameters
+        raise boundary.InputError(f'{source}: {result.reason}')
 
 
 def print_json(obj: Any) -> None:

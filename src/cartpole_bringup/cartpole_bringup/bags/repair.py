@@ -87,8 +87,8 @@ def _bag_file(bag: Path) -> Path:
         try:
             info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
             files = [bag / p for p in info['relative_file_paths']]
-        except (yaml.YAMLError, KeyError, TypeError):
-            files = []
+        except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError):
+            files = []  # garbage metadata (UnicodeDecodeError is a ValueError): find the file
         if len(files) == 1 and files[0].is_file() and files[0].suffix == '.mcap':
             return files[0]
     candidates = sorted(bag.glob('*.mcap'))
@@ -159,7 +159,7 @@ def _custom_data_of(metadata_records: dict[str, dict[str, str]],
             info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
             if info.get('custom_data'):
                 return {str(k): str(v) for k, v in info['custom_data'].items()}
-        except (yaml.YAMLError, KeyError, TypeError, AttributeError):
+        except (yaml.YAMLError, KeyError, TypeError, AttributeError, ValueError, OSError):
             pass
     serialized = metadata_records.get(ROSBAG2_RECORD, {}).get('serialized_metadata')
     if serialized:

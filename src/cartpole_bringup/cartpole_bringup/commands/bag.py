@@ -51,7 +51,8 @@ def _repair(args: argparse.Namespace) -> int:
         try:
             result = repair_bag(bag)
         except (RepairError, OSError, ValueError) as error:
-            print(f'cartpole bag repair: {error}', file=sys.stderr)
+            text = str(error) if str(bag) in str(error) else f'{bag}: {error}'
+            print(f'cartpole bag repair: {text}', file=sys.stderr)
             code = 1  # the bag could not be repaired: a failed operation, not a refused input
             continue
         if args.json:
@@ -99,7 +100,8 @@ def _info(args: argparse.Namespace) -> int:
         try:
             facts = bag_info(bag)
         except (OSError, ValueError) as error:
-            print(f'cartpole bag info: {error}', file=sys.stderr)
+            text = str(error) if str(bag) in str(error) else f'{bag}: {error}'
+            print(f'cartpole bag info: {text}', file=sys.stderr)
             code = 1
             continue
         if args.json:

@@ -66,7 +66,7 @@ def checked(args: argparse.Namespace):
             raise boundary.InputError(f'--view {args.view}: {exc}') from None
     nominal = options.nominal_parameters(args)
     scenario = options.scenario_from_args(args, nominal, args.duration)
-    manager = options.manager_parameters(nominal, manager_parameters_from_args(args))
+    manager = options.manager_parameters(nominal, args)
     return nominal, scenario, manager, ekf_config_from_args(args), plot
 
 

@@ -77,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
 
     say = options.progress_printer('cartpole plan')
     nominal = options.nominal_parameters(args)
-    parameters = dict(options.load_ros_parameters(args.params, 'controller_manager'))
+    parameters = options.manager_parameters(nominal, args)  # the file's section, whole
     parameters['swingup'] = TimeOptimalSwingUp.name
     try:
         values = _manager(nominal, parameters).get_parameters()

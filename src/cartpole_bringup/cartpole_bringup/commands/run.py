@@ -177,10 +177,9 @@ def check(args: argparse.Namespace) -> None:
         except ValueError as error:
             raise boundary.InputError(f'--view: {error}') from None
     nominal = options.nominal_parameters(args)
-    manager = dict(options.load_ros_parameters(args.params, 'controller_manager'))
-    manager.update({k: getattr(args, k) for k in ('swingup', 'stabilizer') if getattr(args, k)})
-    options.manager_parameters(nominal, manager)
-    boundary.ekf_parameters(args.params)
+    options.manager_parameters(nominal, args)
+    from .offline import ekf_config_from_args
+    ekf_config_from_args(args)  # the ekf section: known names, valid values
     if args.sim:
         options.scenario_from_args(args, nominal, args.duration)
 
