@@ -128,6 +128,16 @@ class CommandsInFlight:
         stamps.append(t)
         self._forces.append(force)
 
+    def force_at(self, t: float) -> float | None:
+        """The command computed from the sample stamped ``t``, None if not (or no longer) known."""
+        stamps = self._stamps
+        for i in range(len(stamps) - 1, -1, -1):
+            if stamps[i] == t:
+                return self._forces[i]
+            if stamps[i] < t:
+                break
+        return None
+
     def segments(self, t: float, horizon: float) -> list[tuple[float, float]]:
         """``[(duration, force), ...]`` covering ``[t, t + horizon]`` in order.
 

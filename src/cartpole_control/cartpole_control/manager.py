@@ -52,6 +52,7 @@ from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller,
     ControllerState, ParameterSpec
 from .manager_parameters import manager_parameter_specs
 from .rail_guard import BRAKING, STOPPED
+from .actuator import ActuatorEstimator
 from .latency import CommandsInFlight, LatencyEstimator
 from .natural_frequency import NaturalFrequencyEstimator
 from .prediction import predict_over_commands
@@ -75,15 +76,17 @@ _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
 STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
                'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
                'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s',
-               'latency_s', 'predict_horizon_s', 'omega0_sq')
+               'latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
+               'actuator_delay_s')
 """The KeyValues of the controller status, in this order (docs/architecture.md), published by the node as
 ``/cartpole/controller_status``; the
 active plugin's own figures (:meth:`Controller.status_values`, e.g. ``mpc_solve_us``)
 follow them."""
-LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq')
+LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
+                'actuator_delay_s')
 """What the manager learns of the loop and reports in the status and the run summary."""
 
-MANAGER_PREFIXES = ('catch', 'fall', 'feedforward', 'predict', 'rail')
+MANAGER_PREFIXES = ('actuator', 'catch', 'fall', 'feedforward', 'predict', 'rail')
 """Parameter groups of the manager itself; a plugin cannot take these names."""
 
 
@@ -133,6 +136,10 @@ class ManagerOutput:
     ``auto``, else the fixed value."""
     omega_sq: float = 0.0
     """The estimate of the pendulum's omega_0^2 = m_p g l / J [1/s^2]."""
+    actuator_gain: float = 1.0
+    """The actuator gain G the command was divided by (``actuator.gain``)."""
+    actuator_delay: float = 0.0
+    """The estimate of the actuator's extra dead time [s] (used with ``actuator.delay`` auto)."""
     plugin_status: Mapping[str, float] = dataclasses.field(default_factory=dict)
     """The active plugin's :meth:`Controller.status_values` (e.g. ``mpc_solve_us``)."""
 
@@ -166,8 +173,8 @@ def _command_feedback(raw: float, force: float, limited: int, held: bool) -> Com
 
 def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
                     raw_force, feedforward, event, catch_count, fall_count, catch_time,
-                    fault_reason, swingup_law, latency, horizon, omega_sq,
-                    plugin_status) -> ManagerOutput:
+                    fault_reason, swingup_law, latency, horizon, omega_sq, actuator_gain,
+                    actuator_delay, plugin_status) -> ManagerOutput:
     """``ManagerOutput(...)`` with every field positional, built directly (see
     :func:`_controller_state`); a test checks it equals the dataclass's own."""
     out = _new_object(ManagerOutput)
@@ -177,7 +184,8 @@ def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy
         'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
         'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
         'fault_reason': fault_reason, 'swingup_law': swingup_law, 'latency': latency,
-        'horizon': horizon, 'omega_sq': omega_sq, 'plugin_status': plugin_status})
+        'horizon': horizon, 'omega_sq': omega_sq, 'actuator_gain': actuator_gain,
+        'actuator_delay': actuator_delay, 'plugin_status': plugin_status})
     return out
 
 
@@ -220,6 +228,9 @@ class ControllerManager:
         """The loop's latency from the plant's reports (:meth:`command_applied`)."""
         self.natural_frequency = NaturalFrequencyEstimator(plant, self.sample_time)
         """omega_0^2 of the pendulum on the rig, from the encoders (:meth:`measured`)."""
+        self.actuator = ActuatorEstimator(plant, self.sample_time)
+        """The actuator's gain and extra dead time, from the cart's motion (:meth:`measured`)."""
+        self._gain = 1.0
         self._in_flight = CommandsInFlight()
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
                               self.natural_frequency)
@@ -379,6 +390,9 @@ class ControllerManager:
         clock): one sample of the loop's latency.
         """
         self.latency.report(source, applied)
+        force = self._in_flight.force_at(source)
+        if force is not None:
+            self.actuator.applied(applied, force)
 
     def measured(self, t: float, x: float, theta: float) -> None:
         """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped).
@@ -388,6 +402,7 @@ class ControllerManager:
         """
         if self.mode != STABILIZING:
             self.natural_frequency.update(t, x, theta)
+        self.actuator.update(t, x, theta)
 
     # -- requests -----------------------------------------------------------------------
     def restart(self) -> SetResult:
@@ -529,13 +544,25 @@ class ControllerManager:
             self._energy = math.nan
             return self._output(t, 0.0, 0.0, 0.0, events)
         guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
-        horizon = self._values['predict.horizon']
+        values = self._values
+        horizon = values['predict.horizon']
         if horizon == 'auto':
             horizon = self.latency.latency
+        gain, delay = values['actuator.gain'], values['actuator.delay']
+        actuator = self.actuator
+        self._gain = gain = actuator.gain if gain == 'auto' else gain
+        horizon += actuator.delay if delay == 'auto' else delay
         self._horizon = horizon
         if horizon > 0.0:
+            segments = self._in_flight.segments(t, horizon)
+            if gain != 1.0:
+                segments = [(duration, gain * command) for duration, command in segments]
             x, theta, x_dot, theta_dot = predict_over_commands(
-                self._acc, x, theta, x_dot, theta_dot, self._in_flight.segments(t, horizon))
+                self._acc, x, theta, x_dot, theta_dot, segments)
+            # The rail guard, too, judges the cart where this command will meet it (its
+            # own rail.latency then covers the hold); not the plain estimate, which the
+            # commands already in flight move on before this one acts.
+            guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
         x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
         state = _controller_state(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
 
@@ -582,7 +609,8 @@ class ControllerManager:
                 else:
                     feedforward = (self._feedforward.stabilizing(x_dot, raw)
                                    if self.mode == STABILIZING else self._feedforward(x_dot, raw))
-                    force = min(max(raw + feedforward, self._force_min), self._force_max)
+                    force = min(max(raw + feedforward, gain * self._force_min),
+                                gain * self._force_max)
         guard = self._guard
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
@@ -593,7 +621,9 @@ class ControllerManager:
         if active is not None and active is self._active \
                 and not self._tell_plugin(active, raw, raw + feedforward, force, events):
             force = 0.0
-        self._last_force = force
+        self._last_force = force  # the force the cart feels; the command is force / G
+        if gain != 1.0:
+            force = min(max(force / gain, self._force_min), self._force_max)
         self._in_flight.sent(t, force)
         return self._output(t, force, raw, feedforward, events)
 
@@ -650,5 +680,6 @@ class ControllerManager:
                                self.catch_count, self.fall_count, self.catch_time,
                                self.fault_reason, self._plugins[SWINGUP].law,
                                self.latency.latency, self._horizon,
-                               self.natural_frequency.omega_sq,
+                               self.natural_frequency.omega_sq, self._gain,
+                               self.actuator.delay,
                                active.status_values() if active is not None else {})

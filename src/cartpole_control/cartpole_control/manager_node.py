@@ -398,6 +398,8 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
         'latency_s': repr(float(out.latency)),
         'predict_horizon_s': repr(float(out.horizon)),
         'omega0_sq': repr(float(out.omega_sq)),
+        'actuator_gain': repr(float(out.actuator_gain)),
+        'actuator_delay_s': repr(float(out.actuator_delay)),
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',

@@ -61,6 +61,15 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       "loop's latency measured from the plant's reports of when each command "
                       'took effect (0 until 20 reports; a plant that reports nothing: 0); a '
                       'number fixes it, 0 = off', low=0.0, high=0.1, auto=True),
+        ParameterSpec('actuator.gain', AUTO, 'Actuator gain G: the force the cart feels per '
+                      'newton commanded [1]; the command is the wanted force divided by G (and '
+                      'the prediction multiplies by it); auto = estimated from the cart\'s '
+                      'motion under large commands (cartpole_control.actuator; 1 until then); '
+                      '1 = the model\'s actuator (4.4)', low=0.4, high=2.5, auto=True),
+        ParameterSpec('actuator.delay', AUTO, 'Actuator dead time after the plant applied a '
+                      'command (a lag the plant cannot report) [s], added to the prediction '
+                      'horizon; auto = estimated with the gain (0 until then); 0 = none',
+                      low=0.0, high=0.1, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
                       'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),

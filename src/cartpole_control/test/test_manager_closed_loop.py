@@ -157,7 +157,7 @@ def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
     assert hash(s) == hash(ControllerState(*values)) and s.theta_w == wrap_angle(3.0)
     names = list(ManagerOutput.__dataclass_fields__)
     values = (0.1, 2.0, 'stabilizing', 'pendulum_energy', 'lqg', True, 1.5, 0.1, 1.9, 0.1,
-              'catch', 1, 0, 0.1, '', 'pendulum_energy', 0.02, 0.02, 29.3,
+              'catch', 1, 0, 0.1, '', 'pendulum_energy', 0.02, 0.02, 29.3, 0.9, 0.01,
               {'mpc_solve_us': 210.0})
     assert len(names) == len(values)
     out = _manager_output(*values)

@@ -45,7 +45,8 @@ def test_the_prediction_saves_lqg_under_25_ms_of_delay():
 
     scenario = Scenario(noise=True, seed=0, delay=0.025, jitter=0.005)
     plain = run_closed_loop(P, scenario, duration=20.0, stop_on_failure=True,
-                            manager_parameters={'stabilizer': 'lqg'})
+                            manager_parameters={'stabilizer': 'lqg', 'predict.horizon': 0.0,
+                                                'actuator.delay': 0.0})
     predicted = run_closed_loop(P, scenario, duration=20.0,
                                 manager_parameters={'stabilizer': 'lqg',
                                                     'predict.horizon': 0.015})
