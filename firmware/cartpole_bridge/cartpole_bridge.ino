@@ -4,7 +4,9 @@
 //   - reads both HCTL-2021 quadrature decoders over the shared 8-bit bus
 //     (thesis section 2.1) every 5 ms (micros() deadlines, no drift),
 //   - streams S lines, answers P, obeys E, R, L, U (joint_protocol.cpp),
-//   - writes the current setpoint to DAC0 as 1953 + setpoint (12 bit, Appendix A),
+//   - writes the current setpoint to DAC0 as 1953 + setpoint (12 bit, Appendix A)
+//     and, for a tagged U (protocol 2), reports in the S lines when it did (micros()
+//     right after the DAC write): the host measures the loop's latency in device time,
 //   - drives the servo amplifier's enable pin,
 //   - enforces the 50 ms watchdog: enabled and no U for 50 ms -> zero current
 //     (checked every sample tick, tripping at the tick that crosses the deadline).
@@ -113,8 +115,9 @@ void loop() {
       size_t reply_len = 0;
       bool reset = jp_device_handle_line(&dev, rx.buf, n, micros(), out, sizeof out, &reply_len);
       if (reset) reset_counters();
-      send(out, reply_len);
       apply_output();
+      jp_device_output_written(&dev, micros());   // a tagged U took effect now
+      send(out, reply_len);
     } else if (r == -1) {
       send(out, jp_format_error(out, sizeof out, JP_OVERSIZED, "oversized"));
     }

@@ -48,21 +48,23 @@ static JpStatus parse_number(const char *s, size_t n, int64_t lo, int64_t hi, in
 struct ArgSpec {
   char type;
   int nargs;
-  int64_t lo[5];
-  int64_t hi[5];
+  int nargs_long;  // the longer form of version 2 (U with its tag, S with the report); 0: none
+  int64_t lo[7];
+  int64_t hi[7];
   int text_index;  // index of the text field (-1: none)
 };
 
 static const int64_t U32MAX = 4294967295LL;
 static const ArgSpec kSpecs[] = {
-    {'P', 0, {0}, {0}, -1},
-    {'R', 0, {0}, {0}, -1},
-    {'E', 1, {0}, {1}, -1},
-    {'L', 1, {0}, {1}, -1},
-    {'U', 1, {-32768}, {32767}, -1},
-    {'V', 2, {0, 0}, {65535, 0}, 1},
-    {'S', 5, {0, 0, -32768, -32768, 0}, {U32MAX, U32MAX, 32767, 32767, 15}, -1},
-    {'!', 2, {0, 0}, {255, 0}, 1},
+    {'P', 0, 0, {0}, {0}, -1},
+    {'R', 0, 0, {0}, {0}, -1},
+    {'E', 1, 0, {0}, {1}, -1},
+    {'L', 1, 0, {0}, {1}, -1},
+    {'U', 1, 2, {-32768, 0}, {32767, U32MAX}, -1},
+    {'V', 2, 0, {0, 0}, {65535, 0}, 1},
+    {'S', 5, 7, {0, 0, -32768, -32768, 0, 0, 0},
+     {U32MAX, U32MAX, 32767, 32767, 15, U32MAX, U32MAX}, -1},
+    {'!', 2, 0, {0, 0}, {255, 0}, 1},
 };
 
 JpStatus jp_decode(const char *line, size_t len, JpMessage *out) {
@@ -90,10 +92,10 @@ JpStatus jp_decode(const char *line, size_t len, JpMessage *out) {
     if (kSpecs[k].type == line[0]) spec = &kSpecs[k];
   if (!spec) return JP_UNKNOWN_TYPE;
   // split the fields after the type; for '!' the text is the rest (commas allowed)
-  size_t start[6], stop[6];
+  size_t start[8], stop[8];
   int nfields = 0;
   size_t pos = 1;
-  while (pos < n && nfields < 6) {  // line[pos] == ','
+  while (pos < n && nfields < 8) {  // line[pos] == ','
     size_t s = pos + 1, e = s;
     bool rest = (line[0] == '!' && nfields == 1);
     while (e < n && (rest || line[e] != ',')) ++e;
@@ -102,8 +104,9 @@ JpStatus jp_decode(const char *line, size_t len, JpMessage *out) {
     ++nfields;
     pos = e;
   }
-  if (pos < n) return JP_BAD_FIELD_COUNT;  // more than 6 fields
-  if (nfields != spec->nargs) return JP_BAD_FIELD_COUNT;
+  if (pos < n) return JP_BAD_FIELD_COUNT;  // more than 8 fields
+  if (nfields != spec->nargs && (spec->nargs_long == 0 || nfields != spec->nargs_long))
+    return JP_BAD_FIELD_COUNT;
   out->type = spec->type;
   for (int f = 0; f < nfields; ++f) {
     const char *s = line + start[f];
@@ -125,14 +128,25 @@ size_t jp_canonical(const JpMessage *m, char *buf, size_t cap) {
   int w = 0;
   switch (m->type) {
     case 'P': case 'R': w = snprintf(buf, cap, "%c", m->type); break;
-    case 'E': case 'L': case 'U':
+    case 'E': case 'L':
       w = snprintf(buf, cap, "%c,%lld", m->type, (long long)m->num[0]); break;
+    case 'U':
+      if (m->nnum == 2)
+        w = snprintf(buf, cap, "U,%lld,%lld", (long long)m->num[0], (long long)m->num[1]);
+      else
+        w = snprintf(buf, cap, "U,%lld", (long long)m->num[0]);
+      break;
     case 'V': w = snprintf(buf, cap, "V,%lld,%s", (long long)m->num[0], m->text); break;
     case '!': w = snprintf(buf, cap, "!,%lld,%s", (long long)m->num[0], m->text); break;
     case 'S':
       w = snprintf(buf, cap, "S,%lld,%lld,%lld,%lld,%lld", (long long)m->num[0],
                    (long long)m->num[1], (long long)m->num[2], (long long)m->num[3],
                    (long long)m->num[4]);
+      if (m->nnum == 7 && w >= 0 && (size_t)w < cap) {
+        int w2 = snprintf(buf + w, cap - w, ",%lld,%lld", (long long)m->num[5],
+                          (long long)m->num[6]);
+        w = w2 < 0 ? w2 : w + w2;
+      }
       break;
     default: w = snprintf(buf, cap, "?");
   }
@@ -152,9 +166,14 @@ size_t jp_finish(char *buf, size_t n, size_t cap) {
 }
 
 size_t jp_format_sample(char *buf, size_t cap, uint32_t seq, uint32_t t_us, int16_t cart,
-                        int16_t pend, uint8_t flags) {
-  int w = snprintf(buf, cap, "S,%lu,%lu,%d,%d,%u", (unsigned long)seq, (unsigned long)t_us,
-                   (int)cart, (int)pend, (unsigned)(flags & 15));
+                        int16_t pend, uint8_t flags, bool report, uint32_t back,
+                        uint32_t age_us) {
+  int w = report
+      ? snprintf(buf, cap, "S,%lu,%lu,%d,%d,%u,%lu,%lu", (unsigned long)seq,
+                 (unsigned long)t_us, (int)cart, (int)pend, (unsigned)(flags & 15),
+                 (unsigned long)back, (unsigned long)age_us)
+      : snprintf(buf, cap, "S,%lu,%lu,%d,%d,%u", (unsigned long)seq, (unsigned long)t_us,
+                 (int)cart, (int)pend, (unsigned)(flags & 15));
   if (w < 0 || (size_t)w >= cap) return 0;
   return jp_finish(buf, (size_t)w, cap);
 }
@@ -228,6 +247,20 @@ void jp_device_init(JpDevice *d, const char *name, bool positive_setpoint_drives
   d->positive_setpoint_drives_right = positive_setpoint_drives_right;
 }
 
+// No tagged command is in force any more: S lines without the report.
+static void end_report(JpDevice *d) {
+  d->pending = false;
+  d->applied = false;
+}
+
+void jp_device_output_written(JpDevice *d, uint32_t now_us) {
+  if (!d->pending) return;
+  d->pending = false;
+  d->applied = true;
+  d->applied_tag = d->pending_tag;
+  d->applied_us = now_us;
+}
+
 bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t now_us,
                            char *reply, size_t cap, size_t *reply_len) {
   *reply_len = 0;
@@ -247,6 +280,7 @@ bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t n
       d->setpoint = 0;
       d->watchdog_tripped = false;
       d->last_u_us = now_us;
+      end_report(d);
       return false;
     case 'L':
       d->streaming = m.num[0] != 0;
@@ -261,6 +295,12 @@ bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t n
       d->setpoint = jp_clamp_setpoint(m.num[0]);
       d->last_u_us = now_us;
       d->watchdog_tripped = false;
+      if (m.nnum == 2 && d->enabled) {
+        d->pending = true;
+        d->pending_tag = (uint32_t)m.num[1];
+      } else {
+        end_report(d);
+      }
       return false;
   }
   return false;
@@ -274,6 +314,7 @@ size_t jp_device_tick(JpDevice *d, uint32_t now_us, bool limit_left, bool limit_
   if (d->enabled && !d->watchdog_tripped &&
       (uint32_t)(now_us - d->last_u_us) > JP_WATCHDOG_US - JP_SAMPLE_US) {
     d->watchdog_tripped = true;
+    end_report(d);
     n += jp_format_error(out + n, cap - n, JP_ERR_WATCHDOG, "watchdog");
   }
   if (d->enabled && limit_left && !d->limit_left)
@@ -303,5 +344,7 @@ size_t jp_device_sample(JpDevice *d, uint32_t now_us, int16_t cart, int16_t pend
                         size_t cap) {
   uint32_t seq = d->seq++;
   if (!d->streaming) return 0;
-  return jp_format_sample(buf, cap, seq, now_us, cart, pend, jp_device_flags(d));
+  // unsigned subtraction: correct across the seq and micros() wraps
+  return jp_format_sample(buf, cap, seq, now_us, cart, pend, jp_device_flags(d), d->applied,
+                          seq - d->applied_tag, now_us - d->applied_us);
 }

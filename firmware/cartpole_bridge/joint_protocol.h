@@ -16,7 +16,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define JP_PROTOCOL_VERSION 1
+#define JP_PROTOCOL_VERSION 2   // 2: tagged U and the latency report in S
 #define JP_MAX_LINE 96
 #define JP_WATCHDOG_US 50000UL   // no U for 50 ms while enabled -> zero current
 #define JP_SAMPLE_US 5000UL      // the sample period Ts; the watchdog runs once a period
@@ -48,12 +48,19 @@ enum JpStatus {
 const char *jp_status_name(int status);  // "bad_checksum", ... ("ok" for JP_OK)
 
 // A decoded line. type is one of P E R L U V S !; the numeric fields in
-// order in num[] (E/L: 0|1, U: setpoint, V: version, S: seq t_us cart pend
-// flags, !: code); V's name / !'s text in text[].
+// order in num[] (E/L: 0|1, U: setpoint [tag], V: version, S: seq t_us cart
+// pend flags [back age_us], !: code); V's name / !'s text in text[].
+//
+// Protocol version 2: "U,<setpoint>,<tag>" tags a setpoint with the seq of the
+// sample it was computed from ("U,<setpoint>" stays valid). Every S line after a
+// tagged setpoint took effect carries ",<back>,<age_us>": the command in force
+// answers sample seq - back and took effect (written to the DAC) age_us before
+// this sample (both mod 2^32). Absent (5 fields) until then and again after an
+// untagged U, any E, a watchdog trip or a tagged U while disabled.
 struct JpMessage {
   char type;
   int nnum;
-  int64_t num[5];
+  int64_t num[7];
   char text[JP_MAX_LINE + 1];
 };
 
@@ -69,8 +76,10 @@ size_t jp_canonical(const JpMessage *m, char *buf, size_t cap);
 // line length including '\n', or 0 if it does not fit.
 size_t jp_finish(char *buf, size_t n, size_t cap);
 
+// report: append ",<back>,<age_us>" (the latency report of version 2).
 size_t jp_format_sample(char *buf, size_t cap, uint32_t seq, uint32_t t_us,
-                        int16_t cart, int16_t pend, uint8_t flags);
+                        int16_t cart, int16_t pend, uint8_t flags,
+                        bool report = false, uint32_t back = 0, uint32_t age_us = 0);
 size_t jp_format_version(char *buf, size_t cap, const char *name);
 size_t jp_format_error(char *buf, size_t cap, int code, const char *text);
 
@@ -106,6 +115,12 @@ struct JpDevice {
   uint32_t last_u_us;
   uint32_t seq;
   const char *name;
+  // the latency report (version 2)
+  bool pending;           // a tagged U was handled, its output not yet written
+  uint32_t pending_tag;
+  bool applied;           // a tagged command is in force: S lines carry the report
+  uint32_t applied_tag;   // the seq of the sample it answers
+  uint32_t applied_us;    // micros() when it was written to the DAC
 };
 void jp_device_init(JpDevice *d, const char *name, bool positive_setpoint_drives_right);
 
@@ -114,6 +129,9 @@ void jp_device_init(JpDevice *d, const char *name, bool positive_setpoint_drives
 // when the encoder counters must be reset (R).
 bool jp_device_handle_line(JpDevice *d, const char *line, size_t len, uint32_t now_us,
                            char *reply, size_t reply_cap, size_t *reply_len);
+// The sketch wrote the output (DAC) at now_us: a pending tagged command took
+// effect then (its report starts with the next S line).
+void jp_device_output_written(JpDevice *d, uint32_t now_us);
 // Once a sample period: watchdog and limit switches. Up to 3 notice lines
 // (! watchdog, ! limit) are concatenated into out; returns their total length.
 // The watchdog trips at the tick that crosses its deadline: when the next tick
@@ -125,8 +143,9 @@ size_t jp_device_tick(JpDevice *d, uint32_t now_us, bool limit_left, bool limit_
 // pushing towards a closed limit switch (directional inhibit).
 int32_t jp_device_output_setpoint(const JpDevice *d);
 uint8_t jp_device_flags(const JpDevice *d);
-// The S line of this period if streaming (seq counts every period); returns
-// its length, 0 when not streaming.
+// The S line of this period if streaming (seq counts every period), with the
+// latency report while a tagged command is in force; returns its length, 0
+// when not streaming.
 size_t jp_device_sample(JpDevice *d, uint32_t now_us, int16_t cart, int16_t pend,
                         char *buf, size_t cap);
 

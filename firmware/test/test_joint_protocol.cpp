@@ -57,11 +57,48 @@ static std::string decode_canonical(const std::string &line) {
   return buf;
 }
 
+// A "report" vector: events "<what>@<us>" separated by spaces on a fresh device
+// (a host line body, W = the output written, S = tick + sample); the S bodies sent,
+// joined by ';'.
+static std::string run_report(const std::string &events) {
+  JpDevice d;
+  jp_device_init(&d, "report", true);
+  std::string got;
+  size_t pos = 0;
+  while (pos < events.size()) {
+    size_t end = events.find(' ', pos);
+    if (end == std::string::npos) end = events.size();
+    std::string token = events.substr(pos, end - pos);
+    pos = end + 1;
+    size_t at = token.find('@');
+    if (at == std::string::npos) return "bad event " + token;
+    std::string what = token.substr(0, at);
+    uint32_t now = (uint32_t)strtoul(token.c_str() + at + 1, 0, 10);
+    char buf[256];
+    if (what == "W") {
+      jp_device_output_written(&d, now);
+    } else if (what == "S") {
+      jp_device_tick(&d, now, false, false, buf, sizeof buf);
+      size_t n = jp_device_sample(&d, now, 0, 0, buf, sizeof buf);
+      if (n < 4) return "no S line";
+      if (!got.empty()) got += ";";
+      got += std::string(buf, n - 4);  // without "*HH\n"
+    } else {
+      char line[128], reply[128];
+      snprintf(line, sizeof line, "%s", what.c_str());
+      size_t ln = jp_finish(line, what.size(), sizeof line), rn = 0;
+      jp_device_handle_line(&d, line, ln, now, reply, sizeof reply, &rn);
+      if (rn) return "answered " + std::string(reply, rn);
+    }
+  }
+  return got;
+}
+
 static void run_vectors(const char *path) {
   std::ifstream in(path);
   CHECK(in.good(), "cannot open %s", path);
   std::string raw;
-  int counts[6] = {0, 0, 0, 0, 0, 0};
+  int counts[7] = {0, 0, 0, 0, 0, 0, 0};
   while (std::getline(in, raw)) {
     if (raw.empty() || raw[0] == '#') continue;
     size_t a = raw.find('|'), b = raw.find('|', a + 1);
@@ -132,15 +169,20 @@ static void run_vectors(const char *path) {
               (unsigned long)t0, (int)d.watchdog_tripped, want.c_str());
       }
       ++counts[5];
+    } else if (kind == "report") {
+      std::string got = run_report(x);
+      CHECK(got == want, "report %s: got %s want %s", x.c_str(), got.c_str(), want.c_str());
+      ++counts[6];
     } else {
       CHECK(false, "unknown vector kind %s", kind.c_str());
     }
   }
   CHECK(counts[0] > 50 && counts[1] > 5 && counts[2] > 5 && counts[3] > 3 && counts[4] > 0 &&
-        counts[5] > 5, "too few vectors read: %d %d %d %d %d %d", counts[0], counts[1],
-        counts[2], counts[3], counts[4], counts[5]);
-  printf("vectors: %d decode, %d encode, %d setpoint, %d dac, %d checksum, %d watchdog\n",
-         counts[0], counts[1], counts[2], counts[3], counts[4], counts[5]);
+        counts[5] > 5 && counts[6] > 5, "too few vectors read: %d %d %d %d %d %d %d",
+        counts[0], counts[1], counts[2], counts[3], counts[4], counts[5], counts[6]);
+  printf("vectors: %d decode, %d encode, %d setpoint, %d dac, %d checksum, %d watchdog, "
+         "%d report\n", counts[0], counts[1], counts[2], counts[3], counts[4], counts[5],
+         counts[6]);
 }
 
 static std::string line_of(const char *body) {
@@ -164,7 +206,7 @@ static void test_device() {
   jp_device_init(&d, "cartpole_bridge", true);
   char out[256];
   // ping
-  CHECK(handle(&d, "P", 0) == line_of("V,1,cartpole_bridge"), "ping answer");
+  CHECK(handle(&d, "P", 0) == line_of("V,2,cartpole_bridge"), "ping answer");
   // disabled: zero output whatever the setpoint
   handle(&d, "U,500", 0);
   CHECK(jp_device_output_setpoint(&d) == 0, "disabled must output 0");

@@ -10,7 +10,7 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
 
 - Disarmed (the default): the device is kept disabled (``E,0``, re-sent if a
   sample shows it enabled) and no ``U`` other than ``U,0`` is ever sent.
-- Arming needs a live link (``V`` with protocol version 1 seen) and homed
+- Arming needs a live link (``V`` with protocol version 1 or 2 seen) and homed
   encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
   ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
   the device ``U,0`` every sample (zero force, device watchdog quiet).
@@ -53,6 +53,18 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
   wherever the cart happens to be. A device that restarted (sequence jumps
   back) has lost its reference: ``homed`` drops and arming is refused until
   an explicit home.
+
+Latency report (protocol version 2): a force command that answers one of
+the bridge's samples goes out tagged with that sample's ``seq``
+(``U,<setpoint>,<seq>``), and the device says in its sample lines which
+command is in force and when, in device time, it took effect. When that
+command changes, the sample passed on carries :class:`AppliedCommand`: the
+``seq`` it answers and the host time it took effect, its device time mapped
+by the same :class:`~cartpole_hw.device_clock.DeviceClock` mapping as the
+sample's own stamp (so ``applied - stamp of that sample`` is the loop's
+latency as the device's clock measured it, not the host's receipt times).
+A version-1 device gets untagged setpoints (it would refuse a tag) and
+reports nothing; it works as before. A version above 2 is refused.
 
 Stamps: each sample carries the host time at which the device took it,
 from its ``t_us`` through :class:`~cartpole_hw.device_clock.DeviceClock`
@@ -108,6 +120,19 @@ class BridgeConfig:
 
 
 @dataclass(frozen=True)
+class AppliedCommand:
+    """The device's report that the command answering sample ``seq`` took effect."""
+
+    seq: int
+    """``seq`` of the sample the command was computed from (its tag)."""
+    stamp: float
+    """Host time [s] (the core's clock) at which it took effect: its device time mapped
+    like a sample's ``t_us``."""
+    latency: float
+    """Sample to command in force [s], in device time (``back`` periods minus ``age_us``)."""
+
+
+@dataclass(frozen=True)
 class JointSample:
     """One decoded sample, ready to publish on ``/joint_states``."""
 
@@ -125,6 +150,8 @@ class JointSample:
     flags: int
     missed: int = 0
     """Samples lost just before this one (the ``seq`` gap)."""
+    applied: AppliedCommand | None = None
+    """A newly reported command in force (protocol version 2), else None."""
 
 
 @dataclass
@@ -162,6 +189,8 @@ class BridgeCounts:
     """Times the port was opened (see :attr:`reconnects`)."""
     homes: int = 0
     """Completed homings (each moves the position reference: x = 0 now)."""
+    actuation_reports: int = 0
+    """Commands the device reported in force (protocol version 2), each counted once."""
 
     @property
     def reconnects(self) -> int:
@@ -228,6 +257,17 @@ class BridgeCore:
         self.last_error = ''
         self.latencies: deque[float] = deque(maxlen=self.config.latency_window)
         self.last_setpoint = 0
+        self.device_version: int | None = None
+        """Protocol version of the device's last ``V`` answer (None before one)."""
+        self._applied_seq: int | None = None
+        self.actuation_latency = math.nan
+        """The latest reported sample-to-command-in-force latency [s] (device time)."""
+
+    @property
+    def tags_commands(self) -> bool:
+        """The device takes tagged setpoints and reports them (protocol version 2)."""
+        return self.device_version is not None and \
+            self.device_version >= jp.LATENCY_REPORT_VERSION
 
     # -- link ----------------------------------------------------------------------------------
     def on_connect(self, now: float) -> list[bytes]:
@@ -240,6 +280,7 @@ class BridgeCore:
         self.homing = False
         self.ping_sent = now
         self.last_sample = now
+        self._applied_seq = None
         return [U_ZERO, E_OFF, PING, STREAM_ON]
 
     def on_disconnect(self, now: float, reason: str) -> None:
@@ -310,8 +351,11 @@ class BridgeCore:
         return []
 
     # -- force commands ------------------------------------------------------------------------
-    def on_command(self, force: float, now: float, latency: float | None = None) -> list[bytes]:
-        """A force command [N] from the controller; ``latency`` = now - its stamp [s]."""
+    def on_command(self, force: float, now: float, latency: float | None = None,
+                   tag: int | None = None) -> list[bytes]:
+        """A force command [N] from the controller; ``latency`` = now - its stamp [s];
+        ``tag`` = the ``seq`` of the sample it answers, if it is one of this bridge's (sent
+        with the setpoint to a device that reports, :attr:`tags_commands`)."""
         if not self.armed:
             self.counts.ignored_commands += 1
             fresh = math.isfinite(force) and (latency is None
@@ -335,6 +379,8 @@ class BridgeCore:
         self.last_setpoint = setpoint
         if latency is not None and latency >= 0:
             self.latencies.append(latency)
+        if tag is not None and self.tags_commands:
+            return [jp.encode(jp.Setpoint(setpoint, tag % jp.UINT32))]
         return [jp.encode(jp.Setpoint(setpoint))]
 
     # -- time ------------------------------------------------------------------------------------
@@ -385,11 +431,13 @@ class BridgeCore:
 
     def _on_version(self, message: jp.Version, now: float) -> list[bytes]:
         self.device_name = message.name
-        if message.version != jp.PROTOCOL_VERSION:
+        if not 1 <= message.version <= jp.PROTOCOL_VERSION:
             self.link_ready = False
+            self.device_version = None
             self.last_error = (f'device speaks protocol version {message.version}, '
-                               f'this bridge {jp.PROTOCOL_VERSION}')
+                               f'this bridge 1 to {jp.PROTOCOL_VERSION}')
             return self._fault(self.last_error)
+        self.device_version = message.version
         self.link_ready = True
         if self.homing:
             self.homing = False
@@ -476,7 +524,23 @@ class BridgeCore:
             out += [U_ZERO, E_OFF]      # E,0 was lost
         stamp = self.device_clock.stamp(s.t_us, now)
         return Output(out, JointSample(now, stamp, s.seq, s.t_us, x, theta, s.flags,
-                                       max(jump, 0)))
+                                       max(jump, 0), self._applied(s)))
+
+    def _applied(self, s: jp.Sample) -> AppliedCommand | None:
+        """The command in force the sample reports, if it is a new one (call after the
+        sample was stamped: its applied time is mapped like the sample's)."""
+        seq = s.applied_seq
+        if seq is None or seq == self._applied_seq:
+            self._applied_seq = seq
+            return None
+        self._applied_seq = seq
+        stamp = self.device_clock.stamp_of(s.applied_t_us)
+        if stamp is None:
+            return None
+        latency = (s.back * self.config.sample_time * 1e6 - s.age_us) * 1e-6
+        self.counts.actuation_reports += 1
+        self.actuation_latency = latency
+        return AppliedCommand(seq, stamp, latency)
 
     # -- health ---------------------------------------------------------------------------------------
     def latency_stats(self) -> tuple[float, float]:
@@ -520,6 +584,8 @@ class BridgeCore:
             'limit_right': str(bool(self.flags & jp.FLAG_LIMIT_RIGHT)).lower(),
             'latency_p50': repr(p50),
             'latency_max': repr(worst),
+            'actuation_latency_s': repr(self.actuation_latency),
+            'actuation_reports': str(counts.actuation_reports),
             'setpoint': str(self.last_setpoint),
             'ignored_commands': str(counts.ignored_commands),
             'bad_commands': str(counts.bad_commands),

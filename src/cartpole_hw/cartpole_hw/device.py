@@ -19,7 +19,15 @@ Rules (SPEC section 4):
   arrived (SPEC 8), and at least 45 ms after it.
 - ``R`` zeroes the counters; refused (``!,9``) while enabled: the position
   reference must not move under a running controller.
-- ``P`` answers ``V,1,<name>``; ``L,1``/``L,0`` start/stop streaming.
+- ``P`` answers ``V,2,<name>``; ``L,1``/``L,0`` start/stop streaming.
+- Latency report (protocol version 2): a tagged ``U,<s>,<tag>`` while
+  enabled is *pending* until its output is written (:meth:`DeviceLogic.output_written`,
+  the sketch's DAC write, ``micros()`` then) or, in the emulator, until the
+  plant reports it acting (:meth:`DeviceLogic.command_applied`, after the
+  scenario delay). From then on every ``S`` line carries ``back = seq - tag``
+  and ``age_us = t_us - applied``. The report ends (5-field ``S`` lines
+  again) with an untagged ``U``, any ``E``, a watchdog trip, or a tagged
+  ``U`` while disabled: no tagged command is in force then.
 - A refused line is answered ``!,<code>,<reason>`` (codes 1..8, one a
   :data:`~cartpole_hw.protocol.DECODE_REASONS` entry).
 - Limit switches: current towards a closed limit switch is inhibited
@@ -61,6 +69,15 @@ class DeviceLogic:
     setpoint: int = 0
     last_u_us: int = 0
     seq: int = 0
+    pending_tag: int | None = None
+    """Tag of the last tagged ``U``, until its output is written (or reported acting)."""
+    applied_tag: int | None = None
+    """Tag of the command in force (None: no tagged command in force, no report)."""
+    applied_us: int = 0
+    """Device time [us] at which the command :attr:`applied_tag` took effect."""
+    _first_tag: int | None = None
+    """First tag since the report last ended: reports of older tags are late (a delayed
+    command of before a disarm) and not taken."""
     _limit_left: bool = False
     _limit_right: bool = False
 
@@ -77,6 +94,7 @@ class DeviceLogic:
             self.setpoint = 0
             self.watchdog_tripped = False
             self.last_u_us = now_us
+            self.end_report()
             return [], False
         if isinstance(message, jp.Stream):
             self.streaming = message.on
@@ -89,7 +107,39 @@ class DeviceLogic:
         self.setpoint = min(max(message.value, -self.dac_zero), self.dac_max - self.dac_zero)
         self.last_u_us = now_us
         self.watchdog_tripped = False
+        if message.tag is None or not self.enabled:
+            self.end_report()
+        else:
+            self.pending_tag = message.tag
+            if self._first_tag is None:
+                self._first_tag = message.tag
         return [], False
+
+    # -- the latency report (version 2) ------------------------------------------------------
+    def end_report(self) -> None:
+        """No tagged command is in force any more: ``S`` lines without the report."""
+        self.pending_tag = self.applied_tag = self._first_tag = None
+
+    def output_written(self, now_us: int) -> None:
+        """The output was written at ``now_us`` (the sketch's DAC write): a pending tagged
+        command took effect then."""
+        if self.pending_tag is not None:
+            self.command_applied(self.pending_tag, now_us)
+
+    def take_pending(self) -> int | None:
+        """The pending tag, handed over to whoever reports it acting (the emulator's plant)."""
+        tag, self.pending_tag = self.pending_tag, None
+        return tag
+
+    def command_applied(self, tag: int, now_us: int) -> None:
+        """The command tagged ``tag`` took effect at device time ``now_us`` [us]. Ignored
+        for a tag from before the report last ended."""
+        first = self._first_tag
+        if first is None or (tag - first) % jp.UINT32 >= jp.UINT32 // 2:
+            return
+        if self.pending_tag == tag:
+            self.pending_tag = None
+        self.applied_tag, self.applied_us = tag, now_us % jp.UINT32
 
     @staticmethod
     def error(code: int, text: str) -> bytes:
@@ -106,6 +156,7 @@ class DeviceLogic:
         if self.enabled and not self.watchdog_tripped and \
                 elapsed_us(now_us, self.last_u_us) > self.watchdog_us - self.sample_period_us:
             self.watchdog_tripped = True
+            self.end_report()
             out.append(self.error(jp.ERROR_CODES['watchdog'], 'watchdog'))
         if self.enabled and limit_left and not self._limit_left:
             out.append(self.error(jp.ERROR_CODES['limit'], 'limit left'))
@@ -137,9 +188,15 @@ class DeviceLogic:
                 | (jp.FLAG_LIMIT_RIGHT if self._limit_right else 0))
 
     def sample_line(self, now_us: int, cart_ticks: int, pend_ticks: int) -> bytes | None:
-        """The ``S`` line of this sample if streaming (seq counts every sample period)."""
+        """The ``S`` line of this sample if streaming (seq counts every sample period), with
+        the latency report while a tagged command is in force."""
         seq = self.seq
         self.seq = (self.seq + 1) % jp.UINT32
         if not self.streaming:
             return None
-        return jp.encode(jp.Sample(seq, now_us % jp.UINT32, cart_ticks, pend_ticks, self.flags()))
+        now_us %= jp.UINT32
+        back = age = None
+        if self.applied_tag is not None:
+            back = (seq - self.applied_tag) % jp.UINT32
+            age = (now_us - self.applied_us) % jp.UINT32
+        return jp.encode(jp.Sample(seq, now_us, cart_ticks, pend_ticks, self.flags(), back, age))

@@ -145,6 +145,20 @@ class DeviceClock:
         self.latency = receipt - stamp
         return stamp
 
+    def stamp_of(self, t_us: int) -> float | None:
+        """The host time [s] of another device time ``t_us`` near the last sample's (before
+        or after it, within 2**31 us), on the mapping the last sample was stamped with
+        (its applied offset carried along the drift): how a time the device reports
+        besides its samples' (when a command took effect) is put on the host clock, exactly
+        as the samples' are. None before the first sample. Changes nothing."""
+        if self._last_raw is None or self._offset_applied is None:
+            return None
+        delta = (int(t_us) - self._last_raw) % UINT32
+        if delta >= UINT32 // 2:
+            delta -= UINT32
+        d = delta * 1e-6
+        return self._tau_last + d + self._offset_applied + self.drift * d
+
     # -- the estimate -------------------------------------------------------------------------
     def _observe(self, tau: float, y: float) -> None:
         cfg = self.config

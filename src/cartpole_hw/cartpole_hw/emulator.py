@@ -9,13 +9,24 @@ sample per period on a ``time.monotonic`` deadline schedule (deadlines are
 ``t0 + k Ts``, so there is no drift; a late period is caught up, a lag of
 more than 0.2 s resynchronises and is counted in ``overruns``).
 
-Per sample period: read the limit switches (cart within ``limit_margin`` of a
-stop or in it), run the watchdog, send ``S`` if streaming, then hold the DAC
-output over the next 5 ms of the plant (zero-order hold). Host lines are
-handled as they arrive (the loop waits on the pty between periods), each at
-its own device time, as the firmware handles them at ``micros()``; so the
-watchdog measures from a ``U``'s real arrival and the current is zero from
-the period that starts at most 50 ms after it (SPEC 8).
+Per sample period: bring the plant up to the period's device time, read the
+limit switches (cart within ``limit_margin`` of a stop or in it), run the
+watchdog, send ``S`` if streaming. Host lines are handled as they arrive (the
+loop waits on the pty between periods), each at its own device time, as the
+firmware handles them at ``micros()``: the plant is first brought up to that
+time under the output in force, then the line acts, so a ``U`` drives the
+plant from its arrival, as the firmware writes the DAC at once (the plant
+runs lazily, always up to the latest event's device time). The watchdog
+measures from a ``U``'s real arrival and the current is zero from the period
+that starts at most 50 ms after it (SPEC 8).
+
+Latency report (protocol version 2): a tagged ``U,<s>,<tag>`` is handed to
+the plant with its tag, and the plant says when it acted
+(:meth:`cartpole_sim.plant.Plant.applied_commands`): at its arrival, or the
+scenario's ``delay`` (and ``jitter``) later. That device time is what the
+following ``S`` lines report (``back``, ``age_us``): the host measures its
+own turnaround plus the injected delay, as on the rig it measures its
+turnaround plus the device's.
 
 Like the firmware it stands in for, the emulator must not stall: ``cartpole
 emulate`` takes the loop processes' real-time hygiene
@@ -128,6 +139,16 @@ class Emulator:
         self._reconnect_at: float | None = None
         self._pending_disconnect: float | None = None
         self.t_us = 0
+        """Device time of the coming sample period [us] (uint32, wraps like ``micros()``)."""
+        self._device_us = 0
+        """The same, unwrapped (the plant's clock: plant time = device time)."""
+        self._plant_us = 0
+        """Unwrapped device time the plant has been brought up to [us]."""
+        self.applied: deque[tuple[int, int, int]] = deque(maxlen=1000)
+        """``(tag, t_us of the tagged sample, applied t_us)`` of the latest tagged commands
+        that took effect on the plant: the device's own record of the loop's latency."""
+        self._tag_sample_us: dict[int, int] = {}
+        """seq -> t_us of the recent samples (the last 100), for :attr:`applied`."""
         self.samples = 0
         self.overruns = 0
         self.lines_in = 0
@@ -250,8 +271,12 @@ class Emulator:
         self.feed(data, self.t_us if now_us is None else now_us)
 
     def feed(self, data: bytes, now_us: int) -> None:
-        """Host bytes arriving at device time ``now_us`` [us]: handle every complete line."""
-        for item in self._splitter.feed(data):
+        """Host bytes arriving at device time ``now_us`` [us] (at most one period before
+        the coming one): the plant is brought up to then, and every complete line acts."""
+        items = self._splitter.feed(data)
+        if items:
+            self._advance(self._device_us - (self.t_us - now_us) % jp.UINT32)
+        for item in items:
             if isinstance(item, jp.DecodeError):
                 self._send(self.device.error(jp.ERROR_CODES[item.reason], item.reason))
                 continue
@@ -263,6 +288,24 @@ class Emulator:
                 self._offset = self.plant.encoder_counts()
             for reply in replies:
                 self._send(reply)
+
+    def _advance(self, to_us: int) -> None:
+        """Run the plant up to the unwrapped device time ``to_us`` under the output in
+        force (the DAC's setpoint, zero-order hold); a tagged command written since the
+        last call goes in with its tag, and the plant's reports of tagged commands that
+        acted become the device's latency report."""
+        if to_us <= self._plant_us:
+            return
+        tag = self.device.take_pending()
+        force = self.calibration.setpoint_to_force(self.device.output_setpoint())
+        self.plant.step(force, (to_us - self._plant_us) * 1e-6, tag)
+        self._plant_us = to_us
+        for tag_, applied in self.plant.applied_commands():
+            applied_us = int(round(applied * 1e6)) % jp.UINT32
+            self.device.command_applied(int(tag_), applied_us)
+            sampled = self._tag_sample_us.get(int(tag_))
+            if sampled is not None:
+                self.applied.append((int(tag_), sampled, applied_us))
 
     def device_time_us(self, until_next_period: float) -> int:
         """Device time [us] ``until_next_period`` wall seconds before the coming period."""
@@ -282,19 +325,24 @@ class Emulator:
         return (wrap_counter(cart - self._offset[0], bits), wrap_counter(pend - self._offset[1], bits))
 
     def sample_period(self) -> None:
-        """One 5 ms period of the firmware loop, then the plant over it (ZOH)."""
+        """One 5 ms period of the firmware loop: the plant up to its start, limit switches,
+        watchdog, the sample."""
+        self._advance(self._device_us)
         left, right = self.limits()
         for line in self.device.tick(self.t_us, left, right):
             self._send(line)
         cart, pend = self.counters()
         lost = self.plant.sample_lost()  # scenario drop: this sample never reaches the host
+        seq = self.device.seq
+        self._tag_sample_us[seq] = self.t_us
+        self._tag_sample_us.pop((seq - 100) % jp.UINT32, None)
         line = self.device.sample_line(self.t_us, cart, pend)
         if line is not None and not lost:
             self._send(line)
-        force = self.calibration.setpoint_to_force(self.device.output_setpoint())
-        self.plant.step(force)
         self.samples += 1
-        self.t_us = (self.t_us + int(round(self.params.sample_time * 1e6))) % jp.UINT32
+        period_us = int(round(self.params.sample_time * 1e6))
+        self.t_us = (self.t_us + period_us) % jp.UINT32
+        self._device_us += period_us
 
     def _scheduled_faults(self, t: float) -> None:
         for at, ms in list(self.faults.stalls):

@@ -12,7 +12,10 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
   stamps) and read on the node clock) from the reader thread, for every valid
   ``S`` line;
 - subscribes ``/cartpole/force_command`` (``name=['cart']``, ``effort=[F]``)
-  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed; a
+  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed, tagged
+  ``U,<setpoint>,<seq>`` with the ``seq`` of the sample it answers (found by its
+  stamp among the last :data:`RECEIPTS_KEPT` published) when the device speaks
+  protocol version 2; a
   command's age (the bridge's freshness rule) counts from the host's receipt
   of the sample it answers (found by its stamp), not from the device's
   sampling time: the USB latency before the receipt is the device
@@ -22,6 +25,12 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
   ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
   status ``hw_bridge``) every ``health_period``;
+- publishes ``/cartpole/command_applied`` (sensor_msgs/TimeReference,
+  ``source='hw_bridge'``) from the reader thread, once for every command the
+  device reports in force (protocol version 2): ``time_ref`` = the stamp this
+  bridge gave the sample the command answers, ``header.stamp`` = when it took
+  effect, the device's time mapped to the host clock as the samples' are: the
+  controller manager's measure of the loop's latency;
 - after a homing (the position reference moved: x = 0 now), announces it on
   ``/cartpole/plant_reset`` (std_msgs/Header, stamp = the first sample's)
   before that sample, so the EKF re-initialises instead of filtering the jump.
@@ -40,7 +49,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 SetParametersResult)
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 
@@ -139,9 +148,15 @@ class HwBridgeNode(Node):
         self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
         self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
+        self._applied_pub = self.create_publisher(TimeReference, '/cartpole/command_applied',
+                                                  PUBLISH_DEPTH)
         self._homes_announced = 0
-        self._received: dict[int, int] = {}
-        """Stamp [ns] of each recent published sample -> node-clock time of its receipt [ns]."""
+        self._version_logged: int | None = None
+        self._received: dict[int, tuple[int, int]] = {}
+        """Stamp [ns] of each recent published sample -> (node-clock time of its receipt
+        [ns], its seq)."""
+        self._stamp_of_seq: dict[int, int] = {}
+        """seq of each recent published sample -> its stamp [ns]."""
         self._received_order: collections.deque = collections.deque()
         self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
         self.create_service(SetBool, '~/arm', self._on_arm)
@@ -161,7 +176,11 @@ class HwBridgeNode(Node):
         msg = JointState()
         stamp_ns, received_ns = self._node_time_ns(sample.stamp)
         msg.header.stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-        self._note_receipt(stamp_ns, received_ns)
+        self._note_receipt(stamp_ns, received_ns, sample.seq)
+        if sample.applied is not None:
+            self._publish_applied(sample, stamp_ns)
+        if self.core.device_version != self._version_logged:
+            self._log_version()
         msg.header.frame_id = ''
         msg.name = ['cart', 'pendulum']
         msg.position = [sample.x, sample.theta]
@@ -175,18 +194,59 @@ class HwBridgeNode(Node):
             ok, reason = self.link.call(lambda core, now: core.home(now))
             self.get_logger().info(f'home_on_start: {reason}')
 
-    def _note_receipt(self, stamp_ns: int, received_ns: int) -> None:
-        """Remember that the sample stamped ``stamp_ns`` was received at ``received_ns``
-        (node clock; the last :data:`RECEIPTS_KEPT`)."""
-        self._received[stamp_ns] = received_ns
-        self._received_order.append(stamp_ns)
+    def _publish_applied(self, sample: JointSample, stamp_ns: int) -> None:
+        """``/cartpole/command_applied`` for the command the device reports in force:
+        ``time_ref`` the stamp given to the sample it answers, ``header.stamp`` when it
+        took effect, on the node clock through the same offset as this sample's stamp."""
+        applied = sample.applied
+        source_ns = self._stamp_of_seq.get(applied.seq)
+        if source_ns is None:   # not a sample published here (before a homing, say)
+            return
+        applied_ns = stamp_ns + int(round((applied.stamp - sample.stamp) * 1e9))
+        msg = TimeReference()
+        msg.header.stamp = Time(sec=applied_ns // 10**9, nanosec=applied_ns % 10**9)
+        msg.time_ref = Time(sec=source_ns // 10**9, nanosec=source_ns % 10**9)
+        msg.source = 'hw_bridge'
+        self._applied_pub.publish(msg)
+
+    def _log_version(self) -> None:
+        """Say once (per device version seen) whether the loop's latency is reported."""
+        version = self.core.device_version
+        self._version_logged = version
+        if version is None:
+            return
+        if self.core.tags_commands:
+            self.get_logger().info(
+                f'device speaks protocol {version}: commands tagged, the latency it reports '
+                f'is published on /cartpole/command_applied')
+        else:
+            self.get_logger().warning(
+                f'device speaks protocol {version}: it works, but reports no latency '
+                f'(commands untagged, nothing on /cartpole/command_applied); flash the '
+                f'protocol-{jp.PROTOCOL_VERSION} firmware for the latency compensation')
+
+    def _note_receipt(self, stamp_ns: int, received_ns: int, seq: int) -> None:
+        """Remember that the sample ``seq`` stamped ``stamp_ns`` was received at
+        ``received_ns`` (node clock; the last :data:`RECEIPTS_KEPT`)."""
+        self._received[stamp_ns] = (received_ns, seq)
+        self._stamp_of_seq[seq] = stamp_ns
+        self._received_order.append((stamp_ns, seq))
         while len(self._received_order) > RECEIPTS_KEPT:
-            self._received.pop(self._received_order.popleft(), None)
+            old_stamp, old_seq = self._received_order.popleft()
+            self._received.pop(old_stamp, None)
+            if self._stamp_of_seq.get(old_seq) == old_stamp:
+                del self._stamp_of_seq[old_seq]
 
     def command_age(self, stamp_ns: int, now_ns: int) -> float:
         """Age [s] of a command answering the sample stamped ``stamp_ns``: from that
         sample's receipt when it is one of ours, else from the stamp itself."""
-        return (now_ns - self._received.get(stamp_ns, stamp_ns)) * 1e-9
+        received = self._received.get(stamp_ns)
+        return (now_ns - (stamp_ns if received is None else received[0])) * 1e-9
+
+    def sample_seq(self, stamp_ns: int) -> int | None:
+        """``seq`` of the published sample stamped ``stamp_ns`` (None: not one of ours)."""
+        received = self._received.get(stamp_ns)
+        return None if received is None else received[1]
 
     def _node_time_ns(self, link_time: float) -> tuple[int, int]:
         """``link_time`` (the link's clock, monotonic) on the node clock [ns], and the node
@@ -209,11 +269,12 @@ class HwBridgeNode(Node):
                 self.core.counts.bad_commands += 1
             return
         stamp = msg.header.stamp
-        latency = None
+        latency = tag = None
         if stamp.sec or stamp.nanosec:
-            latency = self.command_age(stamp.sec * 10**9 + stamp.nanosec,
-                                       self.get_clock().now().nanoseconds)
-        self.link.call(lambda core, now: (True, '', core.on_command(force, now, latency)))
+            stamp_ns = stamp.sec * 10**9 + stamp.nanosec
+            latency = self.command_age(stamp_ns, self.get_clock().now().nanoseconds)
+            tag = self.sample_seq(stamp_ns)
+        self.link.call(lambda core, now: (True, '', core.on_command(force, now, latency, tag)))
 
     # -- arm / home --------------------------------------------------------------------------------
     def _on_arm(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:

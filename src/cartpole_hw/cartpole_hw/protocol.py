@@ -13,10 +13,38 @@ host -> device     ``E,1`` / ``E,0``                           :class:`Enable`
 host -> device     ``R``                                       :class:`ResetCounters`
 host -> device     ``L,1`` / ``L,0``                           :class:`Stream`
 host -> device     ``U,<setpoint>``                            :class:`Setpoint`
+host -> device     ``U,<setpoint>,<tag>`` (version 2)          :class:`Setpoint`
 device -> host     ``V,<version>,<name>``                      :class:`Version`
 device -> host     ``S,<seq>,<t_us>,<cart>,<pend>,<flags>``    :class:`Sample`
+device -> host     ``S,...,<flags>,<back>,<age_us>`` (v2)      :class:`Sample`
 device -> host     ``!,<code>,<text>``                         :class:`DeviceError`
 =================  ==========================================  ===========
+
+Version 2 (:data:`PROTOCOL_VERSION`) adds the loop's latency report. The
+host tags a setpoint with the ``seq`` of the sample it was computed from
+(``U,<setpoint>,<tag>``); the untagged ``U,<setpoint>`` stays valid (the zero
+commands of a disarm, which answer no sample). Every sample line after a
+tagged setpoint took effect carries two more fields: which command is in
+force and when it took effect, both relative to the sample itself, in the
+device's own units:
+
+- ``back``: ``seq - tag`` (mod 2**32), how many samples before this one the
+  sample the command answers was taken;
+- ``age_us``: ``t_us - applied`` (mod 2**32), how long before this sample
+  the command took effect (``micros()`` when the firmware wrote it to the
+  DAC; in the emulator when it acts on the plant, its scenario delay
+  included).
+
+So ``applied_seq = seq - back`` and ``applied_t_us = t_us - age_us``
+(:attr:`Sample.applied_seq`, :attr:`Sample.applied_t_us`). Relative, not
+absolute: the line stays as short as a version-1 line plus a few bytes
+(``,2,3100``), which matters on the programming port's 115200 baud (200
+lines a second of 60 bytes would not fit). The two fields are absent (the
+version-1 form, 5 fields) until the first tagged setpoint took effect and
+again after anything that ends it: an untagged ``U``, ``E``, the watchdog,
+a tagged ``U`` while disabled. A version-1 host sends no tags, so it never
+sees a 7-field line from a version-2 device. The host accepts both forms,
+the device both ``U`` forms.
 
 Field rules (the firmware's ``joint_protocol.cpp`` implements the same; the
 shared vectors in ``firmware/test_vectors/protocol_vectors.txt`` pin both):
@@ -29,7 +57,8 @@ shared vectors in ``firmware/test_vectors/protocol_vectors.txt`` pin both):
 - ``flags`` is 0..15 (bit 0 enabled, bit 1 watchdog tripped, bit 2 left
   limit switch, bit 3 right limit switch);
 - ``U``'s setpoint is int16 on the wire; the device clamps it to the DAC
-  range (DAC value = 1953 + setpoint in 0..4095, Appendix A);
+  range (DAC value = 1953 + setpoint in 0..4095, Appendix A); its tag,
+  ``back`` and ``age_us`` are uint32;
 - ``E``/``L`` take exactly ``0`` or ``1``; ``V``'s version is 0..65535 and
   its name non-empty; ``!``'s code is 0..255 and its text is everything after
   the second comma (commas allowed, ``*`` not);
@@ -49,8 +78,11 @@ from typing import Iterable, Union
 
 from cartpole_sim.model import CartPoleParameters, EncoderResolution, wrap_counter
 
-PROTOCOL_VERSION = 1
-"""Version the device announces in ``V`` and the host expects."""
+PROTOCOL_VERSION = 2
+"""Version the device announces in ``V`` (2: tagged setpoints and the latency report)."""
+LATENCY_REPORT_VERSION = 2
+"""The first version with tagged ``U`` and the ``S`` latency fields; a device of an older
+version gets untagged setpoints only (it would refuse a tag as ``bad_field_count``)."""
 
 MAX_LINE = 96
 """Longest accepted line in bytes, checksum included, terminator excluded."""
@@ -123,13 +155,18 @@ class Stream:
 
 @dataclass(frozen=True)
 class Setpoint:
-    """``U,<setpoint>``: signed current setpoint, F = 0.017623 N x setpoint (A.3)."""
+    """``U,<setpoint>[,<tag>]``: signed current setpoint, F = 0.017623 N x setpoint (A.3);
+    ``tag`` (version 2): the ``seq`` of the sample the command was computed from."""
 
     value: int
+    tag: int | None = None
 
     def body(self) -> str:
         _check_range('setpoint', self.value, INT16_MIN, INT16_MAX)
-        return f'U,{int(self.value)}'
+        if self.tag is None:
+            return f'U,{int(self.value)}'
+        _check_range('tag', self.tag, 0, UINT32 - 1)
+        return f'U,{int(self.value)},{int(self.tag)}'
 
 
 @dataclass(frozen=True)
@@ -147,13 +184,17 @@ class Version:
 
 @dataclass(frozen=True)
 class Sample:
-    """``S,<seq>,<t_us>,<cart_ticks>,<pend_ticks>,<flags>``: one 5 ms sample."""
+    """``S,<seq>,<t_us>,<cart_ticks>,<pend_ticks>,<flags>[,<back>,<age_us>]``: one 5 ms
+    sample; ``back`` and ``age_us`` (version 2, both or neither): the command in force
+    answers sample ``seq - back`` and took effect ``age_us`` before this sample."""
 
     seq: int
     t_us: int
     cart_ticks: int
     pend_ticks: int
     flags: int
+    back: int | None = None
+    age_us: int | None = None
 
     def body(self) -> str:
         _check_range('seq', self.seq, 0, UINT32 - 1)
@@ -161,8 +202,23 @@ class Sample:
         _check_range('cart_ticks', self.cart_ticks, INT16_MIN, INT16_MAX)
         _check_range('pend_ticks', self.pend_ticks, INT16_MIN, INT16_MAX)
         _check_range('flags', self.flags, 0, 15)
-        return (f'S,{int(self.seq)},{int(self.t_us)},{int(self.cart_ticks)},'
+        body = (f'S,{int(self.seq)},{int(self.t_us)},{int(self.cart_ticks)},'
                 f'{int(self.pend_ticks)},{int(self.flags)}')
+        if self.back is None and self.age_us is None:
+            return body
+        _check_range('back', self.back, 0, UINT32 - 1)
+        _check_range('age_us', self.age_us, 0, UINT32 - 1)
+        return f'{body},{int(self.back)},{int(self.age_us)}'
+
+    @property
+    def applied_seq(self) -> int | None:
+        """``seq`` of the sample the command in force answers (None: no report)."""
+        return None if self.back is None else (self.seq - self.back) % UINT32
+
+    @property
+    def applied_t_us(self) -> int | None:
+        """Device time [us] at which the command in force took effect (None: no report)."""
+        return None if self.age_us is None else (self.t_us - self.age_us) % UINT32
 
     @property
     def enabled(self) -> bool:
@@ -263,15 +319,17 @@ def _number(field_: bytes, lo: int, hi: int) -> int | str:
     return value
 
 
-_ARGS = {  # type -> (number of fields after the type, per-field (lo, hi) or None for text)
-    'P': (),
-    'R': (),
-    'E': ((0, 1),),
-    'L': ((0, 1),),
-    'U': ((INT16_MIN, INT16_MAX),),
-    'V': ((0, 65535), None),
-    'S': ((0, UINT32 - 1), (0, UINT32 - 1), (INT16_MIN, INT16_MAX), (INT16_MIN, INT16_MAX), (0, 15)),
-    '!': ((0, 255), None),
+_UINT32 = (0, UINT32 - 1)
+_S_FIELDS = (_UINT32, _UINT32, (INT16_MIN, INT16_MAX), (INT16_MIN, INT16_MAX), (0, 15))
+_ARGS = {  # type -> the accepted forms: per field (lo, hi), or None for text
+    'P': ((),),
+    'R': ((),),
+    'E': (((0, 1),),),
+    'L': (((0, 1),),),
+    'U': (((INT16_MIN, INT16_MAX),), ((INT16_MIN, INT16_MAX), _UINT32)),
+    'V': (((0, 65535), None),),
+    'S': (_S_FIELDS, _S_FIELDS + (_UINT32, _UINT32)),
+    '!': (((0, 255), None),),
 }
 
 
@@ -313,11 +371,13 @@ def decode_line(line: bytes | bytearray | str, direction: str | None = None) -> 
         allowed = HOST_TYPES
     if kind not in allowed or (len(body) > 1 and body[1:2] != b','):
         return DecodeError('unknown_type', line)
-    specs = _ARGS[kind]
     fields = body.split(b',', 2) if kind == '!' else body.split(b',')
     args = fields[1:]
-    if len(args) != len(specs):
-        return DecodeError('bad_field_count', line, f'{kind} takes {len(specs)} fields, got {len(args)}')
+    forms = _ARGS[kind]
+    specs = next((form for form in forms if len(form) == len(args)), None)
+    if specs is None:
+        counts = ' or '.join(str(len(form)) for form in forms)
+        return DecodeError('bad_field_count', line, f'{kind} takes {counts} fields, got {len(args)}')
     values: list[int | str] = []
     for spec, raw in zip(specs, args):
         if spec is None:
@@ -336,7 +396,7 @@ def decode_line(line: bytes | bytearray | str, direction: str | None = None) -> 
     if kind == 'L':
         return Stream(bool(values[0]))
     if kind == 'U':
-        return Setpoint(values[0])
+        return Setpoint(*values)
     if kind == 'V':
         if not values[1]:
             return DecodeError('bad_field_count', line, 'empty name')

@@ -19,14 +19,14 @@ def sample(seq, cart=0, pend=0, flags=0):
     return jp.encode(jp.Sample(seq, seq * 5000 % jp.UINT32, cart, pend, flags))[:-1]
 
 
-def ready_core(t=0.0):
-    """A connected, homed core."""
+def ready_core(t=0.0, version=1):
+    """A connected, homed core (of a device speaking protocol ``version``)."""
     core = BridgeCore(BridgeConfig())
     core.on_connect(t)
-    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], t)
+    core.on_line(jp.encode(jp.Version(version, 'dev'))[:-1], t)
     ok, _, lines = core.home(t)
     assert ok and lines == [RESET, jp.encode(jp.Ping())]
-    core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], t)
+    core.on_line(jp.encode(jp.Version(version, 'dev'))[:-1], t)
     assert core.homed
     return core
 
@@ -42,8 +42,10 @@ def test_arming_is_refused_with_reasons_until_connected_answered_and_homed():
     assert 'ping' in core.arm(0.0)[1]
     core.on_line(jp.encode(jp.Version(1, 'dev'))[:-1], 0.0)
     assert 'not homed' in core.arm(0.0)[1]
-    core.on_line(jp.encode(jp.Version(2, 'future'))[:-1], 0.0)
-    assert not core.link_ready and 'version 2' in core.last_error
+    core.on_line(jp.encode(jp.Version(3, 'future'))[:-1], 0.0)
+    assert not core.link_ready and 'version 3' in core.last_error
+    core.on_line(jp.encode(jp.Version(0, 'past'))[:-1], 0.0)
+    assert not core.link_ready and 'version 0' in core.last_error
 
 
 def test_disarmed_bridge_never_sends_a_nonzero_setpoint():
@@ -226,6 +228,104 @@ def test_bad_lines_are_counted_by_reason_and_lost_samples_by_seq():
             h['bad_lines.unknown_type'], h['bad_lines.out_of_range'], h['bad_lines.oversized']) \
         == ('5', '1', '1', '1', '1', '1')
     assert h['lost_samples'] == '2' and h['samples'] == '2'
+
+
+# -- the latency report (protocol version 2) ------------------------------------------------
+def test_a_version_2_device_gets_tagged_setpoints_a_version_1_device_untagged_ones():
+    for version, expected in ((2, jp.Setpoint(113, 7)), (1, jp.Setpoint(113))):
+        core = ready_core(version=version)
+        assert core.tags_commands == (version == 2)
+        core.arm(0.0)
+        core.on_line(sample(7, flags=1), 0.005)
+        lines = core.on_command(2.0, 0.006, latency=0.001, tag=7)
+        assert [jp.decode_line(line) for line in lines] == [expected]
+        # a command that answers no sample of the bridge goes untagged
+        assert jp.decode_line(core.on_command(2.0, 0.007, latency=0.001)[0]) == jp.Setpoint(113)
+        # the zeros of a disarm are untagged
+        assert core.disarm() == [U_ZERO, E_OFF]
+
+
+def test_a_reported_command_is_passed_on_once_with_its_time_on_the_samples_clock():
+    core = ready_core(version=2)
+    core.arm(0.0)
+    t0 = 1000.0                                  # the host clock; receipt = device time + t0
+    stamps = {}
+    reported = []
+    for k in range(1, 12):
+        back_age = (2, 10_000 - 1300 - 2000 * (k >= 8)) if k >= 4 else (None, None)
+        # from sample 4 on: the command answering sample k - 2 took effect 1.3 ms (from 8 on
+        # 3.3 ms) after it, i.e. reported 2 samples later with age 10 - 1.3 ms
+        line = jp.encode(jp.Sample(k, k * 5000, 0, 0, 1, *back_age))[:-1]
+        s = core.on_line(line, t0 + k * 0.005 + 0.0004).sample
+        stamps[k] = s.stamp
+        if s.applied is not None:
+            reported.append((k, s.applied))
+    assert [k for k, _ in reported] == list(range(4, 12))      # a new command each sample
+    for k, applied in reported:
+        assert applied.seq == k - 2
+        latency = 0.0013 + 0.002 * (k >= 8)
+        assert applied.stamp - stamps[k - 2] == pytest.approx(latency, abs=1e-9)
+        assert applied.latency == pytest.approx(latency, abs=1e-12)
+    # the same command reported again is not passed on again; the report ending is quiet
+    again = core.on_line(jp.encode(jp.Sample(12, 60_000, 0, 0, 1, 3, 13_300))[:-1], t0 + 0.0604)
+    assert again.sample.applied is None
+    quiet = core.on_line(jp.encode(jp.Sample(13, 65_000, 0, 0, 1))[:-1], t0 + 0.0654)
+    assert quiet.sample.applied is None
+    h = core.health()
+    assert h['actuation_reports'] == '8' and float(h['actuation_latency_s']) == pytest.approx(0.0033)
+
+
+def test_the_device_clock_maps_a_reported_time_like_a_sample_time():
+    from cartpole_hw.device_clock import DeviceClock
+    clock = DeviceClock()
+    assert clock.stamp_of(0) is None
+    for k in range(400):                         # 2 s, a drifting device clock (+50 ppm)
+        t_us = (jp.UINT32 - 1_000_000 + k * 5000) % jp.UINT32     # across the wrap
+        stamp = clock.stamp(t_us, 50.0 + k * 0.005 * (1 + 50e-6) + 0.0002 * (k % 3))
+    assert clock.stamp_of(t_us) == pytest.approx(stamp, abs=1e-12)
+    ahead = clock.stamp((t_us + 5000) % jp.UINT32, 50.0 + 400 * 0.005 * (1 + 50e-6))
+    # a time between two samples: on the line through both stamps (to the slew per sample)
+    between = clock.stamp_of((t_us + 2000) % jp.UINT32)
+    assert between == pytest.approx(stamp + 0.4 * (ahead - stamp), abs=2e-5)
+    assert clock.stamp_of((t_us - 3000) % jp.UINT32) < stamp
+
+
+@pytest.mark.parametrize('events,expected', vectors.load('report'))
+def test_device_latency_report_shared_vectors(events, expected):
+    """The same vectors as the firmware's C++ test: the latency report of protocol 2."""
+    d = DeviceLogic()
+    got = []
+    for event in events.split():
+        what, at = event.split('@')
+        now = int(at)
+        if what == 'W':
+            d.output_written(now)
+        elif what == 'S':
+            d.tick(now, False, False)
+            got.append(jp.canonical(jp.decode_line(d.sample_line(now, 0, 0))))
+        else:
+            replies, _ = d.handle_line(jp.frame(what), now)
+            assert replies == []
+    assert ';'.join(got) == expected
+
+
+def test_device_reports_a_delayed_command_only_if_it_is_still_the_current_run():
+    # The emulator's path: the plant says when a tagged command acted (after its delay).
+    d = DeviceLogic()
+    d.handle_line(jp.encode(jp.Enable(True)), 0)
+    d.handle_line(jp.encode(jp.Setpoint(50, 3)), 1000)
+    assert d.take_pending() == 3 and d.take_pending() is None
+    d.command_applied(3, 21000)
+    assert (d.applied_tag, d.applied_us) == (3, 21000)
+    d.handle_line(jp.encode(jp.Setpoint(50, 4)), 6000)
+    d.handle_line(jp.encode(jp.Setpoint(0)), 7000)             # a disarm's zero: report ends
+    d.command_applied(4, 26000)                                # 4 acts late: not reported
+    assert d.applied_tag is None
+    d.handle_line(jp.encode(jp.Setpoint(50, 9)), 30000)
+    d.command_applied(4, 31000)                                # older than this run: ignored
+    assert d.applied_tag is None
+    d.command_applied(9, 50000)
+    assert d.applied_tag == 9
 
 
 # -- the device logic (mirror of joint_protocol.cpp, run by the emulator) ---------------------

@@ -61,7 +61,8 @@ def test_streams_5ms_samples_200_per_second_of_device_time(emulator):
     c.send(jp.Ping(), jp.Stream(True))
     assert c.pump(lambda c: len(c.samples) >= 200)
     s = c.samples
-    assert any(isinstance(m, jp.Version) and m.version == 1 for m in c.messages)
+    assert any(isinstance(m, jp.Version) and m.version == jp.PROTOCOL_VERSION
+               for m in c.messages)
     assert [b.seq - a.seq for a, b in zip(s, s[1:])] == [1] * (len(s) - 1)      # none lost
     assert {b.t_us - a.t_us for a, b in zip(s, s[1:])} == {5000}                # Ts = 5 ms
     per_second = (len(s) - 1) / ((s[-1].t_us - s[0].t_us) * 1e-6)
@@ -119,6 +120,7 @@ def test_setpoint_between_periods_is_zeroed_within_50ms_of_its_arrival(before_pe
         driving = em.plant.force
         em.sample_period()
     zero_from = (em.t_us - 5000) % jp.UINT32      # the period that tripped starts here
+    em.sample_period()                            # the plant runs (lazily) through it
     assert driving == pytest.approx(600 / 56.744, rel=0.01)      # driven until then
     assert em.plant.force == pytest.approx(0.0, abs=1e-6)        # zero from then on
     assert 45_000 < zero_from - arrival <= 50_000
@@ -227,3 +229,46 @@ def test_command_line_takes_the_scenario_options():
 def test_command_line_refuses_a_bad_scenario(capsys):
     assert main(['--delay', '0.5']) == 2
     assert '--delay must be <= 0.04' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('delay', [0.0, 0.02])
+def test_a_tagged_setpoint_acts_from_its_arrival_plus_the_delay_and_is_reported(delay):
+    """The emulator core in device time: a tagged U arriving 1.3 ms after the sample it
+    answers drives the plant from then (plus the scenario's delay), and the S lines say
+    so (protocol version 2: ``back``, ``age_us``), as the firmware reports its DAC write."""
+    em = Emulator(Scenario(x0=0.3, delay=delay))
+    sent = []
+    em._send = sent.append
+    em.feed(jp.encode(jp.Stream(True)) + jp.encode(jp.Enable(True)), em.t_us)
+    for _ in range(12):
+        em.sample_period()
+        answered = em.device.seq - 1
+        em.feed(jp.encode(jp.Setpoint(300, answered)), (em.t_us - 5000 + 1300) % jp.UINT32)
+    samples = [m for m in map(jp.decode_line, sent) if isinstance(m, jp.Sample)]
+    latency_us = 1300 + round(delay * 1e6)
+    reported = [s for s in samples if s.applied_seq is not None]
+    assert reported, samples
+    # the first report comes with the first sample after the first command acted
+    assert reported[0].t_us == (latency_us // 5000 + 1) * 5000
+    for s in reported:
+        assert (s.applied_t_us - s.applied_seq * 5000) % jp.UINT32 == latency_us
+        assert s.back * 5000 - s.age_us == latency_us
+    assert [s.t_us for s in samples if s.applied_seq is None] == \
+        [t for t in range(0, reported[0].t_us, 5000)]
+    # the emulator's own record: sample time and application of every tagged command
+    assert {(applied - sampled) % jp.UINT32 for _, sampled, applied in em.applied} == {latency_us}
+    assert em.plant.force == pytest.approx(300 / 56.744, rel=0.02)
+
+
+def test_an_untagged_setpoint_ends_the_report():
+    em = Emulator(Scenario(x0=0.3))
+    sent = []
+    em._send = sent.append
+    em.feed(jp.encode(jp.Stream(True)) + jp.encode(jp.Enable(True)), em.t_us)
+    em.sample_period()
+    em.feed(jp.encode(jp.Setpoint(300, 0)), (em.t_us - 4000) % jp.UINT32)
+    em.sample_period()
+    em.feed(jp.encode(jp.Setpoint(0)), (em.t_us - 4000) % jp.UINT32)
+    em.sample_period()
+    s = [m for m in map(jp.decode_line, sent) if isinstance(m, jp.Sample)]
+    assert [(m.applied_seq, m.applied_t_us) for m in s] == [(None, None), (0, 1000), (None, None)]

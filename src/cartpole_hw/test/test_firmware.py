@@ -1,5 +1,6 @@
 """The firmware's protocol code, compiled with g++ on the host, passes the shared vectors;
 the sketch itself compiles against a minimal Arduino stub (syntax and types only)."""
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -29,7 +30,7 @@ inline uint32_t micros() { return fake_us += 700; }
 inline void analogWrite(int, int v) { dac_written = v; }
 inline void analogWriteResolution(int) {}
 struct FakeSerial {
-  const char *in = "P*50\nE,1*58\nU,100*48\nL,1*51\n";
+  const char *in = "P*50\nE,1*58\nL,1*51\nU,100,0*54\n";
   size_t pos = 0, written = 0;
   void begin(unsigned long) {}
   int available() { return in[pos] ? 1 : 0; }
@@ -46,13 +47,21 @@ STUB_MAIN = r'''
 #include <stdio.h>
 int main() {
   setup();
-  for (int i = 0; i < 1000; ++i) loop();
-  // 0.7 s of loop: the U,100 was taken, then the 50 ms watchdog tripped and
-  // the DAC went back to zero current (1953); S lines streamed after L,1
-  printf("dac=%d setpoint=%d tripped=%d written=%zu\n", dac_written, (int)dev.setpoint,
-         (int)dev.watchdog_tripped, SerialUSB.written);
+  // the tagged U,100,0 (protocol 2) is taken and reported in force from the DAC write on
+  bool reported = false;
+  uint32_t applied_us = 0;
+  for (int i = 0; i < 1000; ++i) {
+    loop();
+    if (dev.applied && !reported) { reported = true; applied_us = dev.applied_us; }
+  }
+  // 0.7 s of loop: the U,100 was taken, then the 50 ms watchdog tripped (ending the
+  // report) and the DAC went back to zero current (1953); S lines streamed after L,1
+  printf("dac=%d setpoint=%d tripped=%d written=%zu reported=%d applied_us=%u\n",
+         dac_written, (int)dev.setpoint, (int)dev.watchdog_tripped, SerialUSB.written,
+         (int)reported, (unsigned)applied_us);
   return (dev.enabled && dev.setpoint == 100 && dev.watchdog_tripped && dac_written == 1953
-          && dev.seq > 100 && SerialUSB.written > 100 * 20) ? 0 : 1;
+          && dev.seq > 100 && SerialUSB.written > 100 * 20 && reported && applied_us > 0
+          && !dev.applied) ? 0 : 1;
 }
 '''
 
@@ -68,7 +77,8 @@ def test_firmware_protocol_passes_the_shared_vectors(tmp_path):
                             capture_output=True, text=True, timeout=30)
     assert result.returncode == 0, result.stdout + result.stderr
     assert '0 failures' in result.stdout
-    assert 'vectors: 7' in result.stdout     # 70+ decode vectors were read
+    assert re.search(r'vectors: \d{2,} decode', result.stdout)     # 70+ decode vectors
+    assert re.search(r'[1-9]\d* report', result.stdout)
 
 
 def test_sketch_compiles_against_an_arduino_stub(tmp_path):

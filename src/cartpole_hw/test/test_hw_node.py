@@ -203,7 +203,7 @@ def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
     node = rig.node
     now = node.get_clock().now().nanoseconds
     sampled = now - 80_000_000                 # device time of a sample read just now
-    node._note_receipt(sampled, now)
+    node._note_receipt(sampled, now, 12345)
     assert node.command_age(sampled, now) < 0.01
     assert node.command_age(sampled - 5_000_000, now) == pytest.approx(0.085)
     assert rig.spin(lambda: len(rig.joint_states) > 3, force=1.0)
@@ -217,3 +217,39 @@ def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
     assert rig.spin(lambda: int(rig.h().get('stale_commands', '0')) > stale_before,
                     force=1.0), rig.h()
     assert rig.h().get('armed') == 'true'
+
+
+def test_commands_answering_samples_go_tagged_and_their_application_is_published(rig):
+    """Protocol version 2 end to end in one process: a controller answering each sample
+    with its stamp; the bridge tags the setpoints with the samples' seq, the emulator
+    reports when each took effect (in device time), and ``/cartpole/command_applied``
+    pairs the sample's stamp with that time on the same clock: the latency it shows is
+    the device's own record of it."""
+    from sensor_msgs.msg import JointState, TimeReference
+
+    reports = []
+    rig.probe.create_subscription(TimeReference, '/cartpole/command_applied', reports.append, 1000)
+    answered = [0]
+
+    def answer():
+        for msg in rig.joint_states[answered[0]:]:
+            out = JointState(name=['cart'], effort=[0.5])
+            out.header.stamp = msg.header.stamp
+            rig.pub.publish(out)
+        answered[0] = len(rig.joint_states)
+
+    def ns(t):
+        return t.sec * 10**9 + t.nanosec
+
+    assert rig.spin(lambda: answer() or len(reports) >= 60, timeout=20.0), rig.h()
+    stamps = {ns(m.header.stamp) for m in rig.joint_states}
+    assert all(r.source == 'hw_bridge' and ns(r.time_ref) in stamps for r in reports)
+    assert any(line.count(b',') == 2 for line in rig.em.received if line.startswith(b'U,'))
+    truth = {tag: ((applied - sampled) % 2**32) * 1e-6 for tag, sampled, applied in rig.em.applied}
+    pairs = [((ns(r.header.stamp) - ns(r.time_ref)) * 1e-9,
+              truth[rig.node.sample_seq(ns(r.time_ref))]) for r in reports[-40:]]
+    assert all(0.0 <= measured < 0.3 for measured, _ in pairs), pairs
+    # each the same latency as the device's record, up to the stamps' slew and clock reads
+    assert all(measured == pytest.approx(device, abs=2e-4) for measured, device in pairs), pairs
+    h = rig.h()
+    assert int(h['actuation_reports']) >= 40 and 0.0 < float(h['actuation_latency_s']) < 0.3

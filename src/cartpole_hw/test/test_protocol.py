@@ -33,6 +33,10 @@ def test_vectors_cover_every_reason_and_type():
         assert f'err:{reason}' in expected
     kinds = {e[0] for e in expected if not e.startswith('err:')}
     assert kinds == set('PERLUVS!')
+    # both forms of version 2's longer lines
+    bodies = [e for e in expected if not e.startswith('err:')]
+    assert {e.count(',') for e in bodies if e[0] == 'U'} == {1, 2}
+    assert {e.count(',') for e in bodies if e[0] == 'S'} == {5, 7}
 
 
 @pytest.mark.parametrize('body,line', vectors.load('encode'))
@@ -66,9 +70,10 @@ text = st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E, blacklist_c
 messages = st.one_of(
     st.just(jp.Ping()), st.just(jp.ResetCounters()),
     st.builds(jp.Enable, st.booleans()), st.builds(jp.Stream, st.booleans()),
-    st.builds(jp.Setpoint, int16),
+    st.builds(jp.Setpoint, int16), st.builds(jp.Setpoint, int16, uint32),
     st.builds(jp.Version, st.integers(0, 65535), text.filter(lambda s: s and ',' not in s)),
     st.builds(jp.Sample, uint32, uint32, int16, int16, st.integers(0, 15)),
+    st.builds(jp.Sample, uint32, uint32, int16, int16, st.integers(0, 15), uint32, uint32),
     st.builds(jp.DeviceError, st.integers(0, 255), text),
 )
 
@@ -250,3 +255,21 @@ def test_unwrapping_the_16_bit_counters_across_many_revolutions():
     assert raw == [0, 20000, 32767, -30000, -5000, 20000, -5536, -25536]
     angles = [cal.pendulum_angle(unwrap.update(r)) for r in raw]
     assert angles == pytest.approx([math.pi + c * cal.pendulum_resolution for c in counts])
+
+
+def test_version_2_fields_round_trip_and_give_the_applied_command():
+    s = jp.Sample(3, 2000, 0, 0, 1, 5, 4000)        # across both wraps
+    assert (s.applied_seq, s.applied_t_us) == (jp.UINT32 - 2, jp.UINT32 - 2000)
+    assert jp.decode_line(jp.encode(s)) == s
+    plain = jp.Sample(3, 2000, 0, 0, 1)
+    assert plain.applied_seq is None and plain.applied_t_us is None
+    assert jp.encode(plain) == jp.frame('S,3,2000,0,0,1')      # the version-1 form
+    with pytest.raises(ValueError):
+        jp.encode(jp.Sample(3, 2000, 0, 0, 1, 5, None))     # both or neither
+    with pytest.raises(ValueError):
+        jp.encode(jp.Setpoint(1, -1))
+    assert jp.decode_line(jp.encode(jp.Setpoint(-5, 12))) == jp.Setpoint(-5, 12)
+    # the longest version-2 sample line fits the line limit with room to spare
+    longest = jp.encode(jp.Sample(jp.UINT32 - 1, jp.UINT32 - 1, -32768, -32768, 15,
+                                  jp.UINT32 - 1, jp.UINT32 - 1))
+    assert len(longest) - 1 <= jp.MAX_LINE - 30
