@@ -63,7 +63,7 @@ from std_srvs.srv import Trigger
 
 from .model import CartPoleParameters
 from .plant import Scenario
-from .scenario import DELAY_MAX, parse_push
+from .scenario import DELAY_MAX, DROP_MAX, parse_push
 from .sim_runner import (CART_JOINT, PENDULUM_JOINT, Sample, SampleClock, SimRunner,
                          force_from_command)
 from .node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
@@ -80,6 +80,11 @@ SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'fric
                        'integration_step', 'cart_mass', 'delay', 'jitter', 'drop',
                        'force_noise', 'actuator_gain', 'actuator_tau', 'pushes')
 """Parameters that take effect at the next reset (service ``~/reset``)."""
+
+
+LOST_IN_A_ROW_MAX = 2000
+"""Lockstep: samples lost in a row stepped past at once (10 s at 5 ms); beyond, the node
+waits for its lockstep timeout, so it keeps answering (services, SIGTERM) whatever the drop."""
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -107,9 +112,9 @@ _DISTURBANCE_PARAMETERS = (
     ('delay', 0.0, 'Sensor-to-actuator latency [s]: a command takes effect this long after '
      'the sample it was computed from (inside the hold).', 0.0, DELAY_MAX),
     ('jitter', 0.0, 'Extra latency per sample, uniform in [0, jitter] [s].', 0.0, DELAY_MAX),
-    ('drop', 0.0, 'Probability in [0, 1) that a sample is lost: not published on '
+    ('drop', 0.0, f'Probability in [0, {DROP_MAX:g}] that a sample is lost: not published on '
      '/joint_states (/cartpole/true_state and /clock still are); lockstep steps on at once '
-     'with the held command.', 0.0, 1.0),
+     'with the held command.', 0.0, DROP_MAX),
     ('force_noise', 0.0, 'Std of Gaussian force noise on the cart [N], one draw per sample.',
      0.0, 100.0),
     ('actuator_gain', 1.0, 'Amplifier gain error: the current is this times the commanded '
@@ -437,9 +442,17 @@ class SimNode(Node):
         """Publish ``sample``; past a lost one (no command will answer it) step on at once
         with the held command, as the real-time clock would."""
         self._publish(sample)
+        skipped = 0
         while sample.lost:
+            if skipped >= LOST_IN_A_ROW_MAX:  # bounded: a drop near 1 must not hang the node
+                self.get_logger().error(
+                    f'lockstep: {skipped} samples in a row lost (drop = '
+                    f'{self.get_parameter("drop").value:g}); waiting for the lockstep timeout',
+                    throttle_duration_sec=5.0)
+                return
             sample = self._runner.advance()
             self._publish(sample)
+            skipped += 1
 
     def _on_lockstep_timeout(self) -> None:
         if not self._loop_established:

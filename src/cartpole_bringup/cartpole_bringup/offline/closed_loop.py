@@ -135,6 +135,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     lost_at: list[float] = []
     stopped_at = None
     plugin_status: Mapping[str, float] = {}
+    out = None  # no sample may arrive at all (a scenario that loses every one)
     for k in range(steps):
         if clock:
             t0 = clock()
@@ -206,11 +207,15 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         end_stop_contact=plant.end_stop_contact, fault=first_fault(events),
         controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
                                      started_with['stabilizer']),
-        swingup_law=out.swingup_law if law is None else law, force=run.force)
+        swingup_law=law if law is not None else (out.swingup_law if out is not None else None),
+        force=run.force)
     run.summary.update(loop_summary(manager, plugin_status))
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)
+        if out is None:
+            run.summary.update(success=False,
+                               fault=f'no sample reached the host (all {len(lost_at)} lost)')
     if stopped_at is not None:
         run.summary.update(success=False, stopped_at_s=stopped_at)
     return run

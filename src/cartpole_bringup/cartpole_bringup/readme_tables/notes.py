@@ -93,7 +93,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         '`/cartpole/command_applied`: the mean of the last 200 reports, 0 before 20), '
         '`predict_horizon_s` (the horizon the prediction used: `latency_s` with '
         '`predict.horizon` `auto`), `omega0_sq` (the estimate of the pendulum\'s m_p g l / J '
-        '[1/s^2]), then the active plugin\'s own figures (e.g. `mpc_solve_us`, '
+        '[1/s^2]), `actuator_gain` / `actuator_delay_s` (the actuator\'s gain the command is '
+        'divided by and its estimated extra dead time, added to the horizon with `actuator.delay` '
+        '`auto`), then the active plugin\'s own figures (e.g. `mpc_solve_us`, '
         '`mpc_fallbacks`). '
         'Numbers are `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
         '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
@@ -112,6 +114,11 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'mode (below)',
     ('hw_bridge', '/joint_states'):
         'one message per valid `S` sample: `cart`, `pendulum` positions in SI (conversions below)',
+    ('hw_bridge', '/cartpole/command_applied'):
+        'when each command took effect on the rig, in device time: `time_ref` = the stamp of '
+        'the sample it answered, `header.stamp` = the device\'s time of the setpoint that '
+        'carried it, mapped to the host clock like the samples\' (protocol version 2); '
+        '`source` = `hw_bridge`',
     ('hw_bridge', '/cartpole/hw/health'): 'one status `hw_bridge` every `health_period` (keys below)',
     ('hw_bridge', '/cartpole/plant_reset'):
         'after a homing: stamp = the first sample counted from the new zero',
