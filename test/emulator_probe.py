@@ -1,11 +1,14 @@
 """The emulated rig in its own process, logging what the device received and its output.
 
-Usage: ``python test/emulator_probe.py LINK SECONDS OUT.json``. Opens the
-emulator on a pseudo-terminal linked at LINK and prints ``port <pty>``; runs
-until SECONDS have passed or SIGINT/SIGTERM arrives, then writes the timeline
-(monotonic time, the ``U``/``E`` lines received, the changes of the output
-between zero and non-zero) to OUT.json. Used by test_graph_hw_emulator.py and
-docs/bench/faults (hw_after_kill.py reads the timeline).
+Usage: ``python test/emulator_probe.py LINK SECONDS OUT.json [DELAY]``. Opens the
+emulator on a pseudo-terminal linked at LINK (with the scenario's command delay
+DELAY seconds, default 0) and prints ``port <pty>``; runs until SECONDS have
+passed or SIGINT/SIGTERM arrives, then writes the timeline (monotonic time, the
+``U``/``E`` lines received, the changes of the output between zero and non-zero)
+and ``applied``, the device's record of its last 1000 tagged commands
+(``[tag, t_us of the sample it answers, t_us it took effect]``, protocol version
+2), to OUT.json. Used by test_graph_hw_emulator.py and docs/bench/faults
+(hw_after_kill.py reads the timeline).
 """
 import json
 import signal
@@ -14,11 +17,13 @@ import threading
 import time
 
 from cartpole_hw.emulator import Emulator
+from cartpole_sim.plant import Scenario
 
 
 def main() -> None:
     link, seconds, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
-    emulator = Emulator(link=link)
+    delay = float(sys.argv[4]) if len(sys.argv) > 4 else 0.0
+    emulator = Emulator(Scenario(delay=delay), link=link)
     timeline = []
     handle, step = emulator.device.handle_line, emulator.sample_period
     zero_before = [None]
@@ -45,7 +50,7 @@ def main() -> None:
     done.wait(seconds)
     emulator.stop()
     with open(out, 'w') as f:
-        json.dump({'timeline': timeline}, f)
+        json.dump({'timeline': timeline, 'applied': list(emulator.applied)}, f)
 
 
 if __name__ == '__main__':

@@ -110,3 +110,37 @@ def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_pat
     assert ('output', 'nonzero') not in after[last_zero:], after
     enables = [value for kind, value in after if kind == 'E']
     assert enables and all(v == 'E,0' for v in enables), enables  # never re-armed
+
+
+def test_the_rig_path_measures_an_injected_20_ms_delay_as_the_device_saw_it(tmp_path):
+    """Protocol version 2 through the whole --hw graph: the emulator (its scenario delay 20
+    ms) reports when each tagged command acted, the bridge publishes it on
+    ``/cartpole/command_applied``, and after 2 s of control the controller manager's
+    latency estimate (``latency_s``, the mean of the last 200 reports) is the device's own
+    record of the loop's latency within 1 ms: the 20 ms plus the host's turnaround (a
+    command acts from its arrival, as the firmware writes its DAC at once)."""
+    link, out = tmp_path / 'cartpole-emu', tmp_path / 'emulator.json'
+    log = open(tmp_path / 'emulator.log', 'w')
+    emulator = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name('emulator_probe.py')), str(link), '120',
+         str(out), '0.02'], stdout=subprocess.PIPE, stderr=log, text=True,
+        start_new_session=True)
+    try:
+        assert emulator.stdout.readline().startswith('port'), (tmp_path / 'emulator.log').read_text()
+        run = subprocess.run(
+            [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--hw', '--port', str(link),
+             '--hw-arm', '--duration', '2.5', '--json'],
+            capture_output=True, text=True, timeout=180)
+    finally:
+        interrupt(emulator, 20.0)  # on SIGINT it writes its record and exits
+        log.close()
+    assert run.returncode in (0, 1), run.stderr[-3000:]   # 2.5 s is no whole run
+    summary = json.loads([line for line in run.stdout.splitlines() if line.startswith('{')][-1])
+    assert summary['fault'] is None, (summary, run.stderr[-2000:])
+    applied = json.loads(out.read_text())['applied']
+    device = [((t_applied - t_sampled) % 2**32) * 1e-6 for _, t_sampled, t_applied in applied]
+    assert len(device) >= 200, len(device)       # 1 s of tagged commands at least
+    truth = sum(device[-200:]) / 200
+    assert min(device) >= 0.02                   # the delay is never shortened
+    assert abs(summary['latency_s'] - truth) <= 0.001, (summary['latency_s'], truth)
+    assert 0.02 <= summary['latency_s'] <= 0.03, summary
