@@ -4,8 +4,8 @@ A command computed from the sample taken at ``t_k`` acts on the cart only at
 ``t_k + L``: the host's computation, the link (a USB-serial adapter's latency
 timer alone is 1-16 ms), the device's wait for its next loop. The plant says
 when each command took effect (the simulator from its sample-and-hold, the
-rig in device time, ``A`` fields of the Joint protocol's sample line): a
-report ``(source, applied)`` pairs the stamp of the sample the command was
+rig in device time: the ``back``, ``age_us`` fields of the Joint protocol's
+sample line, version 2): a report ``(source, applied)`` pairs the stamp of the sample the command was
 computed from with the time it reached the amplifier, so ``L = applied -
 source`` needs no synchronised clocks beyond the plant's own.
 
