@@ -9,16 +9,23 @@ the state ``z = [x - x*, theta_w, x_dot, theta_dot, xi]`` and the weights
 MPC adds are the constraints the LQR (8.16)-(8.18) cannot see:
 
 - the force: the amplifier's range [force_min, force_max] (Appendix C, -37.4 /
-  +34.2 N) less the largest Coulomb level of the friction feedforward (6.12)
-  that the manager adds to this raw force (``context.feedforward``), so that
-  ``u + B_ff`` is always inside the range: hard bounds on every predicted move;
-- the cart: inside ``[margin + reserve + clearance, travel - margin - reserve -
-  clearance]`` (``context.rail_margin``, ``context.rail_reserve``, the
-  manager's ``rail.margin`` / ``rail.limit_reserve``, and ``mpc.rail_clearance``):
-  where the rail guard's limiter (:mod:`cartpole_control.rail_guard`) starts
-  bending a moving cart's command. Kept there, the cart never needs the
-  guard, whose trip (``[margin, travel - margin]``) loses the pendulum. Soft,
-  with an exact penalty: the QP is always feasible.
+  +34.2 N) less the friction feedforward (6.12) that the manager adds to this
+  raw force (``context.feedforward``): for a cart moving faster than the
+  feedforward's velocity band that is its kinetic friction along the velocity
+  whatever the command (so braking gets the amplifier's range plus the
+  friction, pushing on its range less it), for a cart at rest either Coulomb
+  level; hard bounds on every predicted move (the first one exact, the later
+  ones with the present direction of motion);
+- the cart: ``x + braking_time x_dot`` inside ``[margin + reserve + clearance,
+  travel - margin - reserve - clearance]`` (``context.rail_margin``,
+  ``context.rail_reserve``, the manager's ``rail.margin`` /
+  ``rail.limit_reserve``, and ``mpc.rail_clearance``). ``x + t_b x_dot`` is
+  a linear upper bound of the rail guard's stopping position (its dead time
+  plus ``x_dot^2 / (2 a_b)``, :mod:`cartpole_control.rail_guard`) up to
+  1.5 m/s, and the boundary is where the guard's limiter starts bending a
+  moving cart's command: kept there, the cart never needs the guard, whose
+  trip (``[margin, travel - margin]``) loses the pendulum. Soft, with an exact
+  l1 penalty: the QP is always feasible.
 
 Each cycle (Mayne et al., "Constrained model predictive control: stability and
 optimality", Automatica 36, 2000; Rawlings, Mayne and Diehl, "Model Predictive
@@ -42,6 +49,16 @@ discretised at Ts = 5 ms is exp(-a Ts) ~ 1e-23: it adds a state that is gone
 within every sample and a DC gain of 1.0066 (10650/10580) that the integral
 takes up. Including it would only make the QP larger (a sixth state).
 
+What the constraints buy, measured (docs/controllers.md): with the LQI's
+weights the sampled optimum is a gain about 9 % softer than the continuous
+LQI's, and the constraints change little. Pushes that the LQI does not
+survive (6 N s on the cart, 0.05 N m s on the pendulum) are not survived
+either: recovering the pendulum needs more rail than the guard's envelope
+leaves, which the linear prediction cannot change. With a large rail
+penalty a cart that reached the boundary at rest can stay parked there (to
+come back it must first move towards the stop, the cart's non-minimum
+phase, which the penalty forbids).
+
 Integral action, anti-windup and bumplessness are the LQI's: ``xi`` starts at
 zero at every activation, the increment ``(x - x*) dt`` is taken at once and
 taken back when the manager reports the command as cut in the direction it
@@ -63,14 +80,16 @@ import numpy as np
 from cartpole_sim.model import linearise_upright
 
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
-from ..mpc_qp import SOLVERS, CondensedQp, QpSettings, discretise
+from ..mpc_qp import SOLVERS, CondensedQp, QpSettings, discretise, sampled_cost
 from . import ConditionalIntegrator, StepClock
 from .lqg import augmented_model
 
-DEFAULT_HORIZON = 100
-"""Prediction steps (0.5 s at 5 ms); see docs/controllers.md for the measurement behind it."""
+DEFAULT_HORIZON = 200
+"""Prediction steps (1 s at 5 ms); see docs/controllers.md for the measurement behind it."""
+DEFAULT_TAIL = 0
+"""Steps after the horizon over which the terminal LQR's forces and cart positions are checked (0: none; see docs/controllers.md)."""
 DEFAULT_BLOCK = 5
-"""Steps a free move is held (25 ms): 20 free moves over the default horizon."""
+"""Steps a free move is held (25 ms): 40 free moves over the default horizon."""
 
 
 class MpcStabilizer(Controller):
@@ -93,6 +112,16 @@ class MpcStabilizer(Controller):
                       'move blocking [samples]: the correction to the terminal LQR is held '
                       'over blocks of this many steps, and the force and rail constraints are '
                       'imposed once a block (horizon / block free moves)', low=1, high=400),
+        ParameterSpec('braking_time', 0.135,
+                      'the rail constraint bounds x + braking_time * x_dot [s], a linear upper '
+                      'bound of the rail guard\'s stopping position x + x_dot T_d + x_dot^2 / '
+                      '(2 a_b) for |x_dot| up to 1.5 m/s (T_d = 5.1 ms, a_b = 5.75 m/s^2 with '
+                      'the guard\'s default 30 N brake); 0 bounds the position alone',
+                      low=0.0, high=2.0),
+        ParameterSpec('tail', DEFAULT_TAIL,
+                      'constraint-checking tail [samples]: after the horizon the terminal LQR\'s '
+                      'predicted forces and cart positions are checked (soft) over this many '
+                      'more steps, every block steps', low=0, high=2000),
         ParameterSpec('solver', 'daqp', f'QP solver, one of {list(SOLVERS)} (casadi_* are '
                       'the solvers bundled with CasADi; daqp and osqp their own wheels)',
                       choices=SOLVERS),
@@ -119,6 +148,9 @@ class MpcStabilizer(Controller):
         self._clock = StepClock()
         self._z = np.zeros(5)
         self._force_low = self._force_high = 0.0
+        self._amplifier_min = self._amplifier_max = 0.0
+        self._feedforward = None
+        self._bounds = (0.0, 0.0)
         self.fallbacks = 0
         """Cycles whose solve failed or overran the budget (the terminal LQR was applied)."""
         self.solve_us = 0.0
@@ -142,8 +174,7 @@ class MpcStabilizer(Controller):
         ts = float(ctx.sample_time)
         a, b = augmented_model(*linearise_upright(p))
         a_d, b_d = discretise(a, b, ts)
-        q_d = np.diag(q) * ts
-        r_d = np.array([[float(self.gains['r']) * ts]])
+        q_d, r_d, n_d = sampled_cost(a, b, np.diag(q), np.array([[float(self.gains['r'])]]), ts)
         ff = ctx.feedforward
         coulomb = max(ff.c_right, ff.c_left)
         force_low, force_high = p.force_min + coulomb, p.force_max - coulomb
@@ -157,10 +188,13 @@ class MpcStabilizer(Controller):
                              f'({self.gains["horizon"]})')
         settings = QpSettings(int(self.gains['horizon']), force_low, force_high, low, high,
                               float(self.gains['rail_penalty']), str(self.gains['solver']),
-                              1e-6 * float(self.gains['budget_us']), int(self.gains['block']))
-        self.qp = CondensedQp(a_d, b_d, q_d, r_d, settings)
+                              1e-6 * float(self.gains['budget_us']), int(self.gains['block']),
+                              float(self.gains['braking_time']), int(self.gains['tail']))
+        self.qp = CondensedQp(a_d, b_d, q_d, r_d, settings, n_d)
         self.gain = self.qp.gain_row.copy()
         self._force_low, self._force_high = force_low, force_high
+        self._amplifier_min, self._amplifier_max = p.force_min, p.force_max
+        self._feedforward = ff
 
     def on_activate(self, state: ControllerState) -> None:
         """Bumpless start: the integral from zero at this state, the solver cold."""
@@ -176,15 +210,27 @@ class MpcStabilizer(Controller):
         xi = self._integral.step(error_x, dt, -k_i)
         z = self._z
         z[0], z[1], z[2], z[3], z[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
-        solution = self.qp.solve(z)
+        # The raw force range: what the amplifier gives less the feedforward the manager
+        # adds. A moving cart (beyond the velocity band) gets its kinetic friction along
+        # the velocity whatever the command; a cart at rest up to either Coulomb level.
+        ff = self._feedforward
+        band = ff.velocity_band
+        if band > 0.0 and state.x_dot > band:
+            low, high = self._amplifier_min - ff.c_right, self._amplifier_max - ff.c_right
+        elif band > 0.0 and state.x_dot < -band:
+            low, high = self._amplifier_min + ff.c_left, self._amplifier_max + ff.c_left
+        else:
+            low, high = self._force_low, self._force_high
+        self._bounds = (low, high)
+        solution = self.qp.solve(z, low, high)
         self.solve_us = solution.solve_time * 1e6
         if not solution.ok:
             self.fallbacks += 1
             self.last_reason = solution.reason
         u = solution.force
         effect = -k_i * error_x
-        if (u >= self._force_high - 1e-9 and effect > 0.0) or \
-                (u <= self._force_low + 1e-9 and effect < 0.0):
+        low, high = self._bounds
+        if (u >= high - 1e-9 and effect > 0.0) or (u <= low + 1e-9 and effect < 0.0):
             self._integral.hold()  # the MPC's own bound: no windup against it
         return u
 
