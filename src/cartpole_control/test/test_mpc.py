@@ -1,5 +1,6 @@
 """The mpc stabiliser: the unconstrained MPC is the terminal LQR, the rail constraint keeps the
 cart where the LQR leaves it, the QP is built once per configure, a failed solve falls back."""
+import functools
 import math
 
 import numpy as np
@@ -87,24 +88,40 @@ def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_i
     assert np.abs(mpc[:, 1]).max() < math.radians(5.0)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason='issue 20 item 1 open: a 6 N s cart push at 12 s is lost '
-                   'by lqg (1 of 2 seeds here) and by mpc alike: the recovery needs more rail '
-                   'than the guard\'s envelope leaves (docs/controllers.md)')
-def test_after_a_6_ns_cart_push_the_mpc_keeps_the_pendulum_up_where_the_lqg_loses_it():
+@functools.lru_cache(maxsize=None)
+def _survives_a_6_ns_cart_push(stabilizer):
+    """Per seed 0-4: the pendulum still up 6 s after a 6 N s cart push at 12 s (0.1 s at 60 N,
+    the robustness grid's level), no fault, no end-stop contact."""
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Push, Scenario
 
-    def survives(stabilizer):
-        run = run_closed_loop(P, Scenario(noise=True, seed=1, pushes=(Push(12.0, 'cart', 60.0, 0.1),)),
-                              duration=16.0, manager_parameters={'stabilizer': stabilizer},
+    out = []
+    for seed in range(5):
+        run = run_closed_loop(P, Scenario(noise=True, seed=seed,
+                                          pushes=(Push(12.0, 'cart', 60.0, 0.1),)),
+                              duration=18.0, manager_parameters={'stabilizer': stabilizer},
                               stop_on_failure=True)
         catch = run.catch_time
         falls = [t for t, e in run.events if e == 'fall' and catch is not None and t > catch]
         faults = [e for _, e in run.events if e.startswith('fault:')]
-        return catch is not None and not falls and not faults and not run.end_stop_contact
-    assert not survives('lqg')
-    assert survives('mpc')
+        out.append(catch is not None and not falls and not faults and not run.end_stop_contact)
+    return tuple(out)
+
+
+@pytest.mark.slow
+def test_after_a_6_ns_cart_push_the_mpc_recovers_at_least_as_often_as_the_lqg():
+    """Measured: 2 of 5 seeds each (mpc 1 and 3, lqg 2 and 3)."""
+    mpc, lqg = _survives_a_6_ns_cart_push('mpc'), _survives_a_6_ns_cart_push('lqg')
+    assert sum(mpc) >= sum(lqg) and sum(lqg) < 5
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason='issue 20 item 1 open: the 6 N s cart push is recovered '
+                   'in 2 of 5 seeds only; the recovery needs more rail than the guard\'s '
+                   'envelope leaves for a controller that knows the motion to first order '
+                   '(docs/controllers.md)')
+def test_the_mpc_recovers_from_a_6_ns_cart_push():
+    assert all(_survives_a_6_ns_cart_push('mpc'))
 
 
 def test_the_qp_is_built_once_per_configure_and_never_in_update():
