@@ -133,7 +133,8 @@ def sampled_cost(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray,
 def terminal_lqr(a_d: np.ndarray, b_d: np.ndarray, q_d: np.ndarray, r_d: np.ndarray,
                  n_d: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(P, K_d) of the discrete Riccati equation (with the cross weight N_d); ValueError if
-    there is no stabilising P. ``u = -K_d z``, K_d = (R_d + B_d^T P B_d)^-1 (B_d^T P A_d + N_d^T)."""
+    there is no stabilising P. ``u = -K_d z``,
+    K_d = (R_d + B_d^T P B_d)^-1 (B_d^T P A_d + N_d^T)."""
     if n_d is None:
         n_d = np.zeros(b_d.shape)
     try:
@@ -409,7 +410,10 @@ class _DaqpBackend:
 
 
 class _OsqpBackend:
-    """OSQP's wheel: set up once with the sparse data; each cycle ``update(q, l, u)``, warm-started ADMM."""
+    """OSQP's wheel: set up once with the sparse data; each cycle ``update(q, l, u)``.
+
+    Warm start: ADMM starts from the last primal and dual iterate (``warm_starting``).
+    """
 
     def __init__(self, qp: CondensedQp) -> None:
         import osqp
@@ -462,9 +466,9 @@ class _CasadiBackend:
         self.qp = qp
         plugin, options = self.PLUGINS[qp.settings.solver]
         options = dict(options, error_on_fail=False, verbose=False)
-        self.solver = casadi.conic('mpc', plugin, {'h': casadi.Sparsity.dense(qp.n_vars, qp.n_vars),
-                                                   'a': casadi.Sparsity.dense(qp.n_rows, qp.n_vars)},
-                                   options)
+        structure = {'h': casadi.Sparsity.dense(qp.n_vars, qp.n_vars),
+                     'a': casadi.Sparsity.dense(qp.n_rows, qp.n_vars)}
+        self.solver = casadi.conic('mpc', plugin, structure, options)
         self.h = casadi.DM(qp.h)
         self.a = casadi.DM(qp.a)
         self.lbx = casadi.DM(qp.variable_low)
