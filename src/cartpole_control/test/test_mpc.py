@@ -75,31 +75,34 @@ def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_i
     """On the discretised linear model: the cart at rest 25 cm right of x*, the pendulum 2.9 deg
     right of upright and falling right at 0.3 rad/s. To catch it the terminal LQR (the same
     weights, unconstrained, the force saturated) runs the cart 1.4 cm past the rail guard's
-    limiter boundary (travel - margin - reserve = 0.699 m); the MPC stays within 2 mm of it,
-    the pendulum up."""
+    limiter boundary (travel - margin - reserve = 0.699 m); the MPC stays within 3 mm of it,
+    the pendulum up, and then brings the cart back to x* (it does not stay parked there)."""
     plugin = configured()
     qp = plugin.qp
     high = P.travel - CONTEXT.rail_margin - CONTEXT.rail_reserve - CONTEXT.x_ref
     z0 = [0.25, -0.05, 0.0, -0.3, 0.0]
     lqr = _linear_run(lambda z: -float(plugin.gain @ z), z0)
-    mpc = _linear_run(lambda z: qp.solve(z, P.force_min, P.force_max).force, z0)
+    mpc = _linear_run(lambda z: qp.solve(z, P.force_min, P.force_max).force, z0, steps=1600)
     assert lqr[:, 0].max() > high + 0.01
-    assert mpc[:, 0].max() <= high + 0.002
-    assert np.abs(mpc[:, 1]).max() < math.radians(5.0)
+    assert mpc[:, 0].max() <= high + 0.003
+    assert np.abs(mpc[:, 1]).max() < math.radians(8.0)
+    assert abs(mpc[-1, 0]) < 0.02                                  # back at x* after 8 s
 
 
 @functools.lru_cache(maxsize=None)
 def _survives_a_6_ns_cart_push(stabilizer):
-    """Per seed 0-4: the pendulum still up 6 s after a 6 N s cart push at 12 s (0.1 s at 60 N,
-    the robustness grid's level), no fault, no end-stop contact."""
+    """Per seed 0-11: the pendulum still up 4 s after a 6 N s cart push at 12 s (0.1 s at 60 N,
+    the robustness grid's level), no fault, no end-stop contact. The MPC's budget is off, so
+    that no solve falls back because the machine is busy: the runs are reproducible."""
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Push, Scenario
 
     out = []
-    for seed in range(5):
+    parameters = {'stabilizer': stabilizer, 'mpc.budget_us': 1e6}
+    for seed in range(12):
         run = run_closed_loop(P, Scenario(noise=True, seed=seed,
                                           pushes=(Push(12.0, 'cart', 60.0, 0.1),)),
-                              duration=18.0, manager_parameters={'stabilizer': stabilizer},
+                              duration=16.0, manager_parameters=parameters,
                               stop_on_failure=True)
         catch = run.catch_time
         falls = [t for t, e in run.events if e == 'fall' and catch is not None and t > catch]
@@ -110,14 +113,14 @@ def _survives_a_6_ns_cart_push(stabilizer):
 
 @pytest.mark.slow
 def test_after_a_6_ns_cart_push_the_mpc_recovers_at_least_as_often_as_the_lqg():
-    """Measured: 2 of 5 seeds each (mpc 1 and 3, lqg 2 and 3)."""
+    """Measured: 3 of 12 seeds each (mpc 1, 9, 11; lqg 2, 3, 6)."""
     mpc, lqg = _survives_a_6_ns_cart_push('mpc'), _survives_a_6_ns_cart_push('lqg')
-    assert sum(mpc) >= sum(lqg) and sum(lqg) < 5
+    assert sum(mpc) >= sum(lqg) and sum(lqg) < len(lqg)
 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason='issue 20 item 1 open: the 6 N s cart push is recovered '
-                   'in 2 of 5 seeds only; the recovery needs more rail than the guard\'s '
+                   'in 3 of 12 seeds only; the recovery needs more rail than the guard\'s '
                    'envelope leaves for a controller that knows the motion to first order '
                    '(docs/controllers.md)')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
