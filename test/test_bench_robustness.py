@@ -170,6 +170,6 @@ def test_bench_robustness_writes_tables_heat_map_and_json(tmp_path):
     assert set(raw['scores']) == {'sign_based + smc'}
     assert (tmp_path / 'robustness_heatmap.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     bad = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'bench', 'robustness',
-                          '--pairs', 'sign_based:mpc'], capture_output=True, text=True,
+                          '--pairs', 'sign_based:lqr'], capture_output=True, text=True,
                          timeout=300)
-    assert bad.returncode != 0 and 'mpc' in bad.stderr and 'Traceback' not in bad.stderr
+    assert bad.returncode != 0 and 'lqr' in bad.stderr and 'Traceback' not in bad.stderr

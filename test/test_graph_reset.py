@@ -52,7 +52,7 @@ def test_sim_reset_while_balancing_restarts_the_swingup_without_a_fault(ros_cont
     assert not [row for row in after if row[1] == 'fault'], \
         [row for row in after if row[1] == 'fault'][:3]
     # Swinging up from the handover to the run's stop (which switches control off: idle).
-    stopped = g.stop_stamp_ns * 1e-9
+    stopped = g.stop_stamp_ns / 1e9  # as the status stamps parse (5.8, not 5.800000000000001)
     assert all(row[1] == 'swingup' for row in after if handover[0][0] <= row[0] < stopped)
     truth = [r for r in g.monitor.builder.states['/cartpole/true_state'] if r[0] >= reset_at]
     assert truth and all(0.0 <= r[1] <= 0.769 for r in truth)    # inside the travel

@@ -58,7 +58,8 @@ def test_cartpole_offline_json_prints_the_summary_keys():
     assert list(summary) == ['catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
                              'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'fault',
                              'controllers', 'longest_cycle_gap_s', 'swingup_law',
-                             'force_rms_n', 'force_p2p_n']
+                             'force_rms_n', 'force_p2p_n', 'latency_s', 'predict_horizon_s',
+                             'omega0_sq', 'actuator_gain', 'actuator_delay_s']
     assert 0.0 < summary['force_rms_n'] <= summary['force_p2p_n']
     assert summary['catch_time_s'] < 10.0 and summary['theta_amp_deg'] < 2.0
     # SPEC 8: the controllers that ran with their spans (from the manager's events), no fault.
@@ -72,9 +73,10 @@ def test_cartpole_offline_json_prints_the_summary_keys():
 
 def test_cartpole_offline_refuses_an_unknown_controller_with_the_list():
     out = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'offline', '--json',
-                          '--stabilizer', 'mpc'], capture_output=True, text=True, timeout=300)
+                          '--stabilizer', 'lqr'], capture_output=True, text=True, timeout=300)
     assert out.returncode != 0
-    assert 'mpc' in out.stderr and 'lqg' in out.stderr and 'Traceback' not in out.stderr
+    assert 'lqr' in out.stderr and 'lqg' in out.stderr and 'mpc' in out.stderr
+    assert 'Traceback' not in out.stderr
 
 
 def _settled_offset_run(offset, stabilizer=None, seed=0):

@@ -182,7 +182,8 @@ def test_plot_channels_carry_the_run(served_run):
     for stamp, control in controls.items():
         k = index[stamp]
         assert control['force'] == run.force[k]
-        assert control['energy_target'] == pytest.approx(params.upright_energy, rel=1e-12)
+        # E* of the pendulum the manager estimates (adaptive_target): within 1 % of the nominal
+        assert control['energy_target'] == pytest.approx(params.upright_energy, rel=1e-2)
         assert control['mode'] == run.mode[k]
         assert control['active'] == ('lqg' if run.mode[k] == 'stabilizing' else 'pendulum_energy')
 

@@ -153,6 +153,14 @@ class ActuatorEstimator:
         total += force * _triangle_integral(a - shift, end - shift, half)
         return total
 
+    def forget_samples(self) -> None:
+        """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
+        self._t.clear()
+        self._x.clear()
+        self._theta.clear()
+        self._since = 0
+        self._applied.clear()
+
     def update(self, t: float, x: float, theta: float) -> None:
         """Take the encoders' sample at ``t``: cart position [m], pendulum angle [rad]."""
         ts = self.sample_time

@@ -43,6 +43,7 @@ import dataclasses
 import logging
 import math
 import threading
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -82,6 +83,14 @@ STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_err
 ``/cartpole/controller_status``; the
 active plugin's own figures (:meth:`Controller.status_values`, e.g. ``mpc_solve_us``)
 follow them."""
+SAMPLE_LAG = 0.5
+"""The encoders' samples are taken by the first cycle at least this many sample periods
+after their stamp: the previous sample's, published before this cycle's state could be
+(:meth:`ControllerManager._take_reports`)."""
+REPORT_LAG = 1.5
+"""The applied-command reports are taken this many sample periods after the time they
+report: a plant reports a command with the sample after it took effect."""
+
 LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
                 'actuator_delay_s')
 """What the manager learns of the loop and reports in the status and the run summary."""
@@ -232,6 +241,10 @@ class ControllerManager:
         """The actuator's gain and extra dead time, from the cart's motion (:meth:`measured`)."""
         self._gain = 1.0
         self._in_flight = CommandsInFlight()
+        self._reports: deque[tuple[float, float]] = deque()
+        """(applied, source) of the plant's reports not yet taken (:meth:`_take_reports`)."""
+        self._samples: deque[tuple[float, float, float]] = deque()
+        """(t, x, theta) of the encoders' samples not yet taken."""
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
                               self.natural_frequency)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
@@ -387,22 +400,45 @@ class ControllerManager:
         """The command computed from the sample stamped ``source`` took effect at ``applied`` [s].
 
         The plant's report (the simulator's sample-and-hold, the rig's device
-        clock): one sample of the loop's latency.
+        clock): one sample of the loop's latency. Queued; the control cycle
+        takes it (see :meth:`_take_reports`).
         """
-        self.latency.report(source, applied)
-        force = self._in_flight.force_at(source)
-        if force is not None:
-            self.actuator.applied(applied, force)
+        self._reports.append((applied, source))
 
     def measured(self, t: float, x: float, theta: float) -> None:
         """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped).
 
         Feeds the natural-frequency estimate while no stabiliser runs (a
-        balanced pendulum says little about how it swings).
+        balanced pendulum says little about how it swings) and the actuator's.
+        Queued; the control cycle takes it (see :meth:`_take_reports`).
         """
-        if self.mode != STABILIZING:
-            self.natural_frequency.update(t, x, theta)
-        self.actuator.update(t, x, theta)
+        self._samples.append((t, x, theta))
+
+    def _take_reports(self, t: float) -> None:
+        """Feed the estimators what the plant reported before the cycle at ``t``.
+
+        The reports come on their own topics, and a cycle may run before the
+        newest of them has arrived; taking only those published before the
+        previous command was sent (:data:`SAMPLE_LAG`, :data:`REPORT_LAG`), in
+        stamp order, makes every cycle's estimates depend on the samples alone,
+        not on the order of arrival (a lockstep run stays the same run however
+        its processes are scheduled). Called at the start of the cycle.
+        """
+        cutoff = t - REPORT_LAG * self.sample_time
+        reports, samples = self._reports, self._samples
+        while reports and reports[0][0] <= cutoff:
+            applied, source = reports.popleft()
+            self.latency.report(source, applied)
+            force = self._in_flight.force_at(source)
+            if force is not None:
+                self.actuator.applied(applied, force)
+        stabilizing = self.mode == STABILIZING
+        cutoff = t - SAMPLE_LAG * self.sample_time
+        while samples and samples[0][0] <= cutoff:
+            ts, x, theta = samples.popleft()
+            if not stabilizing:
+                self.natural_frequency.update(ts, x, theta)
+            self.actuator.update(ts, x, theta)
 
     # -- requests -----------------------------------------------------------------------
     def restart(self) -> SetResult:
@@ -458,6 +494,12 @@ class ControllerManager:
         self._target = self._upright_energy
         self._horizon = 0.0
         self._in_flight.reset()
+        # A new run (a plant reset, a homing): the reports and windows of before end here;
+        # what was learnt of the loop, the actuator and the pendulum stays.
+        self._reports.clear()
+        self._samples.clear()
+        self.natural_frequency.forget_samples()
+        self.actuator.forget_samples()
         self._guard.reset()
         with self._lock:
             self._restart_requested = False
@@ -543,6 +585,8 @@ class ControllerManager:
             self._last_force = 0.0
             self._energy = math.nan
             return self._output(t, 0.0, 0.0, 0.0, events)
+        if self._reports or self._samples:
+            self._take_reports(t)
         guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
         values = self._values
         horizon = values['predict.horizon']

@@ -139,6 +139,13 @@ class NaturalFrequencyEstimator:
         """B_p(theta_dot) / J of (4.21) with the nominal friction [1/s^2]."""
         return (self._c_p * math.tanh(self._k_p * theta_dot) + self._v_p * theta_dot) / self.inertia
 
+    def forget_samples(self) -> None:
+        """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
+        self._t.clear()
+        self._x.clear()
+        self._theta.clear()
+        self._since = 0
+
     def update(self, t: float, x: float, theta: float) -> None:
         """Take the estimated cart position and (unwrapped) angle of one sample at ``t`` [s]."""
         ts = self.sample_time
