@@ -594,8 +594,8 @@ class ControllerManager:
             horizon = self.latency.latency
         gain, delay = values['actuator.gain'], values['actuator.delay']
         actuator = self.actuator
-        self._gain = gain = actuator.gain if gain == 'auto' else gain
-        horizon += actuator.delay if delay == 'auto' else delay
+        self._gain = gain = actuator.compensation if gain == 'auto' else gain
+        horizon += actuator.delay_compensation if delay == 'auto' else delay
         self._horizon = horizon
         if horizon > 0.0:
             segments = self._in_flight.segments(t, horizon)
@@ -694,6 +694,11 @@ class ControllerManager:
     @property
     def state_timeout(self) -> float:
         return float(self._values['state_timeout'])
+
+    @property
+    def actuator_gain(self) -> float:
+        """The actuator gain the last command was divided by (``actuator.gain``)."""
+        return self._gain
 
     @property
     def prediction_horizon(self) -> float:

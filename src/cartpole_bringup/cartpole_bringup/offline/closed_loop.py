@@ -229,7 +229,7 @@ def loop_summary(manager: ControllerManager,
     out = {'latency_s': round(manager.latency.latency, 6),
            'predict_horizon_s': round(manager.prediction_horizon, 6),
            'omega0_sq': round(manager.natural_frequency.omega_sq, 4),
-           'actuator_gain': round(manager.actuator.gain, 4),
+           'actuator_gain': round(manager.actuator_gain, 4),
            'actuator_delay_s': round(manager.actuator.delay, 6)}
     out.update(plugin_status or {})
     return out
