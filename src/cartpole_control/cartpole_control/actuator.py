@@ -47,6 +47,8 @@ from collections import deque
 
 from cartpole_sim.model import CartPoleParameters
 
+from .position_window import PositionWindow
+
 HALF_WINDOW = 20
 """T of the window, in samples (0.1 s at 5 ms)."""
 EVERY = 5
@@ -72,8 +74,6 @@ GAIN_DEADBAND = 0.03
 """What the estimate cannot tell from the model's actuator: the friction, known only
 roughly, biases it by a few per cent (x1.5 friction: 0.93-0.96). :meth:`ActuatorEstimator.
 compensation` acts only on the part of the estimate beyond this band around 1."""
-MAX_GAP_FACTOR = 1.5
-"""Samples further apart than this many sample periods start a new window."""
 
 
 def _triangle_integral(a: float, b: float, half: float) -> float:
@@ -97,7 +97,8 @@ class ActuatorEstimator:
                  min_excitation: float = MIN_EXCITATION) -> None:
         self.plant = plant
         self.sample_time = float(sample_time or plant.sample_time)
-        self.half_window = int(half_window)
+        self.window = PositionWindow(self.sample_time, half_window, EVERY)
+        """The encoders' samples of the next window."""
         self.forgetting = float(forgetting)
         self.min_excitation = float(min_excitation)
         self._mass = plant.m_c + plant.m_p
@@ -117,11 +118,8 @@ class ActuatorEstimator:
         self.delay = 0.0
         """The estimated extra dead time d [s] (0 until enough excitation)."""
         self.windows = 0
-        self._t: list[float] = []
-        self._x: list[float] = []
-        self._theta: list[float] = []
-        self._since = 0
-        horizon = 2 * self.half_window + 2 + int(math.ceil(DELAY_MAX / self.sample_time)) + 8
+        self.window.clear()
+        horizon = 2 * self.window.half_window + 2 + int(math.ceil(DELAY_MAX / self.sample_time)) + 8
         self._applied: deque[tuple[float, float]] = deque(maxlen=4 * horizon)
 
     @property
@@ -194,36 +192,19 @@ class ActuatorEstimator:
 
     def forget_samples(self) -> None:
         """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
-        self._t.clear()
-        self._x.clear()
-        self._theta.clear()
-        self._since = 0
+        self.window.clear()
         self._applied.clear()
 
     def update(self, t: float, x: float, theta: float) -> None:
         """Take the encoders' sample at ``t``: cart position [m], pendulum angle [rad]."""
-        ts = self.sample_time
-        times = self._t
-        if times and not (0.0 < t - times[-1] <= MAX_GAP_FACTOR * ts):
-            times.clear()
-            self._x.clear()
-            self._theta.clear()
-        times.append(t)
-        self._x.append(x)
-        self._theta.append(theta)
-        n = 2 * self.half_window + 1
-        if len(times) > n:
-            del times[0], self._x[0], self._theta[0]
-        self._since += 1
-        if len(times) < n or self._since < EVERY or not self._applied:
-            return
-        self._since = 0
-        self._take_window()
+        if self.window.push(t, x, theta) and self._applied:
+            self._take_window()
 
     def _take_window(self) -> None:
-        m = self.half_window
-        times, xs, ths = self._t, self._x, self._theta
-        h = (times[-1] - times[0]) / (2 * m)
+        window = self.window
+        m = window.half_window
+        times, xs, ths = window.t, window.x, window.theta
+        h = window.step
         half = m * h
         travel = self.plant.travel
         if min(xs) < 0.005 or max(xs) > travel - 0.005:

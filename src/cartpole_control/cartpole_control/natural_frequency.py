@@ -62,6 +62,8 @@ import math
 
 from cartpole_sim.model import CartPoleParameters
 
+from .position_window import PositionWindow
+
 HALF_WINDOW = 20
 """T of the window, in samples (0.1 s at 5 ms)."""
 EVERY = 5
@@ -73,9 +75,6 @@ PRIOR_WEIGHT = 1.0e-4
 0.1 rad swing is about 1e-3 s^2, so the prior weighs about a hundred such windows)."""
 BOUNDS = (0.25, 4.0)
 """The estimate stays within these factors of the nominal omega_0^2."""
-MAX_GAP_FACTOR = 1.5
-"""Samples further apart than this many sample periods (a lost sample, a pause)
-start a new window: the sums assume evenly spaced samples."""
 
 
 class NaturalFrequencyEstimator:
@@ -91,8 +90,8 @@ class NaturalFrequencyEstimator:
     def __init__(self, plant: CartPoleParameters, sample_time: float | None = None,
                  half_window: int = HALF_WINDOW, forgetting: float = FORGETTING,
                  prior_weight: float = PRIOR_WEIGHT) -> None:
-        if not (half_window >= 2 and 0.0 < forgetting <= 1.0 and prior_weight > 0.0):
-            raise ValueError('half_window >= 2, forgetting in (0, 1] and prior_weight > 0 needed')
+        if not (0.0 < forgetting <= 1.0 and prior_weight > 0.0):
+            raise ValueError('forgetting in (0, 1] and prior_weight > 0 needed')
         self.g = plant.g
         self.inertia = plant.m_p * plant.l * plant.l
         """J of (7.3) with the nominal tip mass and length [kg m^2]."""
@@ -101,8 +100,8 @@ class NaturalFrequencyEstimator:
         self._c_p = plant.c_p
         self._k_p = plant.friction_steepness_pendulum
         self._v_p = plant.v_p
-        self.sample_time = float(sample_time or plant.sample_time)
-        self.half_window = int(half_window)
+        self.window = PositionWindow(sample_time or plant.sample_time, half_window, EVERY)
+        """The encoders' samples of the next window."""
         self.forgetting = float(forgetting)
         self.prior_weight = float(prior_weight)
         self._low, self._high = BOUNDS[0] * self.nominal, BOUNDS[1] * self.nominal
@@ -116,10 +115,7 @@ class NaturalFrequencyEstimator:
         """The estimate of omega_0^2 [1/s^2]."""
         self.windows = 0
         """Windows taken into the estimate."""
-        self._t: list[float] = []
-        self._x: list[float] = []
-        self._theta: list[float] = []
-        self._since = 0
+        self.window.clear()
 
     @property
     def omega(self) -> float:
@@ -141,36 +137,19 @@ class NaturalFrequencyEstimator:
 
     def forget_samples(self) -> None:
         """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
-        self._t.clear()
-        self._x.clear()
-        self._theta.clear()
-        self._since = 0
+        self.window.clear()
 
     def update(self, t: float, x: float, theta: float) -> None:
         """Take the estimated cart position and (unwrapped) angle of one sample at ``t`` [s]."""
-        ts = self.sample_time
-        times = self._t
-        if times and not (0.0 < t - times[-1] <= MAX_GAP_FACTOR * ts):
-            times.clear()
-            self._x.clear()
-            self._theta.clear()
-        times.append(t)
-        self._x.append(x)
-        self._theta.append(theta)
-        n = 2 * self.half_window + 1
-        if len(times) > n:
-            del times[0], self._x[0], self._theta[0]
-        self._since += 1
-        if len(times) < n or self._since < EVERY:
-            return
-        self._since = 0
-        self._take_window()
+        if self.window.push(t, x, theta):
+            self._take_window()
 
     def _take_window(self) -> None:
         """One (phi, y) from the 2T + 1 samples held, into the least squares."""
-        xs, ths = self._x, self._theta
-        m = self.half_window
-        h = (self._t[-1] - self._t[0]) / (2 * m)
+        window = self.window
+        xs, ths = window.x, window.theta
+        m = window.half_window
+        h = window.step
         sin, cos = math.sin, math.cos
         g = self.g
         phi_gravity = 0.0
