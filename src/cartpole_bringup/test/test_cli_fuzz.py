@@ -59,6 +59,10 @@ WORK = [  # (module, attribute): where each subcommand's work begins
     ('cartpole_bringup.identification.bag_input', 'load_recording'),
     ('cartpole_bringup.identification.fit', 'identify'),
     ('cartpole_bringup.identification.pulse_player', 'rehearse'),
+    ('cartpole_bringup.commands.bench', 'bench_control'),
+    ('cartpole_bringup.commands.bench', 'bench_robustness'),
+    ('cartpole_bringup.commands.bench', 'bench_offline'),
+    ('cartpole_bringup.commands.bench', 'bench_loop'),
 ]
 
 SETTINGS = settings(max_examples=120, deadline=None, derandomize=True, database=None,
@@ -462,6 +466,32 @@ def test_bound_and_plan_refuse_bad_numbers_and_files(data, files):
         file_option(files, '--plant-params', PLANT_DEFECTS),
         file_option(files, '--params', PARAMS_DEFECTS[:-1] + ['params_manager'])))
     check('plan', ['plan', '--no-bound', f'{opt}={value}'], [opt, value])
+
+
+BENCH = {  # bench: {option: (low, high, low_open, high_open, integer)}
+    'control': {'--seeds': (1, 100, False, False, True), '--workers': (1, 256, False, False, True),
+                '--duration': DURATION + (False,)},
+    'robustness': {'--seeds': (1, 100, False, False, True),
+                   '--workers': (1, 256, False, False, True),
+                   '--max-levels': (1, 1000, False, False, True),
+                   '--duration': DURATION + (False,)},
+    'offline': {'--repeat': (1, 100, False, False, True), '--duration': DURATION + (False,)},
+    'loop': {'--warmup': (0.0, 600.0, False, False, False), '--duration': DURATION + (False,)},
+}
+
+
+@SETTINGS
+@given(data=st.data())
+def test_bench_refuses_bad_numbers_and_outputs(data, files):
+    bench = data.draw(st.sampled_from(sorted(BENCH)))
+    if data.draw(st.integers(0, 5)) == 0:
+        opt, value = data.draw(st.tuples(st.just('--out'), st.sampled_from([
+            str(files['a_file'][0]), str(files['a_file'][0] / 'under_a_file')])))
+    else:
+        opt = data.draw(st.sampled_from(sorted(BENCH[bench])))
+        low, high, low_open, high_open, integer = BENCH[bench][opt]
+        value = data.draw(bad_number(low, high, low_open, high_open, integer=integer))
+    check('bench', ['bench', bench, f'{opt}={value}'], [opt])
 
 
 def test_the_fuzz_tried_enough_inputs():

@@ -288,7 +288,35 @@ def bench_loop(args: argparse.Namespace, argv: list[str]) -> dict:
     return {'report': report, 'results': result['results'], 'dir': str(out)}
 
 
+BENCH_NUMBERS = {  # option: (attribute, low, high, integer); checked before any bench runs
+    '--seeds': ('seeds', 1, 100, True),
+    '--workers': ('workers', 1, 256, True),
+    '--max-levels': ('max_levels', 1, 1000, True),
+    '--repeat': ('repeat', 1, 100, True),
+    '--warmup': ('warmup', 0.0, 600.0, False),
+    '--view': ('view', 0, 100, True),
+}
+"""The bench's own numbers and their ranges (``--duration`` is any run's duration)."""
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse a bad number or output directory before any run (InputError naming the option)."""
+    from ..boundary import InputError, duration, number, output_directory
+    if getattr(args, 'duration', None) is not None:
+        duration(args.duration)
+    for option, (name, low, high, integer) in BENCH_NUMBERS.items():
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        number(option, value, low, high)
+        if integer and value != int(value):
+            raise InputError(f'{option} must be an integer, got {value!r}')
+    if args.out is not None:
+        output_directory(args.out, '--out')
+
+
 def main(args: argparse.Namespace) -> int:
+    check_arguments(args)
     argv = sys.argv[1:]
     benches = {'control': bench_control, 'robustness': bench_robustness,
                'offline': bench_offline, 'loop': bench_loop}
