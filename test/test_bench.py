@@ -71,10 +71,10 @@ def test_bench_offline_reports_speed_and_stage_costs(tmp_path):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_bench_loop_measures_graph_and_floor(tmp_path):
-    cartpole('bench', 'loop', '--duration', '2', '--warmup', '0.5', '--modes', 'single',
+    cartpole('bench', 'loop', '--duration', '1', '--warmup', '0.25', '--modes', 'single',
              '--view', '1', '--out', str(tmp_path))
     report = (tmp_path / 'loop.md').read_text()
-    assert '2 s measured per row after 0.5 s warm-up' in report
+    assert '1 s measured per row after 0.25 s warm-up' in report
     assert 'our graph' in report and 'bare rclpy floor' in report and 'ratio graph / floor' in report
     result = json.loads((tmp_path / 'loop.json').read_text())
     for executor in ('events', 'single'):  # each graph against a floor on its own executor

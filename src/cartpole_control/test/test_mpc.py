@@ -90,10 +90,11 @@ def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_i
 
 
 @functools.lru_cache(maxsize=None)
-def _survives_a_6_ns_cart_push(stabilizer):
-    """Per seed 0-11: the pendulum still up 4 s after a 6 N s cart push at 12 s (0.1 s at 60 N,
-    the robustness grid's level), no fault, no end-stop contact. The MPC's budget is off, so
-    that no solve falls back because the machine is busy: the runs are reproducible."""
+def _after_a_6_ns_cart_push(stabilizer):
+    """Per seed 0-11: (recovered, end-stop contact) after a 6 N s cart push at 12 s (0.1 s at
+    60 N, the robustness grid's level); recovered: the pendulum still up 4 s later, no fault,
+    no end-stop contact. The MPC's budget is off, so that no solve falls back because the
+    machine is busy: the runs are reproducible."""
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Push, Scenario
 
@@ -107,15 +108,18 @@ def _survives_a_6_ns_cart_push(stabilizer):
         catch = run.catch_time
         falls = [t for t, e in run.events if e == 'fall' and catch is not None and t > catch]
         faults = [e for _, e in run.events if e.startswith('fault:')]
-        out.append(catch is not None and not falls and not faults and not run.end_stop_contact)
+        out.append((catch is not None and not falls and not faults and not run.end_stop_contact,
+                    run.end_stop_contact))
     return tuple(out)
 
 
 @pytest.mark.slow
-def test_after_a_6_ns_cart_push_the_mpc_recovers_at_least_as_often_as_the_lqg():
-    """Measured: 3 of 12 seeds each (mpc 1, 9, 11; lqg 2, 3, 6)."""
-    mpc, lqg = _survives_a_6_ns_cart_push('mpc'), _survives_a_6_ns_cart_push('lqg')
-    assert sum(mpc) >= sum(lqg) and sum(lqg) < len(lqg)
+def test_after_a_6_ns_cart_push_the_mpc_never_drives_the_cart_into_an_end_stop():
+    """Safety first, whether the pendulum is kept or not (it is in 3 of 12 seeds, as with
+    lqg: docs/robustness.md): the rail constraint and the guard keep the cart off the stops."""
+    runs = _after_a_6_ns_cart_push('mpc')
+    assert not any(contact for _, contact in runs)
+    assert 0 < sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
 
 
 @pytest.mark.slow
@@ -124,7 +128,7 @@ def test_after_a_6_ns_cart_push_the_mpc_recovers_at_least_as_often_as_the_lqg():
                    'envelope leaves for a controller that knows the motion to first order '
                    '(docs/controllers.md)')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
-    assert all(_survives_a_6_ns_cart_push('mpc'))
+    assert all(recovered for recovered, _ in _after_a_6_ns_cart_push('mpc'))
 
 
 def test_the_qp_is_built_once_per_configure_and_never_in_update():
