@@ -145,7 +145,7 @@ def test_processes_lockstep_is_deterministic():
     """
     summaries = []
     for _ in range(2):
-        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '13',
+        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '16',
                               '--json'], timeout=150)
         assert code == 0, err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
