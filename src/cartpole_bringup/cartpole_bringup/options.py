@@ -130,6 +130,17 @@ def _manager_takes(nominal: CartPoleParameters, parameters: dict[str, Any], sour
         raise boundary.InputError(f'{source}: {result.reason}')
 
 
+def check_view_address(value: str | None) -> None:
+    """``--view HOST:PORT`` refused before anything starts (InputError naming it); None: no view."""
+    if value is None:
+        return
+    from .viewer.server import parse_address
+    try:
+        parse_address(value)
+    except ValueError as error:
+        raise boundary.InputError(f'--view {value}: {error}') from None
+
+
 def print_json(obj: Any) -> None:
     """The one way a ``--json`` object is printed: strict JSON (no NaN, no Infinity; such a
     value is null, with its reason under ``null_reasons``)."""

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from cartpole_control.prediction import predict_state
+from cartpole_control.prediction import predict_over_commands, predict_state
 from cartpole_sim.model import CartPoleParameters, acceleration_function
 
 P = CartPoleParameters()
@@ -36,6 +36,21 @@ def test_the_prediction_follows_the_model_over_the_delay(state, force):
     reference = fine_integration(state, force, horizon)
     for p, r, s in zip(predicted, reference, state):
         assert abs(p - r) <= 0.05 * abs(s - r) + 1e-6
+
+
+def test_the_prediction_over_the_commands_in_flight_follows_the_model():
+    # 40 ms ahead with eight commands in flight, against a fine integration of the
+    # same piecewise force; predicting under the last command alone is far off.
+    state = (0.38, 0.08, 0.2, 0.6)
+    segments = [(0.005, f) for f in (-20.0, -12.0, -5.0, 2.0, 8.0, 14.0, 18.0, 20.0)]
+    reference = state
+    for duration, force in segments:
+        reference = fine_integration(reference, force, duration, steps=400)
+    predicted = predict_over_commands(ACC, *state, segments)
+    last_only = predict_state(ACC, *state, 20.0, 0.04)
+    for p, r, w in zip(predicted, reference, last_only):
+        assert abs(p - r) <= 1e-3 * max(1.0, abs(r))
+        assert abs(p - r) < 0.05 * abs(w - r)
 
 
 @pytest.mark.slow

@@ -58,12 +58,7 @@ def checked(args: argparse.Namespace):
     boundary.duration(args.duration)
     boundary.number('--speed', args.speed, 0.0, 1000.0, low_open=True)
     plot = boundary.figure_file(args.plot, '--plot') if args.plot else None
-    if args.view is not None:
-        from ..viewer.server import parse_address
-        try:
-            parse_address(args.view)
-        except ValueError as exc:
-            raise boundary.InputError(f'--view {args.view}: {exc}') from None
+    options.check_view_address(args.view)
     nominal = options.nominal_parameters(args)
     scenario = options.scenario_from_args(args, nominal, args.duration)
     manager = options.manager_parameters(nominal, args)

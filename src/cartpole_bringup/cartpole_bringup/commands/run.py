@@ -170,12 +170,7 @@ def check(args: argparse.Namespace) -> None:
         boundary.output_directory(args.record, '--record')
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise boundary.InputError(f'--domain-id must be in [0, 232], got {args.domain_id}')
-    if args.view is not None:
-        from ..viewer.server import parse_address
-        try:
-            parse_address(args.view)
-        except ValueError as error:
-            raise boundary.InputError(f'--view: {error}') from None
+    options.check_view_address(args.view)
     nominal = options.nominal_parameters(args)
     options.manager_parameters(nominal, args)
     from .offline import ekf_config_from_args
