@@ -138,7 +138,7 @@ def check_view_address(value: str | None) -> None:
     try:
         parse_address(value)
     except ValueError as error:
-        raise boundary.InputError(f'--view {value}: {error}') from None
+        raise boundary.InputError(f'--view: {error}') from None
 
 
 def print_json(obj: Any) -> None:
