@@ -346,6 +346,7 @@ class HwBridgeNode(LifecycleNode):
             reason = self.core.last_error
         if faulted and self._fault is None:
             self._fault = reason or 'disarmed'
+            self._publish_health()      # the reason, ahead of the transition events
             self.trigger_deactivate()   # on_deactivate returns ERROR: rclpy runs on_error
 
     def _publish_sample(self, sample: JointSample) -> None:
@@ -492,6 +493,9 @@ class HwBridgeNode(LifecycleNode):
     # -- health -----------------------------------------------------------------------------------
     def _on_health_timer(self) -> None:
         self._drain()   # should a wake-up have been lost
+        self._publish_health()
+
+    def _publish_health(self) -> None:
         state = self._state_machine.current_state[1]   # rclpy 7 has no public accessor
         with self._lock:
             values = self.core.health()

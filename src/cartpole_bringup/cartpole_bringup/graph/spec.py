@@ -57,6 +57,9 @@ class GraphSpec:
         ``'events'`` (rclpy.experimental's EventsExecutor, C++).
     allow_duplicates
         Start even when the graph's node names are taken on the domain.
+    hw_arm
+        The rig: activate (arm) the bridge once the loop answers; else it stays
+        inactive (streaming, disarmed).
     """
 
     plant: str
@@ -69,12 +72,15 @@ class GraphSpec:
     log_level: str = 'warn'
     executor: str = 'events'
     allow_duplicates: bool = False
+    hw_arm: bool = False
 
     def __post_init__(self) -> None:
         if self.plant not in ('sim', 'hw_bridge'):
             raise ValueError(f"plant must be 'sim' or 'hw_bridge', got {self.plant!r}")
         if self.lockstep and self.plant != 'sim':
             raise ValueError('lockstep needs the simulator')
+        if self.hw_arm and self.plant != 'hw_bridge':
+            raise ValueError('hw_arm needs the rig (plant hw_bridge)')
 
     @property
     def nodes(self) -> list[str]:
