@@ -86,8 +86,9 @@ def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_pat
              '--hw-arm', '--processes', '--duration', '60', '--json'],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         # 2 s of non-zero force commands: the bridge is armed and the cart is being driven.
-        assert spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0), \
-            'the rig was never driven'
+        if not spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0):
+            run.send_signal(signal.SIGINT)
+            pytest.fail(f'the rig was never driven: {run.communicate(timeout=60)[1][-3000:]}')
         os.kill(child_running(run.pid, 'controller_manager'), signal.SIGKILL)
         killed_at = time.monotonic()  # the emulator logs the same clock
         out, err = run.communicate(timeout=120)

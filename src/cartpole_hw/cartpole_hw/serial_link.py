@@ -39,6 +39,16 @@ MAX_DEFERRED_TICKS = 16
 """Reads in a row that may put the watchdogs off because more bytes are waiting."""
 
 
+def _scheduling() -> tuple[int, int] | None:
+    """(policy, priority) of the calling thread if it is a real-time one (Linux), else None."""
+    if not hasattr(os, 'sched_getscheduler'):
+        return None
+    policy = os.sched_getscheduler(0)
+    if policy & ~getattr(os, 'SCHED_RESET_ON_FORK', 0) == os.SCHED_OTHER:
+        return None
+    return policy, os.sched_getparam(0).sched_priority
+
+
 def write_all(fd: int, data: bytes, timeout: float) -> None:
     """Write every byte to the non-blocking ``fd``; TimeoutError only if it stays
     unwritable until ``timeout`` s after the call (a late thread is not a dead port)."""
@@ -101,8 +111,13 @@ class SerialLink:
                 self._polled.wait(min(remaining, 0.1))
 
     def start(self) -> None:
+        """Start the reader thread, at the scheduling of the calling thread (a thread
+        created after the process took its real-time priority would run at normal
+        priority: ``SCHED_RESET_ON_FORK`` resets it for new threads too)."""
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name='cartpole-hw-link', daemon=True)
+        scheduling = _scheduling()
+        self._thread = threading.Thread(target=self._run, args=(scheduling,),
+                                        name='cartpole-hw-link', daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -180,7 +195,12 @@ class SerialLink:
         except (serial.SerialException, OSError, TypeError, AttributeError):
             return 0  # the next read reports the failure
 
-    def _run(self) -> None:
+    def _run(self, scheduling: tuple[int, int] | None = None) -> None:
+        if scheduling is not None:
+            try:
+                os.sched_setscheduler(0, scheduling[0], os.sched_param(scheduling[1]))
+            except OSError as exc:   # not permitted: the thread runs at normal priority
+                self.log(f'reader thread at normal priority: {exc}')
         next_attempt = 0.0
         while not self._stop.is_set():
             if self._serial is None:
