@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -21,23 +22,51 @@ from cartpole_sim.child_process import child_running, interrupt, reap
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
-def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
+def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, ros_context, spin_until):
+    """The run drives the bridge's lifecycle through its services: configure, activate
+    (--hw-arm), deactivate and cleanup at the stop (seen on /hw_bridge/transition_event)."""
+    from lifecycle_msgs.msg import TransitionEvent
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from cartpole_hw.lifecycle_client import LifecycleClient
+
+    probe = Node('_lifecycle_probe', context=ros_context)
+    states: list[str] = []
+    probe.create_subscription(TransitionEvent, '/hw_bridge/transition_event',
+                              lambda m: states.append(m.goal_state.label), 50)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
     link = tmp_path / 'cartpole-emu'
     log = open(tmp_path / 'emulator.log', 'w')
     emulator = subprocess.Popen(
         [sys.executable, '-m', 'cartpole_bringup.cli', 'emulate', '--link', str(link)],
         stdout=subprocess.PIPE, stderr=log, text=True, start_new_session=True)
+    run = None
     try:
         first = emulator.stdout.readline()  # "port: /dev/pts/N  link: ..." once the pty exists
         assert 'port:' in first, (tmp_path / 'emulator.log').read_text()
-        run = subprocess.run(
+        run = subprocess.Popen(
             [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--hw', '--port', str(link),
              '--hw-arm', '--duration', '17', '--json'],
-            capture_output=True, text=True, timeout=240)
-        assert run.returncode == 0, run.stderr[-3000:]
-        lines = [line for line in run.stdout.splitlines() if line.startswith('{')]
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        output = []
+        reader = threading.Thread(target=lambda: output.extend(run.communicate(timeout=240)))
+        reader.start()
+        bridge = LifecycleClient(probe, '/hw_bridge', lambda p, t: spin_until(executor, p, t))
+        seen = set()    # the state as `ros2 lifecycle get /hw_bridge` shows it during the run
+        spin_until(executor, lambda: seen.add(bridge.state(2.0)) or 'active' in seen
+                   or not reader.is_alive(), 120.0)
+        spin_until(executor, lambda: not reader.is_alive(), 250.0)
+        reader.join()
+        stdout, stderr = output
+        assert run.returncode == 0, stderr[-3000:]
+        assert 'active' in seen, seen                       # armed through activate
+        spin_until(executor, lambda: states[-1:] == ['unconfigured'], 5.0)
+        assert states[-4:] == ['deactivating', 'inactive', 'cleaningup', 'unconfigured'], states
+        lines = [line for line in stdout.splitlines() if line.startswith('{')]
         summary = json.loads(lines[-1])
-        why = (summary, run.stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
+        why = (summary, stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
         assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, why
         assert summary['theta_amp_deg'] < 2.0, why
         assert summary['x_err_max_m'] <= 0.10, summary
@@ -46,6 +75,9 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path):
         assert summary['stabilizer'] == 'lqg' and summary['swingup'] == 'pendulum_energy'
         assert summary['force_rms_n'] is not None and summary['force_p2p_n'] is not None
     finally:
+        if run is not None:
+            reap(run)
+        probe.destroy_node()
         if emulator.poll() is None:
             os.killpg(emulator.pid, signal.SIGINT)
             try:
