@@ -291,10 +291,12 @@ class HwBridgeNode(LifecycleNode):
             self._handoff.clear()
 
     def _refuse(self, transition: str, reason: str) -> TransitionCallbackReturn:
-        """Log why a transition is refused (once while the reason stays the same)."""
-        log = self.get_logger().debug if reason == self._last_refusal else \
+        """Log why a transition is refused: a warning, then debug while the gist of the
+        reason (up to its colon, without the counts) stays the same (a caller retrying)."""
+        gist = f'{transition}: {reason.split(":")[0]}'
+        log = self.get_logger().debug if gist == self._last_refusal else \
             self.get_logger().warning
-        self._last_refusal = reason
+        self._last_refusal = gist
         log(f'{transition} refused: {reason}')
         return FAILURE
 
@@ -501,7 +503,9 @@ class HwBridgeNode(LifecycleNode):
             values = self.core.health()
             armed = self.core.armed
             connected, link_ready = self.core.connected, self.core.link_ready
-        values = {'state': state, **values, 'handoff_dropped': str(self.handoff_dropped)}
+        with self._handoff_lock:
+            dropped = self.handoff_dropped
+        values = {'state': state, **values, 'handoff_dropped': str(dropped)}
         status = DiagnosticStatus()
         status.name = 'hw_bridge'
         status.hardware_id = str(self.port)

@@ -7,7 +7,7 @@ unconfigured, whether in this process or its own. The graph
   samples streaming disarmed: the EKF and the controller manager run on
   them) and fails to start with the reason if it cannot;
 - with ``hw_arm`` (``cartpole run --hw-arm``), once the first state arrived,
-  waits until the controller manager answers (:data:`WARM_COMMANDS` force
+  waits until the controller manager answers (twice :data:`WARM_COMMANDS` force
   commands, the bridge's warm-loop rule) and **activates** it (arms), asking
   again for up to :data:`ACTIVATE_TIMEOUT` s while the bridge refuses (a loop
   still working off its start-up backlog);
@@ -69,7 +69,8 @@ class BridgeLifecycle:
         """Arm the bridge once the controller answers: '' when done, else why not."""
         m = self.monitor
         first = m.forces
-        if not self.spin_until(lambda: m.forces >= first + WARM_COMMANDS, ACTIVATE_TIMEOUT):
+        # twice the bridge's count: the monitor sees a command before the bridge does
+        if not self.spin_until(lambda: m.forces >= first + 2 * WARM_COMMANDS, ACTIVATE_TIMEOUT):
             return f'{BRIDGE} activate: the controller manager does not answer the samples'
         client = self._bridge_client()
         attempts = int(ACTIVATE_TIMEOUT / ACTIVATE_RETRY)
