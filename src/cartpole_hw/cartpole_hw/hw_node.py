@@ -230,8 +230,9 @@ class HwBridgeNode(LifecycleNode):
         self.link = link
         if not link.wait_for(lambda core: core.link_ready, HANDSHAKE_TIMEOUT):
             with self._lock:
-                why = self.core.last_error or f'the device did not answer the ping (no V line ' \
-                                              f'within {HANDSHAKE_TIMEOUT:g} s)'
+                last = self.core.last_error
+            why = f'the device did not answer the ping (no V line within ' \
+                  f'{HANDSHAKE_TIMEOUT:g} s)' + (f'; last error: {last}' if last else '')
             self._close()
             return self._refuse('configure', why)
         if self._home_pending:
