@@ -122,7 +122,8 @@ class HealthReport:
 
 class NodeDiagnostics:
     """Publishes ``node``'s health on ``/diagnostics`` every :data:`DIAGNOSTICS_PERIOD`
-    of the node clock, as the status ``<node name>: <what>``.
+    of the node clock, as the status ``<node name>: <what>`` (the name with the node's
+    namespace when it has one: ``rig1/sim: simulation``).
 
     ``health()`` is called from the node's executor, like every callback of the node;
     ``inputs`` and ``degraded`` as in :class:`HealthReport`.
@@ -133,7 +134,9 @@ class NodeDiagnostics:
                  period: float = DIAGNOSTICS_PERIOD) -> None:
         self._node = node
         self._health = health
-        self.report = HealthReport(f'{node.get_name()}: {what}', hardware_id, inputs, degraded)
+        # The node's name with its namespace, if any (``rig1/sim``): one /diagnostics for all.
+        name = node.get_fully_qualified_name().lstrip('/')
+        self.report = HealthReport(f'{name}: {what}', hardware_id, inputs, degraded)
         self._publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self._timer = node.create_timer(period, self.publish)
 

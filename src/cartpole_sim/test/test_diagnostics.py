@@ -51,3 +51,18 @@ def test_the_simulator_is_idle_until_a_controller_answers(ros_context):
         assert 'waiting for a controller' in status.message
     finally:
         node.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_node_in_a_namespace_reports_under_its_qualified_name(ros_context):
+    from rclpy.node import Node
+
+    from cartpole_sim.diagnostics import NodeDiagnostics
+
+    node = Node('sim', namespace='rig2', context=ros_context)
+    try:
+        diagnostics = NodeDiagnostics(node, 'simulation', 'cartpole', lambda: Health(OK, 'idle'))
+        (status,) = diagnostics.publish().status
+        assert (status.name, status.level, status.message) == ('rig2/sim: simulation', OK, 'idle')
+    finally:
+        node.destroy_node()
