@@ -25,7 +25,7 @@ TOPIC_NOTES: dict[str, str] = {
                                  "computed from (`time_ref`): the loop's latency",
     '/clock': 'simulated time for `use_sim_time` (lockstep)',
     '/diagnostics': "every node's health once a second of its clock, one status "
-                    '`<node>: <what>` (see "Diagnostics")',
+                    '`<node>: <what>` (see "Diagnostics and logs")',
     '/cartpole/recorder/progress': '`stamp` = the sample up to which the recorder holds every '
                                    '200 Hz topic (lockstep with `--record`: complete bags; '
                                    "without a recorder `cartpole run`'s monitor publishes it)",
@@ -62,7 +62,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'show the reset plant (the reset sample\'s stamp in lockstep, the reset\'s time in real '
         'time). Reliable, transient local (the last one is kept for late joiners). The EKF and '
         'the controller manager hand over on it (below)',
-    ('sim', '/diagnostics'): 'status `sim: simulation` once a second (see "Diagnostics")',
+    ('sim', '/diagnostics'): 'status `sim: simulation` once a second (see "Diagnostics and logs")',
     ('sim', '/sim/reset'):
         'the plant goes back to the scenario\'s initial state (below)',
     ('ekf', '/joint_states'):
@@ -74,7 +74,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'theta_dot]`, `header.stamp` copied from the sample; published inside the '
         '`/joint_states` callback',
     ('ekf', '/cartpole/ekf/health'): 'one DiagnosticStatus `ekf`, every `health_period`',
-    ('ekf', '/diagnostics'): 'status `ekf: estimation` once a second (see "Diagnostics")',
+    ('ekf', '/diagnostics'): 'status `ekf: estimation` once a second (see "Diagnostics and logs")',
     ('ekf', '/ekf/reset'): 're-initialise from the next sample (reported as `requested`)',
     ('ekf', '/cartpole/plant_reset'):
         'the plant (simulator reset) or the position reference (bridge homing) moved: '
@@ -105,7 +105,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
         'joined by `;`',
     ('controller_manager', '/diagnostics'):
-        'status `controller_manager: control` once a second (see "Diagnostics")',
+        'status `controller_manager: control` once a second (see "Diagnostics and logs")',
     ('controller_manager', '/cartpole/command_applied'):
         'the plant\'s report of when each command took effect: `header.stamp - time_ref` is '
         'one sample of the loop\'s latency (`latency_s`)',
@@ -130,7 +130,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'disarmed, ERROR disconnected or disarmed by a fault); every key: '
         '[docs/rig.md](docs/rig.md#cartpolehwhealth)',
     ('hw_bridge', '/diagnostics'):
-        'status `hw_bridge: serial link` once a second (see "Diagnostics")',
+        'status `hw_bridge: serial link` once a second (see "Diagnostics and logs")',
     ('hw_bridge', '/cartpole/plant_reset'):
         'after a homing: stamp = the first sample counted from the new zero',
     ('hw_bridge', '/cartpole/force_command'):
