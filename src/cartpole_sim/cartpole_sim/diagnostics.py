@@ -137,12 +137,24 @@ class NodeDiagnostics:
         # The node's name with its namespace, if any (``rig1/sim``): one /diagnostics for all.
         name = node.get_fully_qualified_name().lstrip('/')
         self.report = HealthReport(f'{name}: {what}', hardware_id, inputs, degraded)
+        self._period_ns = int(period * 1e9)
+        self._last_ns: int | None = None
         self._publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
-        self._timer = node.create_timer(period, self.publish)
+        self._timer = node.create_timer(period, self._on_timer)
+
+    def _on_timer(self) -> None:
+        # A timer held up (a busy start-up) may catch up with a second call at once: the
+        # reports stay about a period apart by their stamps.
+        now = self._node.get_clock().now().nanoseconds
+        if self._last_ns is not None and 0 <= now - self._last_ns < self._period_ns // 2:
+            return
+        self.publish()
 
     def publish(self) -> DiagnosticArray:
-        """Report now (the timer's callback); returns the message published."""
+        """Report now; returns the message published."""
+        now = self._node.get_clock().now()
+        self._last_ns = now.nanoseconds
         msg = DiagnosticArray(status=[self.report.status(self._health())])
-        msg.header.stamp = self._node.get_clock().now().to_msg()
+        msg.header.stamp = now.to_msg()
         self._publisher.publish(msg)
         return msg

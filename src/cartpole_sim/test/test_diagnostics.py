@@ -66,3 +66,26 @@ def test_a_node_in_a_namespace_reports_under_its_qualified_name(ros_context):
         assert (status.name, status.level, status.message) == ('rig2/sim: simulation', OK, 'idle')
     finally:
         node.destroy_node()
+
+
+@pytest.mark.ros
+def test_a_timer_that_catches_up_does_not_report_twice_at_once(ros_context):
+    """An executor held up may call the timer twice in a row: the second call, less than
+    half a period after the first report by the node clock, reports nothing."""
+    from rclpy.node import Node
+
+    from cartpole_sim.diagnostics import NodeDiagnostics
+
+    node = Node('held_up', context=ros_context)
+    try:
+        diagnostics = NodeDiagnostics(node, 'what', 'none', lambda: Health(OK, 'idle'))
+        sent = []
+        diagnostics._publisher.publish = sent.append
+        diagnostics._on_timer()
+        diagnostics._on_timer()
+        assert len(sent) == 1
+        diagnostics._last_ns -= 600_000_000     # the last report 0.6 s ago
+        diagnostics._on_timer()
+        assert len(sent) == 2
+    finally:
+        node.destroy_node()
