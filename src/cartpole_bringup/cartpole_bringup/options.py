@@ -110,6 +110,11 @@ def manager_parameters(nominal: CartPoleParameters, args: argparse.Namespace) ->
     """controller_manager parameters: the ``--params`` file's section, then ``--swingup`` and
     ``--stabilizer``; InputError with the manager's reason, naming the file or the option."""
     params = dict(load_ros_parameters(getattr(args, 'params', None), 'controller_manager'))
+    # The node's own construction parameters, at the values the loop uses anyway (a copy of
+    # the installed controller_manager.yaml); other values stay and are refused below.
+    for name, same in (('plant_params_file', ''), ('sample_time', nominal.sample_time)):
+        if params.get(name) == same:
+            del params[name]
     if params:
         _manager_takes(nominal, params, f'--params {args.params}: controller_manager')
     for name in ('swingup', 'stabilizer'):
