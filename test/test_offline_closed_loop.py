@@ -135,7 +135,8 @@ def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_
 
 @pytest.mark.slow
 def test_default_stabiliser_is_quiet_while_balancing():
-    """The effort targets (README.md, "The run summary": force_rms_n) on the nominal plant with noise: about the Coulomb floor.
+    """The effort targets (README.md, "The run summary") on the nominal plant with noise:
+    about the Coulomb floor.
 
     A cart moving all the time needs its friction, 3.4 / 2.45 N: 2.96 N rms. Before,
     one encoder tick times K_theta and the feedforward's sign flips gave 16 N rms, 72 N p2p.

@@ -71,7 +71,6 @@ DECLARED_WITHOUT_IMPORT = {
 """(package, key) declared before the code that imports it lands; the reason."""
 
 _MESSAGE_TYPE = re.compile(r'^([a-z][a-z0-9_]*)/(?:msg|srv|action)/[A-Z]\w*$')
-_RUN_TAGS = ('depend', 'exec_depend')
 _PIP_COMMENT = re.compile(r'no rosdep key.*?:(.*?)-->', re.S)
 
 
@@ -112,7 +111,7 @@ def keys_of(modules: set[str], local: set[str], ament: set[str]) -> tuple[set[st
             if module == prefix or module.startswith(prefix + '.'):
                 keys.add(key)
         top = module.split('.')[0]
-        if top in sys.stdlib_module_names or top in local or top == '__future__':
+        if top in sys.stdlib_module_names or top in local:
             continue
         if top in ROSDEP_KEYS:
             keys.add(ROSDEP_KEYS[top])

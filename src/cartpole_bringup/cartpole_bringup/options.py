@@ -14,7 +14,8 @@ from . import boundary
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    """Scenario options of the simulated plant (docs/simulator.md, "Disturbances"), and --plant-params.
+    """Scenario options of the simulated plant (docs/simulator.md, "Disturbances"), and
+    --plant-params.
 
     The scenario options themselves are :mod:`cartpole_sim.scenario_options`'s,
     which ``cartpole emulate`` shares.

@@ -66,7 +66,8 @@ def test_lqr_closed_loop_poles_match_spec_and_are_stable():
     k = configured(LqgStabilizer, q=THESIS_Q).gain
     poles = np.linalg.eigvals(a - b @ k[None, :])
     assert np.all(poles.real < 0.0)
-    np.testing.assert_allclose(sorted_poles(poles), sorted_poles(CORRECTED_LQR_POLES), rtol=0.0, atol=0.06)
+    np.testing.assert_allclose(sorted_poles(poles), sorted_poles(CORRECTED_LQR_POLES), rtol=0.0,
+                               atol=0.06)
 
 
 def test_default_lqi_gain_solves_the_augmented_riccati_equation():

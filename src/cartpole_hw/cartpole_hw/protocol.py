@@ -1,4 +1,5 @@
-"""The Joint serial protocol (docs/rig.md, "The Joint protocol"): codec, stream splitter, conversions.
+"""The Joint serial protocol (docs/rig.md, "The Joint protocol"): codec, stream splitter,
+conversions.
 
 ASCII lines between the host and the Arduino Due I/O bridge, ``\\n``
 terminated (a ``\\r`` before it is tolerated), 115200 baud 8N1. Every line

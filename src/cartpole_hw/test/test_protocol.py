@@ -1,4 +1,5 @@
-"""Joint protocol codec (docs/rig.md, "The Joint protocol"): shared vectors, round trips, fuzzing, conversions."""
+"""Joint protocol codec (docs/rig.md, "The Joint protocol"): shared vectors, round trips,
+fuzzing, conversions."""
 import importlib.util
 import math
 from pathlib import Path

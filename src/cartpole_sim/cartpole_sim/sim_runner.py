@@ -4,7 +4,8 @@
 simulator node drives it: the plant is sampled every Ts (5 ms, section 9.2),
 the latest force command is held over the next period (zero-order hold), and a
 watchdog in simulated time sets zero force when no command has arrived for
-``command_timeout`` (50 ms, as the device: docs/rig.md, "The Joint protocol"). All numerical work stays in the
+``command_timeout`` (50 ms, as the device: docs/rig.md, "The Joint protocol"). All
+numerical work stays in the
 plant; this class only counts samples and decides which force is held.
 
 The watchdog keeps its word as the tests measure it, from the last command's

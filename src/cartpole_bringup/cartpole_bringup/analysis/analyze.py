@@ -74,7 +74,8 @@ CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
 TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
-"""Summary keys the comparison table shows besides the success measures (README.md, "The run summary")."""
+"""Summary keys the comparison table shows besides the success measures
+(README.md, "The run summary")."""
 HW_LIMIT_KEYS = ('limit_left', 'limit_right')
 """Keys of the limit-switch flags in the hw bridge's health status."""
 
@@ -260,7 +261,8 @@ class SeriesBuilder:
     def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
                   label: str = '', end_ns: int | None = None,
                   fault: str | None = None) -> tuple[RunSeries, dict[str, Any]]:
-        """The series and the run summary (README.md, "The run summary"); ``fault`` overrides the reported one."""
+        """The series and the run summary (README.md, "The run summary"); ``fault``
+        overrides the reported one."""
         series, contact = self.build(params=params, x_ref=x_ref, lockstep=lockstep, label=label,
                                      end_ns=end_ns)
         summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,

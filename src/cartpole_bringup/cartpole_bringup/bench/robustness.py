@@ -1,7 +1,9 @@
 """The sim-to-real gap, scored: ``cartpole bench robustness``.
 
-After the robustness leaderboard of the DFKI double_pendulum benchmark: each category of uncertainty is swept over levels from nominal
-outwards, several seeds a level; a run succeeds as the run summary says (README.md, "The run summary": caught,
+After the robustness leaderboard of the DFKI double_pendulum benchmark: each
+category of uncertainty is swept over levels from nominal outwards, several
+seeds a level; a run succeeds as the run summary says (README.md, "The run
+summary": caught,
 |theta| < 2 deg and |x - x*| <= 10 cm over the last 10 s, no end-stop
 contact), without a controller-manager fault (the rail guard's: it leaves
 the pendulum to fall), and after a push also without a fall; a level *counts* when more than half
