@@ -84,7 +84,7 @@ def _positive_array_reason(name: str, value, length: int) -> str:
 
 
 class EkfNode(Node):
-    """The ``ekf`` node (SPEC section 2, docs/architecture.md).
+    """The ``ekf`` node (docs/architecture.md, "ROS interfaces").
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``,
     ``parameter_overrides``, ``namespace``, ...).

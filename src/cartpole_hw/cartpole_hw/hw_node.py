@@ -1,5 +1,5 @@
 """ROS 2 node ``hw_bridge``: the rig (or its emulator) on ``/joint_states`` and
-``/cartpole/force_command`` through the Joint serial protocol (SPEC section 4).
+``/cartpole/force_command`` through the Joint serial protocol (docs/rig.md, "The Joint protocol").
 
 The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 :class:`~cartpole_hw.bridge.BridgeCore`, where every rule lives (read
