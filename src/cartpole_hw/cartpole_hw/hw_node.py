@@ -1,5 +1,5 @@
 """ROS 2 managed (lifecycle) node ``hw_bridge``: the rig (or its emulator) on ``/joint_states``
-and ``/cartpole/force_command`` through the Joint serial protocol (docs/rig.md).
+and ``/cartpole/force_command`` through the Joint serial protocol (docs/rig.md, "The Joint protocol").
 
 The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 :class:`~cartpole_hw.bridge.BridgeCore`, where every rule lives (read
@@ -59,7 +59,8 @@ Topics and services:
   prompt answer stale;
 - ``~/home`` (std_srvs/Trigger) resets the encoders (configured and disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
-  status ``hw_bridge``) every ``health_period``, in every state;
+  status ``hw_bridge``) every ``health_period``, in every state, and the same health
+  as ``hw_bridge: serial link`` on ``/diagnostics`` once a second (:meth:`HwBridgeNode.health`);
 - publishes ``/cartpole/command_applied`` (sensor_msgs/TimeReference,
   ``source='hw_bridge'``), once for every command the
   device reports in force (protocol version 2): ``time_ref`` = the stamp this
@@ -80,7 +81,7 @@ import time
 
 from builtin_interfaces.msg import Time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -92,6 +93,7 @@ from std_srvs.srv import Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
+from cartpole_sim.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
 from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 RECEIPTS_KEPT = 400
@@ -100,6 +102,10 @@ most samples waiting for the executor (older ones are dropped, ``handoff_dropped
 HANDSHAKE_TIMEOUT = 3.0
 """configure: longest wait for the device's ``V`` answer (and a homing's) [s]; the
 bridge pings every 0.5 s until it answers."""
+
+DEGRADED = ('lost_samples', 'seq_gaps', 'bad_lines', 'bad_samples', 'bad_commands',
+            'stale_commands', 'watchdog_trips', 'device_watchdog_trips', 'reconnects')
+"""Health counters whose growth since the previous report makes it WARN."""
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -190,6 +196,9 @@ class HwBridgeNode(LifecycleNode):
         self._fault: str | None = None
         """Why the executor is taking the node out of active (a fault), until on_error."""
         self._last_refusal = ''
+        self._down_reason = ''
+        """Why the bridge is unconfigured, if not by choice: a fault (on_error) or a refused
+        configure ('' after a configure or a cleanup)."""
 
         self._handoff: collections.deque[JointSample] = collections.deque()
         self._handoff_lock = threading.Lock()
@@ -215,6 +224,10 @@ class HwBridgeNode(LifecycleNode):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(self.get_parameter('health_period').value, self._on_health_timer)
+        port_id = str(self.get_parameter('port').value)
+        self._health_report = HealthReport('hw_bridge', port_id, ('samples',), DEGRADED)
+        self.diagnostics = NodeDiagnostics(self, 'serial link', port_id, self.health,
+                                           inputs=('samples',), degraded=DEGRADED)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -243,6 +256,7 @@ class HwBridgeNode(LifecycleNode):
                 homed = self.core.homed and done
             log = self.get_logger().info if homed else self.get_logger().warning
             log(f'home_on_start: {"encoders homed" if homed else self.core.last_error or reason}')
+        self._down_reason = ''
         self._log_transition('configured: streaming samples, disarmed')
         return SUCCESS
 
@@ -268,6 +282,7 @@ class HwBridgeNode(LifecycleNode):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close()
+        self._down_reason = ''
         self._log_transition('unconfigured: port closed')
         return SUCCESS
 
@@ -278,6 +293,8 @@ class HwBridgeNode(LifecycleNode):
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Zero, disarm and close, whatever failed: unconfigured (configure to go on)."""
         self._close()
+        self._down_reason = f'fault while active: {self._fault}' if self._fault else \
+            f'error in a transition from {state.label}'
         self._fault = None
         self.get_logger().error('on_error: disarmed, port closed; unconfigured')
         return SUCCESS
@@ -299,6 +316,8 @@ class HwBridgeNode(LifecycleNode):
             self.get_logger().warning
         self._last_refusal = gist
         log(f'{transition} refused: {reason}')
+        if transition == 'configure':
+            self._down_reason = f'configure refused: {reason}'
         return FAILURE
 
     def _log_transition(self, text: str) -> None:
@@ -502,32 +521,41 @@ class HwBridgeNode(LifecycleNode):
         state = self._state_machine.current_state[1]   # rclpy 7 has no public accessor
         with self._lock:
             values = self.core.health()
-            armed = self.core.armed
-            connected, link_ready = self.core.connected, self.core.link_ready
         with self._handoff_lock:
             dropped = self.handoff_dropped
         values = {'state': state, **values, 'handoff_dropped': str(dropped)}
-        status = DiagnosticStatus()
-        status.name = 'hw_bridge'
-        status.hardware_id = str(self.port)
-        if state not in ('inactive', 'active'):
-            status.level = DiagnosticStatus.WARN
-            status.message = f'{state}: port closed' + \
-                (f' ({values["last_error"]})' if values['last_error'] else '')
-        elif not connected or not link_ready:
-            status.level = DiagnosticStatus.ERROR
-            status.message = 'disconnected' if not connected else 'waiting for the device'
-        elif not armed:
-            status.level = DiagnosticStatus.WARN
-            status.message = 'disarmed' + (f' ({values["last_error"]})' if values['last_error'] else '')
-        else:
-            status.level = DiagnosticStatus.OK
-            status.message = 'armed'
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [status]
+        msg.status = [self._health_report.status(self.health(values, state))]
         self._health_pub.publish(msg)
+
+    def health(self, values: dict[str, str] | None = None, state: str | None = None) -> Health:
+        """The bridge's health (``values``: the core's, read under the lock if not given;
+        ``state``: the lifecycle's): unconfigured is OK (idle, port closed; its sample count
+        left out: no samples is no staleness then) or ERROR after a fault or a refused
+        configure; configured: ERROR disconnected or disarmed by a fault, WARN waiting for
+        the device's answer, OK armed or disarmed (idle); the reports add STALE when the
+        samples stopped."""
+        state = state or self._state_machine.current_state[1]
+        with self._lock:
+            if values is None:
+                values = {'state': state, **self.core.health()}
+            armed, connected = self.core.armed, self.core.connected
+            link_ready, error = self.core.link_ready, self.core.last_error
+        if state not in ('inactive', 'active'):
+            values = {k: v for k, v in values.items() if k != 'samples'}
+            if self._down_reason:
+                return Health(ERROR, f'{state}: {self._down_reason}', values)
+            return Health(OK, f'{state}: port closed', values)
+        if not connected:
+            return Health(ERROR, 'disconnected', values)
+        if not link_ready:
+            return Health(WARN, 'waiting for the device', values)
+        if armed:
+            return Health(OK, 'armed', values)
+        if error:
+            return Health(ERROR, f'disarmed: {error}', values)
+        return Health(OK, 'disarmed', values)
 
 
 def main(args=None) -> None:

@@ -116,7 +116,7 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         out['hw_bridge'] = {'port': args.port}
         if args.hw_arm:
             # The bridge arms (activate, GraphSpec.hw_arm) only with homed encoders: home
-            # them at its configure (the start: cart at the left stop, pendulum hanging still).
+            # them at its configure (the thesis's start: cart at the left stop, pendulum hanging still).
             out['hw_bridge']['home_on_start'] = True
     if args.plant_params is not None:
         # The nominal parameters of the plant model, the EKF and the controllers alike.
