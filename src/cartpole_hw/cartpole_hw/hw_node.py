@@ -109,8 +109,9 @@ DEGRADED = ('lost_samples', 'seq_gaps', 'bad_lines', 'bad_samples', 'bad_command
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
-SUCCESS, FAILURE, ERROR = (TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE,
-                           TransitionCallbackReturn.ERROR)
+SUCCESS, FAILURE, TRANSITION_ERROR = (TransitionCallbackReturn.SUCCESS,
+                                      TransitionCallbackReturn.FAILURE,
+                                      TransitionCallbackReturn.ERROR)
 
 
 class HwBridgeNode(LifecycleNode):
@@ -276,7 +277,7 @@ class HwBridgeNode(LifecycleNode):
         if self._fault is not None:
             self.get_logger().error(f'fault while active: {self._fault}; disarmed (U,0, E,0), '
                                     f'closing the port (on_error)')
-            return ERROR
+            return TRANSITION_ERROR
         self._log_transition('inactive: disarmed (U,0, E,0), streaming samples')
         return SUCCESS
 
