@@ -334,6 +334,10 @@ class HwBridgeNode(LifecycleNode):
             except Exception:  # noqa: BLE001 - the context may be shut down: close anyway
                 self._close()
         super().destroy_node()
+        # rclpy 7 leaves the lifecycle state machine (which holds the rcl node) to the
+        # garbage collector: until then the node, and its context's participant, stay in
+        # the ROS graph as a stale /hw_bridge
+        self._state_machine.destroy_when_not_in_use()
 
     # -- samples: reader thread -> executor ----------------------------------------------------
     def _hand_over(self, samples: list[JointSample]) -> None:
