@@ -364,8 +364,9 @@ class HwBridgeNode(LifecycleNode):
             self._drain_scheduled = False
             batch = list(self._handoff)
             self._handoff.clear()
+        offset_ns = self._clock_offset_ns() if batch else 0
         for sample in batch:
-            self._publish_sample(sample)
+            self._publish_sample(sample, offset_ns)
         if batch and self.core.device_version != self._version_logged:
             self._log_version()
         with self._lock:
@@ -376,9 +377,11 @@ class HwBridgeNode(LifecycleNode):
             self._publish_health()      # the reason, ahead of the transition events
             self.trigger_deactivate()   # on_deactivate returns ERROR: rclpy runs on_error
 
-    def _publish_sample(self, sample: JointSample) -> None:
+    def _publish_sample(self, sample: JointSample, offset_ns: int) -> None:
+        """Publish one sample; ``offset_ns``: node clock minus the link's clock [ns]."""
         msg = JointState()
-        stamp_ns, received_ns = self._node_time_ns(sample.stamp, sample.receipt)
+        stamp_ns = offset_ns + int(round(sample.stamp * 1e9))
+        received_ns = offset_ns + int(round(sample.receipt * 1e9))
         msg.header.stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
         self._note_receipt(stamp_ns, received_ns, sample.seq)
         if sample.applied is not None:
@@ -452,20 +455,20 @@ class HwBridgeNode(LifecycleNode):
             received = self._received.get(stamp_ns)
         return None if received is None else received[1]
 
-    def _node_time_ns(self, link_time: float, receipt: float) -> tuple[int, int]:
-        """``link_time`` and the ``receipt`` time (the link's clock, monotonic) on the node
-        clock [ns]: the two clocks read back to back, again if something came between the
-        reads."""
+    def _clock_offset_ns(self) -> int:
+        """Node clock minus the link's clock (monotonic) [ns], from the two read back to
+        back: the tightest of a few readings (one interrupted by a thread switch is wide)."""
         clock, read = self.get_clock(), time.monotonic   # the link's clock
-        for _ in range(3):
+        best = None
+        for _ in range(8):
             before = read()
             now_ns = clock.now().nanoseconds
             after = read()
-            if after - before < 5e-5:
+            if best is None or after - before < best[0]:
+                best = (after - before, now_ns - int(round(0.5 * (before + after) * 1e9)))
+            if after - before < 2e-5:
                 break
-        link_now = 0.5 * (before + after)
-        return (now_ns - int(round((link_now - link_time) * 1e9)),
-                now_ns - int(round((link_now - receipt) * 1e9)))
+        return best[1]
 
     def _on_force_command(self, msg: JointState) -> None:
         try:
