@@ -34,7 +34,7 @@
 // its watchdog or the host's commands, and the plant still sees every output
 // at the firmware's time. The limit switches are those the plant reported
 // with the previous sample (5 ms old; the Due reads its pins at the deadline).
-// A plant 8 samples behind loses the oldest sample (its seq is skipped).
+// A plant 40 samples (200 ms) behind loses the oldest sample (its seq is skipped).
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -104,7 +104,7 @@ struct Statistics {
   uint32_t period_max;     // clocks of the busiest 5 ms period (all the loop's work in it)
   uint32_t period_work;
   uint32_t pending_max;    // most samples waiting for the plant at once
-  uint32_t plant_timeouts; // samples lost: the plant was 8 samples behind
+  uint32_t plant_timeouts; // samples lost: the plant was 40 samples behind
   bool requested;
 } stats;
 
@@ -180,7 +180,7 @@ struct Pending {
   uint32_t t_us;
   JpDevice at;
 };
-const unsigned kPendingMax = 8;   // 40 ms of samples
+const unsigned kPendingMax = 40;  // 200 ms of samples (the Python emulator resynchronises after 0.2 s too)
 Pending pending[kPendingMax];
 unsigned pending_head, pending_count;
 bool limit_left, limit_right;     // the switches as the plant last reported them
@@ -261,7 +261,7 @@ void take_paused_byte() {   // flow control: the byte the full ring left in the 
 // asked for the counts at t_us; the S line goes out when they come (take_counts).
 void sample(uint32_t t_us) {
   uint32_t start = clocks();
-  if (pending_count == kPendingMax) complete_sample(false, 0, 0);   // the plant is 40 ms behind
+  if (pending_count == kPendingMax) complete_sample(false, 0, 0);   // the plant is 200 ms behind
   Pending &p = pending[(pending_head + pending_count) % kPendingMax];
   ++pending_count;
   if (pending_count > stats.pending_max) stats.pending_max = pending_count;
@@ -311,21 +311,22 @@ int main() {
   uart_init(kUart0, kUartTxEn | kUartRxEn | kUartTxInt | kUartRxInt);
   uart_init(kUart1, kUartTxEn | kUartRxEn | kUartRxInt);
   kNvicIser[0] = (1u << 0) | (1u << 1) | (1u << 2) | (1u << 8);
+  kTimer1->reload = 0xFFFFFFFF;
+  kTimer1->value = 0xFFFFFFFF;
+  clock_last = 0xFFFFFFFF;   // micros() = 0 until the clock starts
+  bridge_init(&core, &board, "cartpole_bridge", true);
   // the plant must answer from the first sample on: wait for its G
-  while (!plant_ready) {
+  for (;;) {
     plant_poll();
+    if (plant_ready) break;
     irq_off();
     if (plant_rx.empty()) wait_for_interrupt();
     irq_on();
   }
-  kTimer1->reload = 0xFFFFFFFF;
-  kTimer1->value = 0xFFFFFFFF;
-  clock_last = 0xFFFFFFFF;
   kTimer1->ctrl = 1;        // enabled, free-running (it reloads at 0), no interrupt
   kTimer0->reload = kTickClocks - 1;
   kTimer0->value = kTickClocks - 1;
   kTimer0->ctrl = 1 | 8;    // enabled, interrupt
-  bridge_init(&core, &board, "cartpole_bridge", true);
   core.next_sample_us = JP_SAMPLE_US;   // samples at t_us = k x 5000
   for (;;) {
     irq_off();

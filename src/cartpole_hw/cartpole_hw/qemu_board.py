@@ -106,7 +106,7 @@ class FirmwareStatistics:
     tx_dropped: int
     overruns: int
     plant_timeouts: int
-    """Samples lost because the plant's process was 8 samples (40 ms) behind."""
+    """Samples lost because the plant's process was 40 samples (200 ms) behind."""
     pending_max: int
     """Most samples waiting for the plant's answer at once."""
     clock_hz: int

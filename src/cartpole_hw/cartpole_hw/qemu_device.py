@@ -190,7 +190,29 @@ class QemuDevice(Emulator):
             self.board = QemuBoard(build_image(), icount_shift=None)
         if not self.board.running:
             self.board.start()
+            self._boot()
             self.board.host.setblocking(False)
+
+    def _boot(self, timeout: float = 10.0) -> None:
+        """Take the firmware's power-up lines (its output written, its counters reset)
+        before anything else happens to the plant."""
+        plant = self.board.plant
+        plant.settimeout(timeout)
+        try:
+            while b'R,' not in self._from_plant:
+                data = plant.recv(4096)
+                if not data:
+                    raise ConnectionError('the firmware board stopped while booting')
+                self._from_plant += data
+        except TimeoutError:
+            raise RuntimeError('the firmware did not boot (no counter reset on its plant '
+                               'channel)') from None
+        finally:
+            plant.settimeout(None)
+        *lines, self._from_plant = self._from_plant.split(b'\n')
+        for line in lines:
+            if line:
+                self._plant_line(line)
 
     def run(self, duration: float | None = None) -> None:
         """Relay and step the plant until :meth:`stop` (or ``duration`` seconds)."""
