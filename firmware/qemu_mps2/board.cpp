@@ -100,6 +100,7 @@ BridgeCore core;
 
 struct Statistics {
   uint32_t tick_max;       // clocks of the worst deadline (watchdog, limits, output, T)
+  uint32_t sample_max;     // clocks of the worst completion (C parsed, S line sent)
   uint32_t line_max;       // clocks of the worst host byte handled (a whole line's work)
   uint32_t period_max;     // clocks of the busiest 5 ms period (all the loop's work in it)
   uint32_t period_work;
@@ -195,7 +196,10 @@ void complete_sample(bool answered, int16_t cart, int16_t pend) {
   pending_head = (pending_head + 1) % kPendingMax;
   --pending_count;
   if (answered) {
+    uint32_t start = clocks();
     bridge_send_sample(&core, &board, &p.at, p.t_us, cart, pend);
+    uint32_t work = clocks_since(start);
+    if (work > stats.sample_max) stats.sample_max = work;
   } else {
     ++stats.plant_timeouts;   // the plant never answered: the sample is lost (seq skipped)
   }
@@ -238,8 +242,9 @@ void plant_poll() {
 
 void send_statistics() {
   const BridgeCounters &k = core.counters;
-  plant_printf("M,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu\n",
+  plant_printf("M,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu,%lu\n",
                (unsigned long)k.samples, (unsigned long)stats.tick_max,
+               (unsigned long)stats.sample_max,
                (unsigned long)stats.period_max, (unsigned long)stats.line_max,
                (unsigned long)stack_high_water(), (unsigned long)k.lines_in,
                (unsigned long)k.refused, (unsigned long)k.oversized,

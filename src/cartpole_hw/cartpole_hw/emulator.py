@@ -534,6 +534,10 @@ def main(argv: list[str] | None = None) -> int:
         emulator.open()
         hygiene = realtime.enter_loop(what='emulator',
                                       log=lambda text: print(text, file=sys.stderr))
+        if args.firmware == 'qemu' and hygiene.priority > 0:
+            threads = emulator.board.prioritise(hygiene.priority)
+            print(f'emulator: qemu-system-arm at SCHED_FIFO {hygiene.priority} on {threads} '
+                  'threads', file=sys.stderr)
         emulator.run(args.duration)
     except (ValueError, RuntimeError, OSError) as exc:   # a bad CARTPOLE_REALTIME, QEMU failed
         print(f'cartpole emulate: error: {exc}', file=sys.stderr)

@@ -94,8 +94,11 @@ class FirmwareStatistics:
     samples: int
     tick_max: int
     """Worst deadline: watchdog, limits, output written, the plant asked (``T``)."""
+    sample_max: int
+    """Worst completion of a sample: the plant's counts taken, the ``S`` line sent."""
     period_max: int
-    """Busiest 5 ms period: every host line handled in it plus its sample."""
+    """Busiest 5 ms period: all the loop's work in it (its sample, the host lines handled,
+    and one pass of the loop per byte the 1-byte UART delivers)."""
     line_max: int
     """Worst single host byte (the one completing a line: decode, act, reply)."""
     stack_bytes: int
@@ -114,7 +117,7 @@ class FirmwareStatistics:
     @classmethod
     def parse(cls, line: str) -> 'FirmwareStatistics':
         fields = line.strip().split(',')
-        if fields[0] != 'M' or len(fields) != 14:
+        if fields[0] != 'M' or len(fields) != 15:
             raise ValueError(f'not a statistics line: {line!r}')
         return cls(*(int(f) for f in fields[1:]))
 
@@ -198,6 +201,22 @@ class QemuBoard:
         if self.process.poll() is None:
             self.process.kill()
         return self.process.communicate(timeout=5)[1].decode(errors='replace')[-2000:]
+
+    def prioritise(self, priority: int) -> int:
+        """SCHED_FIFO ``priority`` for every QEMU thread (the emulated CPU must not be
+        descheduled while its clock, the host's, runs on); returns how many took it."""
+        done = 0
+        try:
+            tids = [int(t) for t in os.listdir(f'/proc/{self.process.pid}/task')]
+        except (OSError, AttributeError):
+            return 0
+        for tid in tids:
+            try:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+                done += 1
+            except OSError:
+                continue
+        return done
 
     @property
     def running(self) -> bool:
