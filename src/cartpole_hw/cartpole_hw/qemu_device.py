@@ -81,6 +81,8 @@ class QemuDevice(Emulator):
         self.statistics: FirmwareStatistics | None = None
         self.outputs: deque[tuple[int, int, bool, str]] = deque(maxlen=4000)
         """The firmware's last output writes: ``(t_us, dac, enabled, cause)``."""
+        self.deadlines: deque[int] = deque(maxlen=400)
+        """Device times [us] of the firmware's last sample deadlines (its ``T`` lines)."""
         self.plant_timeouts = 0
         self._to_firmware = bytearray()
         self._from_firmware = b''
@@ -116,6 +118,7 @@ class QemuDevice(Emulator):
         fields = line.split(b',')
         kind = fields[0]
         if kind == b'T':
+            self.deadlines.append(int(fields[1]))
             self._advance(self._device_time(int(fields[1])))
             left, right = self.limits()
             cart, pend = self.counters()
