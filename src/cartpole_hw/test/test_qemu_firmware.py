@@ -107,14 +107,14 @@ def test_fuzzed_input_never_crashes_hangs_or_moves_the_setpoint(device):
     the noise, the output is only ever 300 or zero (the watchdog, when the noise starved
     the U lines). The firmware keeps sampling throughout and answers afterwards."""
     rng = random.Random(22)
-    disabled = [noise(rng, 16384) for _ in range(2)]   # made first: the device's thread
-    armed = [noise(rng, 1024) for _ in range(16)]       # shares this process
+    disabled = [noise(rng, 8192) for _ in range(2)]    # made first: the device's thread
+    armed = [noise(rng, 512) for _ in range(16)]        # shares this process
     port = serial.Serial(device.link, 115200, timeout=0.01, write_timeout=30)
     splitter = jp.LineSplitter()
     port.write(jp.encode(jp.Stream(True)))
     first = read_lines(port, splitter, lambda m: any(isinstance(x, jp.Sample) for x in m))
     start_seq = next(x for x in first if isinstance(x, jp.Sample)).seq
-    for chunk in disabled:                               # disabled: 2 x 16 KB of noise
+    for chunk in disabled:                               # disabled: 2 x 8 KB of noise
         port.write(chunk)
         port.read(port.in_waiting)
     port.write(jp.encode(jp.Enable(True)) + jp.encode(jp.Setpoint(300)))
@@ -122,7 +122,9 @@ def test_fuzzed_input_never_crashes_hangs_or_moves_the_setpoint(device):
         port.write(chunk + jp.encode(jp.Setpoint(300)))
         port.read(port.in_waiting)
     port.write(jp.encode(jp.Enable(False)) + jp.encode(jp.Ping()))
-    messages = read_lines(port, splitter, lambda m: any(isinstance(x, jp.Version) for x in m))
+    # the firmware takes the noise as fast as it can (a loaded machine runs QEMU slowly)
+    messages = read_lines(port, splitter, lambda m: any(isinstance(x, jp.Version) for x in m),
+                          timeout=60.0)
     assert any(isinstance(x, jp.Version) for x in messages), 'the firmware stopped answering'
     samples = [x for x in messages if isinstance(x, jp.Sample)]
     later = read_lines(port, splitter, lambda m: sum(isinstance(x, jp.Sample) for x in m) >= 3)
