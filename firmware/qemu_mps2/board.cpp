@@ -47,6 +47,7 @@ extern "C" void Timer0_Handler(void);
 extern "C" void Uart0Rx_Handler(void);
 extern "C" void Uart0Tx_Handler(void);
 extern "C" void Uart1Rx_Handler(void);
+extern "C" void Uart1Tx_Handler(void);
 
 namespace {
 
@@ -91,6 +92,7 @@ struct Ring {
 Ring<512> host_rx;
 Ring<1024> host_tx;
 Ring<256> plant_rx;
+Ring<1024> plant_tx;
 volatile bool host_rx_paused;     // ring full: the byte waits in the UART (flow control)
 volatile bool tick;               // TIMER0 fired: check the sample deadline
 uint64_t clock_total;             // TIMER1 clocks since boot
@@ -122,12 +124,25 @@ void host_tx_kick() {   // with interrupts off, or in the TX interrupt
   while (!host_tx.empty() && !(kUart0->state & kUartTxFull)) kUart0->data = host_tx.get();
 }
 
-void plant_write(const char *s, size_t n) {   // the plant channel blocks (it is no host)
+void plant_tx_kick() {   // with interrupts off, or in the TX interrupt
+  while (!plant_tx.empty() && !(kUart1->state & kUartTxFull)) kUart1->data = plant_tx.get();
+}
+
+// The plant channel loses nothing: with its buffer full (never, in practice) this waits.
+void plant_write(const char *s, size_t n) {
   for (size_t i = 0; i < n; ++i) {
-    while (kUart1->state & kUartTxFull) {
+    while (plant_tx.room() == 0) {
+      irq_off();
+      plant_tx_kick();
+      irq_on();
     }
-    kUart1->data = (uint8_t)s[i];
+    irq_off();
+    plant_tx.put((uint8_t)s[i]);
+    irq_on();
   }
+  irq_off();
+  plant_tx_kick();
+  irq_on();
 }
 
 void plant_printf(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -301,6 +316,11 @@ extern "C" void Uart0Tx_Handler(void) {
   host_tx_kick();
 }
 
+extern "C" void Uart1Tx_Handler(void) {
+  kUart1->intstatus = kUartIntTx;
+  plant_tx_kick();
+}
+
 extern "C" void Uart1Rx_Handler(void) {
   kUart1->intstatus = kUartIntRx;
   if (kUart1->state & kUartRxFull) {
@@ -314,8 +334,8 @@ int main() {
   kSysTick[2] = 0;          // CVR
   kSysTick[0] = 5;          // CSR: processor clock, enabled, no interrupt
   uart_init(kUart0, kUartTxEn | kUartRxEn | kUartTxInt | kUartRxInt);
-  uart_init(kUart1, kUartTxEn | kUartRxEn | kUartRxInt);
-  kNvicIser[0] = (1u << 0) | (1u << 1) | (1u << 2) | (1u << 8);
+  uart_init(kUart1, kUartTxEn | kUartRxEn | kUartTxInt | kUartRxInt);
+  kNvicIser[0] = (1u << 0) | (1u << 1) | (1u << 2) | (1u << 3) | (1u << 8);
   kTimer1->reload = 0xFFFFFFFF;
   kTimer1->value = 0xFFFFFFFF;
   clock_last = 0xFFFFFFFF;   // micros() = 0 until the clock starts

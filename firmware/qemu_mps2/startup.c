@@ -18,6 +18,7 @@ void Timer0_Handler(void);
 void Uart0Rx_Handler(void);
 void Uart0Tx_Handler(void);
 void Uart1Rx_Handler(void);
+void Uart1Tx_Handler(void);
 
 void Default_Handler(void) {
   for (;;) {
@@ -40,7 +41,7 @@ __attribute__((section(".vectors"), used)) static void (*const vectors[16 + 32])
     0,
     Default_Handler, /* PendSV */
     Default_Handler, /* SysTick */
-    Uart0Rx_Handler, Uart0Tx_Handler, Uart1Rx_Handler, Default_Handler,
+    Uart0Rx_Handler, Uart0Tx_Handler, Uart1Rx_Handler, Uart1Tx_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
     Timer0_Handler,  Default_Handler, Default_Handler, Default_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
