@@ -95,16 +95,16 @@ def test_setpoint_reaches_the_amplifier_and_moves_the_cart_right(emulator):
     c = Client(emulator.link)
     c.send(jp.Stream(True), jp.Enable(True))
     c.pump(lambda c: len(c.samples) >= 2)
-    n0 = len(c.samples)
-    c.pump(lambda c: len(c.samples) >= n0 + 60, every=lambda: c.send(jp.Setpoint(600)))
+    # U,600 at every read (a test process stalled for 45 ms lets the watchdog of the QEMU
+    # device, which runs on, zero the current until the next U: so "until", not "after N")
+    assert c.pump(lambda c: c.samples[-1].cart_ticks > 100 and not c.samples[-1].watchdog_tripped,
+                  every=lambda: c.send(jp.Setpoint(600)))
     moved = c.samples[-1]
-    assert moved.enabled and not moved.watchdog_tripped
-    assert moved.cart_ticks > 100                       # 600 / 56.744 = 10.6 N > friction
+    assert moved.enabled                                # 600 / 56.744 = 10.6 N > friction
     assert emulator.device.dac_value() == 1953 + 600
     # and left with a negative setpoint: the cart comes back
-    n1 = len(c.samples)
-    c.pump(lambda c: len(c.samples) >= n1 + 80, every=lambda: c.send(jp.Setpoint(-600)))
-    assert c.samples[-1].cart_ticks < moved.cart_ticks
+    assert c.pump(lambda c: c.samples[-1].cart_ticks < moved.cart_ticks,
+                  every=lambda: c.send(jp.Setpoint(-600)))
 
 
 def test_device_watchdog_trips_within_50ms_of_the_last_setpoint(emulator):
