@@ -21,6 +21,7 @@ void bridge_init(BridgeCore *c, const BridgeBoard *b, const char *name,
   jp_device_init(&c->dev, name, positive_setpoint_drives_right);
   jp_line_init(&c->rx);
   c->counters = BridgeCounters();
+  c->resync_us = 4 * JP_SAMPLE_US;
   bridge_apply_output(c, b, 0);       // disabled, DAC at 1953: zero current
   b->reset_counters(b->ctx);          // power-up reference; the host homes with R
   c->next_sample_us = b->micros(b->ctx) + JP_SAMPLE_US;
@@ -49,7 +50,7 @@ void bridge_receive(BridgeCore *c, const BridgeBoard *b, char byte) {
 bool bridge_sample_due(BridgeCore *c, uint32_t now) {
   if ((int32_t)(now - c->next_sample_us) < 0) return false;
   c->next_sample_us += JP_SAMPLE_US;
-  if ((int32_t)(now - c->next_sample_us) > (int32_t)(4 * JP_SAMPLE_US)) {
+  if ((int32_t)(now - c->next_sample_us) > (int32_t)c->resync_us) {
     c->next_sample_us = now + JP_SAMPLE_US;
     ++c->counters.overruns;
   }

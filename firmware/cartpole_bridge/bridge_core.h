@@ -5,7 +5,8 @@
 //   - host bytes -> lines -> the Joint protocol's device state machine
 //     (joint_protocol.cpp), replies and refusals sent back;
 //   - the sample clock: 5 ms deadlines on the board's micros() (no drift; a
-//     loop more than four periods late resynchronises and counts an overrun);
+//     loop more than resync_us late, four periods unless the board says
+//     otherwise, resynchronises and counts an overrun; a later one catches up);
 //   - per sample: watchdog and limit switches, the S line;
 //   - the output: the DAC value (setpoint conversion, Appendix A) and the
 //     amplifier's enable, handed to the board on every pass;
@@ -49,6 +50,7 @@ struct BridgeCore {
   JpDevice dev;
   JpLineBuffer rx;
   uint32_t next_sample_us;
+  uint32_t resync_us;     // a loop later than this resynchronises (4 periods; a board may raise it)
   BridgeCounters counters;
   char out[3 * (JP_MAX_LINE + 2)];
 };

@@ -353,6 +353,10 @@ int main() {
   kTimer0->value = kTickClocks - 1;
   kTimer0->ctrl = 1 | 8;    // enabled, interrupt
   core.next_sample_us = JP_SAMPLE_US;   // samples at t_us = k x 5000
+  // QEMU is a process on a shared host: it may not run the CPU for tens of ms (the Due's
+  // loop never lags so). Catch up every deadline within 200 ms, as many samples as may wait
+  // for the plant, as the Python emulator does; resynchronise beyond.
+  core.resync_us = kPendingMax * JP_SAMPLE_US;
   for (;;) {
     irq_off();
     if (host_rx.empty() && !tick && plant_rx.empty() && !stats.requested) wait_for_interrupt();

@@ -31,6 +31,7 @@ the rig, where the amplifier's lag is not either).
 """
 from __future__ import annotations
 
+import re
 import select
 import time
 from collections import deque
@@ -202,7 +203,7 @@ class QemuDevice(Emulator):
         plant = self.board.plant
         plant.settimeout(timeout)
         try:
-            while b'R,' not in self._from_plant:
+            while not re.search(rb'(^|\n)R,\d+\n', self._from_plant):
                 data = plant.recv(4096)
                 if not data:
                     raise ConnectionError('the firmware board stopped while booting')
