@@ -33,10 +33,10 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware):
     """python: the firmware's Python mirror; qemu: the firmware compiled for the Cortex-M3 in
     qemu-system-arm (hardware in the loop). The qemu run also records, with the recorder in
     its own process (--processes), and its bag reads back."""
-    record = []
+    record, duration = [], '17'
     if firmware == 'qemu':
         firmware_or_skip()
-        record = ['--processes', '--record', str(tmp_path / 'runs')]
+        record, duration = ['--processes', '--record', str(tmp_path / 'runs')], '15'
     link = tmp_path / 'cartpole-emu'
     log = open(tmp_path / 'emulator.log', 'w')
     emulator = subprocess.Popen(
@@ -48,7 +48,7 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware):
         assert 'port:' in first, (tmp_path / 'emulator.log').read_text()
         run = subprocess.run(
             [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--hw', '--port', str(link),
-             '--hw-arm', '--duration', '17', '--json', *record],
+             '--hw-arm', '--duration', duration, '--json', *record],
             capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stderr[-3000:]
         lines = [line for line in run.stdout.splitlines() if line.startswith('{')]
@@ -75,8 +75,8 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware):
 
 
 def assert_bag_reads_back(runs: Path) -> None:
-    """The run's bag opens with rosbags and holds the rig's samples (their seq gapless in
-    the samples the firmware sent: /joint_states at the device's 5 ms) and the commands."""
+    """The run's bag opens with rosbags and holds the rig's samples (/joint_states at the
+    device's 200 Hz) and the force commands."""
     from rosbags.highlevel import AnyReader
     bags = list(runs.glob('*/bag'))
     assert len(bags) == 1, bags
@@ -86,7 +86,7 @@ def assert_bag_reads_back(runs: Path) -> None:
             counts[connection.topic] = counts.get(connection.topic, 0) + 1
             if connection.topic == '/cartpole/force_command':
                 reader.deserialize(raw, connection.msgtype)   # decodes
-    assert counts.get('/joint_states', 0) >= 15 / 0.005 * 0.9, counts   # ~200 Hz for 17 s
+    assert counts.get('/joint_states', 0) >= 13 / 0.005 * 0.9, counts   # ~200 Hz for 15 s
     assert counts.get('/cartpole/force_command', 0) >= 10 / 0.005, counts
 
 

@@ -532,7 +532,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.firmware == 'qemu':
             emulator.power_on()
         emulator.open()
-        hygiene = realtime.enter_loop(what='emulator',
+        priority = None
+        if args.firmware == 'qemu':
+            # the emulated device (QEMU and the plant's relay) has a CPU of its own on the rig:
+            # one step above the host's loop, so the host's threads never hold it up
+            base = realtime.priority_from_environment()
+            priority = min(base + 1, realtime.MAX_PRIORITY) if base > 0 else 0
+        hygiene = realtime.enter_loop(priority, what='emulator',
                                       log=lambda text: print(text, file=sys.stderr))
         if args.firmware == 'qemu' and hygiene.priority > 0:
             threads = emulator.board.prioritise(hygiene.priority)
