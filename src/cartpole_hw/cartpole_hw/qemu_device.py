@@ -163,23 +163,24 @@ class QemuDevice(Emulator):
                 return
         self._send(line)
 
+    @staticmethod
+    def _lines(channel, pending: bytes) -> tuple[list[bytes], bytes]:
+        """The complete lines read from a UART's socket (without '\\n') and the rest."""
+        data = channel.recv(65536)
+        if not data:
+            raise ConnectionError('the firmware board stopped (qemu-system-arm exited)')
+        *lines, rest = (pending + data).split(b'\n')
+        return lines, rest
+
     def _pump(self, readable: list, writable: list) -> None:
         board = self.board
         if board.plant in readable:
-            data = board.plant.recv(65536)
-            if not data:
-                raise ConnectionError('the firmware board stopped (qemu-system-arm exited)')
-            self._from_plant += data
-            *lines, self._from_plant = self._from_plant.split(b'\n')
+            lines, self._from_plant = self._lines(board.plant, self._from_plant)
             for line in lines:
                 if line:
                     self._plant_line(line)
         if board.host in readable:
-            data = board.host.recv(65536)
-            if not data:
-                raise ConnectionError('the firmware board stopped (qemu-system-arm exited)')
-            self._from_firmware += data
-            *lines, self._from_firmware = self._from_firmware.split(b'\n')
+            lines, self._from_firmware = self._lines(board.host, self._from_firmware)
             for line in lines:
                 self._firmware_line(line + b'\n')
         if board.host in writable and self._to_firmware:
