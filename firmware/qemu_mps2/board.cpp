@@ -95,7 +95,8 @@ Ring<256> plant_rx;
 Ring<1024> plant_tx;
 volatile bool host_rx_paused;     // ring full: the byte waits in the UART (flow control)
 volatile bool tick;               // TIMER0 fired: check the sample deadline
-uint64_t clock_total;             // TIMER1 clocks since boot
+uint32_t micros_total;            // microseconds since the clock started (wrapping)
+uint32_t clock_rest;              // TIMER1 clocks since then not yet in micros_total
 uint32_t clock_last;
 
 BridgeCore core;
@@ -158,9 +159,12 @@ void plant_printf(const char *fmt, ...) {
 // ---- time ----------------------------------------------------------------------------
 uint32_t micros_now() {   // from the main loop only (it runs at least every 5 ms)
   uint32_t value = kTimer1->value;   // counts down
-  clock_total += (uint32_t)(clock_last - value);
+  clock_rest += clock_last - value;  // clocks not yet counted as whole microseconds
   clock_last = value;
-  return (uint32_t)(clock_total / (kSysClock / 1000000));   // wraps like the Due's micros()
+  const uint32_t per_us = kSysClock / 1000000;
+  micros_total += clock_rest / per_us;   // 32-bit: wraps like the Due's micros()
+  clock_rest %= per_us;
+  return micros_total;
 }
 
 bool sample_due_now() { return (int32_t)(micros_now() - core.next_sample_us) >= 0; }
