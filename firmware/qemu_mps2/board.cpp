@@ -13,9 +13,11 @@
 //                                                          every-pass refresh changed it)
 //                                R,<t_us>                  the decoders' counters reset
 //                                M,<statistics>            see send_statistics()
-//            plant -> firmware   C,<cart hi>,<cart lo>,<pend hi>,<pend lo>,<limits>
-//                                                          the answer to T (limits: bit 0
-//                                                          left, bit 1 right)
+//            plant -> firmware   C,<HHLLHHLLm>              the answer to T, in hex: the cart's
+//                                                          bus bytes (high, low), the
+//                                                          pendulum's, the limits (bit 0
+//                                                          left, bit 1 right); short, as
+//                                                          QEMU hands a UART a byte at a time
 //                                Q                         asks for an M line
 //                                G,<limits>                go: the plant is served (the
 //                                                          firmware starts its clock then)
@@ -233,15 +235,25 @@ void take_go(const char *s) {
   plant_ready = true;
 }
 
-// "C,a,b,c,d,e": the bus bytes of both decoders and the limit switches.
-void take_counts(const char *s) {
-  unsigned long v[5];
-  if (sscanf(s, "C,%lu,%lu,%lu,%lu,%lu", &v[0], &v[1], &v[2], &v[3], &v[4]) != 5) return;
+int hex_digit(char c) {
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+
+// "C,HHLLHHLLm": the bus bytes of both decoders and the limit switches, in hex.
+void take_counts(const char *s, size_t n) {
+  uint8_t v[5];
+  if (n != 11 || s[1] != ',') return;
+  for (int i = 0; i < 5; ++i) {
+    int hi = i < 4 ? hex_digit(s[2 + 2 * i]) : 0, lo = hex_digit(s[i < 4 ? 3 + 2 * i : 10]);
+    if (hi < 0 || lo < 0) return;
+    v[i] = (uint8_t)(hi << 4 | lo);
+  }
   if (pending_count == 0) return;
   limit_left = (v[4] & 1) != 0;
   limit_right = (v[4] & 2) != 0;
-  complete_sample(true, bridge_count((uint8_t)v[0], (uint8_t)v[1]),
-                  bridge_count((uint8_t)v[2], (uint8_t)v[3]));
+  complete_sample(true, bridge_count(v[0], v[1]), bridge_count(v[2], v[3]));
 }
 
 void plant_poll() {
@@ -254,7 +266,7 @@ void plant_poll() {
     plant_line[plant_len] = 0;
     if (plant_line[0] == 'Q') stats.requested = true;
     else if (plant_line[0] == 'G') take_go(plant_line);
-    else if (plant_line[0] == 'C') take_counts(plant_line);
+    else if (plant_line[0] == 'C') take_counts(plant_line, plant_len);
     plant_len = 0;
   }
 }

@@ -79,8 +79,9 @@ def checksum_line(body: str) -> bytes:
 class Exercise:
     """The scripted host and the stand-in plant around the firmware (module docstring)."""
 
-    def __init__(self, board, samples: int, seed: int = 1) -> None:
+    def __init__(self, board, format_counts, samples: int, seed: int = 1) -> None:
         self.board = board
+        self.format_counts = format_counts
         self.samples = samples
         self.rng = random.Random(seed)
         self.seen = 0
@@ -130,8 +131,7 @@ class Exercise:
         if line.startswith(b'T,'):
             cart = (cart + self.rng.randint(-300, 300)) & 0xFFFF
             pend = self.rng.randint(0, 0xFFFF)
-            self.board.plant.sendall(
-                f'C,{cart >> 8},{cart & 255},{pend >> 8},{pend & 255},0\n'.encode())
+            self.board.plant.sendall(self.format_counts(cart, pend, False, False))
         elif line.startswith(b'M,') and self.seen >= self.samples:
             self.statistics = line.decode()
         return cart
@@ -149,7 +149,7 @@ def report(image: Path, size_tool: str, samples: int, sram_budget: int,
     board = qb.QemuBoard(image, icount_shift=qb.ICOUNT_SHIFT, realtime=True)
     board.start()
     try:
-        exercise = Exercise(board, samples)
+        exercise = Exercise(board, qb.format_counts, samples)
         exercise.run(timeout=120.0)
     finally:
         board.stop()

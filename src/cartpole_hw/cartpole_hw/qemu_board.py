@@ -14,8 +14,8 @@ connected Unix sockets:
   writes its output, ``R,<t_us>`` when it resets the decoders' counters and
   ``M,...`` (its statistics, :class:`FirmwareStatistics`) once a second or
   when asked with ``Q``; the plant answers every ``T`` with
-  ``C,<cart hi>,<cart lo>,<pend hi>,<pend lo>,<limits>``, the HCTL-2021 bus
-  bytes and the limit switches (:func:`format_counts`).
+  ``C,<HHLLHHLLm>``, the HCTL-2021 bus bytes and the limit switches in hex
+  (:func:`format_counts`; short: QEMU hands the UART one byte at a time).
 
 QEMU runs with ``-icount shift=N,sleep=on``: the guest's clock advances by
 2**N ns per instruction while it computes and with the host's clock while
@@ -130,8 +130,7 @@ def format_counts(cart: int, pend: int, left: bool, right: bool) -> bytes:
     """The plant's answer to ``T``: the two 16-bit counters as bus bytes, the limit switches."""
     cart &= 0xFFFF
     pend &= 0xFFFF
-    return (f'C,{cart >> 8},{cart & 0xFF},{pend >> 8},{pend & 0xFF},'
-            f'{int(left) | int(right) << 1}\n').encode()
+    return f'C,{cart:04X}{pend:04X}{int(left) | int(right) << 1:X}\n'.encode()
 
 
 class QemuBoard:
