@@ -28,8 +28,10 @@ file by path for ``make -C firmware arm``.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -44,6 +46,17 @@ ICOUNT_SHIFT = 3
 SAMPLE_PERIOD_US = 5000
 DUE_CLOCK_HZ = 84_000_000
 """The SAM3X8E's core clock: the Due's budget per 5 ms tick is 420 000 cycles."""
+
+
+def _die_with_parent():
+    """A ``preexec_fn`` for QEMU: SIGTERM to it when the thread that started it ends (Linux
+    prctl PR_SET_PDEATHSIG), so a killed emulator leaves no board running; None elsewhere.
+    Looked up here, in the parent: the child between fork and exec must not import."""
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)
 
 
 def missing_packages() -> list[str]:
@@ -177,7 +190,8 @@ class QemuBoard:
         try:
             self.process = subprocess.Popen(
                 self.command(listeners['host'][1], listeners['plant'][1]),
-                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                preexec_fn=_die_with_parent())
             # QEMU connects its chardevs in the order given, before the guest runs
             for name, (s, _) in listeners.items():
                 try:
