@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from cartpole_bringup.namespaces import (bag_namespace, graph_topic, in_namespace, normalize,
-                                         ros_arguments)
+                                         parameters_in_namespace, ros_arguments)
 
 pytestmark = pytest.mark.ros
 
@@ -160,25 +160,44 @@ def test_a_bag_reads_by_its_root_names_whatever_its_namespace():
     assert bag_namespace({}, ['/joint_states', '/x/joint_states']) == '/'
 
 
-def _run(namespace: str, stabilizer: str, record: Path, duration: float) -> subprocess.Popen:
+def test_a_parameters_file_gives_each_node_its_section_in_the_namespace():
+    """rcl matches a section by the node's full name: `cartpole run --namespace` moves the
+    sections of the graph's nodes along (else `controller_manager:` would miss
+    /rig2/controller_manager)."""
+    data = {'controller_manager': {'ros__parameters': {'x_ref': 0.3}},
+            '/ekf': {'ros__parameters': {'q_x': 1.0}}, '/**': {'ros__parameters': {}},
+            'other': {'ros__parameters': {}}}
+    moved = parameters_in_namespace(data, '/rig2', ['controller_manager', 'ekf'])
+    assert moved == {'/rig2/controller_manager': data['controller_manager'],
+                     '/rig2/ekf': data['/ekf'], '/**': data['/**'], 'other': data['other']}
+    assert parameters_in_namespace(data, '/', ['controller_manager']) == {
+        '/controller_manager': data['controller_manager'], '/ekf': data['/ekf'],
+        '/**': data['/**'], 'other': data['other']}
+
+
+def _run(namespace: str, stabilizer: str, record: Path, duration: float,
+         *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--lockstep',
          '--duration', f'{duration:g}', '--namespace', namespace, '--stabilizer', stabilizer,
-         '--record', str(record), '--json'],
+         '--record', str(record), '--json', *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def test_two_graphs_in_two_namespaces_share_a_domain(ros_context, spin_until, tmp_path):
-    """rig1 (smc) and rig2 (pid), lockstep, at once on one domain: both succeed, each bag
-    holds its own topics (its own clock too), and a third graph in rig1 is refused."""
+    """rig1 (smc) and rig2 (pid, x* = 0.3 m from a parameters file), lockstep, at once on one
+    domain: both succeed, each bag holds its own topics (its own clock too), and a third
+    graph in rig1 is refused."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
     from cartpole_bringup.analysis.analyze import analyze_bag
     from cartpole_sim.child_process import interrupt
 
+    params = tmp_path / 'params.yaml'
+    params.write_text(yaml.safe_dump({'controller_manager': {'ros__parameters': {'x_ref': 0.3}}}))
     runs = {'rig1': _run('rig1', 'smc', tmp_path / 'rig1', 14.0),
-            'rig2': _run('rig2', 'pid', tmp_path / 'rig2', 14.0)}
+            'rig2': _run('rig2', 'pid', tmp_path / 'rig2', 14.0, '--params', str(params))}
     probe = Node('_rig_probe', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(probe)
@@ -204,7 +223,7 @@ def test_two_graphs_in_two_namespaces_share_a_domain(ros_context, spin_until, tm
                 interrupt(proc, 10.0)
         executor.shutdown(timeout_sec=1.0)
         probe.destroy_node()
-    for name, stabilizer in (('rig1', 'smc'), ('rig2', 'pid')):
+    for name, stabilizer, x_ref in (('rig1', 'smc', 0.3845), ('rig2', 'pid', 0.3)):
         summary = results[name]
         assert summary['success'] is True and summary['fault'] is None, (name, summary)
         assert summary['stabilizer'] == stabilizer
@@ -213,6 +232,7 @@ def test_two_graphs_in_two_namespaces_share_a_domain(ros_context, spin_until, tm
         bag = Path(summary['bag'])
         analysis = analyze_bag(bag)  # the analysis of a bag recorded in a namespace
         assert analysis.summary['success'] is True and analysis.source == '/cartpole/true_state'
+        assert abs(analysis.series.x[-1] - x_ref) < 0.02  # the manager of its namespace took x*
         assert {'/clock', '/joint_states', '/cartpole/force_command'} <= set(analysis.topics)
         info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
         recorded = {t['topic_metadata']['name'] for t in info['topics_with_message_count']}

@@ -17,11 +17,17 @@ so ``ros2 bag play`` replays into the same namespace) and store the namespace
 in their ``custom_data`` (:data:`NAMESPACE_KEY`). The analysis reads a bag by
 the root names: :func:`bag_namespace` finds the namespace (custom_data, else
 from the topics of a bag recorded otherwise) and :func:`graph_topic` strips it.
+
+**Parameters files** name a node's section by its full name (``controller_manager``
+and ``/controller_manager`` are the root's node, ``/**`` every node):
+:func:`parameters_in_namespace` moves the sections of a graph's nodes into its
+namespace, so that ``cartpole run --params FILE --namespace rig2`` gives each
+node the section the same run gives it in the root.
 """
 from __future__ import annotations
 
 import re
-from typing import Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 ROOT = '/'
 NAMESPACE_KEY = 'namespace'
@@ -91,3 +97,15 @@ def bag_namespace(custom_data: Mapping[str, str], topics: Iterable[str]) -> str:
                 except ValueError:
                     continue
     return ROOT
+
+
+def parameters_in_namespace(data: Mapping[str, Any], namespace: str,
+                            nodes: Iterable[str]) -> dict[str, Any]:
+    """A parameters file's mapping with the sections of ``nodes`` (``name`` or ``/name``)
+    renamed ``<namespace>/name``; every other section (``/**``, other nodes) as it is."""
+    nodes = set(nodes)
+    out: dict[str, Any] = {}
+    for key, section in data.items():
+        name = str(key).lstrip('/')
+        out[in_namespace('/' + name, namespace) if name in nodes else key] = section
+    return out

@@ -10,8 +10,11 @@ import math
 import os
 import signal
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 from .. import boundary, options
 
@@ -246,8 +249,9 @@ def main(args: argparse.Namespace) -> int:
     custom = {'x_ref': repr(x_ref), 'lockstep': str(bool(args.lockstep)).lower(),
               'plant': 'sim' if args.sim else 'hw', **names,
               'command': ' '.join(['cartpole', 'run'] + sys.argv[2:])[:1000]}
+    scratch = tempfile.TemporaryDirectory(prefix='cartpole-run-')  # the run's own files
     spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=parameters,
-                     params_file=args.params.resolve() if args.params else None,
+                     params_file=_params_file(args, Path(scratch.name)),
                      lockstep=args.lockstep, processes=args.processes, record=bag,
                      custom_data=custom, log_level=args.log_level, executor=args.executor,
                      allow_duplicates=args.allow_duplicates, namespace=args.namespace)
@@ -299,6 +303,7 @@ def main(args: argparse.Namespace) -> int:
             warnings += viewer.close()
         stop.restore()
         rclpy.try_shutdown(context=context)
+        scratch.cleanup()
     for w in warnings:
         print(f'cartpole run: warning: {w}', file=sys.stderr)
     end_ns = run_end_ns(graph.stop_stamp_ns, args.duration if args.lockstep else None)
@@ -306,6 +311,24 @@ def main(args: argparse.Namespace) -> int:
                                     lockstep=args.lockstep)
     return report(args, names, summary, series, run_dir=run_dir, bag=bag, elapsed=elapsed,
                   fault=graph.fault)
+
+
+def _params_file(args: argparse.Namespace, scratch: Path) -> Path | None:
+    """``--params`` as the graph's nodes read it: in a namespace, a copy in ``scratch`` whose
+    node sections (``controller_manager:``) name the nodes there (``/rig2/controller_manager:``)."""
+    from .. import namespaces
+    from ..graph.processes import NODES
+
+    if args.params is None:
+        return None
+    namespace = namespaces.normalize(args.namespace)
+    if namespace == namespaces.ROOT:
+        return args.params.resolve()
+    data = boundary.read_yaml(args.params, '--params') or {}
+    path = scratch / 'params.yaml'
+    path.write_text(yaml.safe_dump(namespaces.parameters_in_namespace(data, namespace, NODES),
+                                   default_flow_style=False, sort_keys=False))
+    return path
 
 
 def _banner(args: argparse.Namespace, names: dict[str, str], bag: Path | None,
