@@ -63,8 +63,9 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
 
     ``name`` is the installed executable: its role (:mod:`cartpole_sim.roles`)
     decides the duplicate check and the real-time priority, whatever the node
-    is called (``-r __node:=...``). ``on_interrupt(node, executor)`` runs after the signal while the context
-    is still valid (e.g. the recorder drains its queues into the bag).
+    is called (``-r __node:=...``). ``on_interrupt(node, executor)`` runs after
+    the signal while the context is still valid (e.g. the recorder drains its
+    queues into the bag).
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()

@@ -151,7 +151,8 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
 def run_pulse_plan(player: PulsePlayer, *, ros_arguments: Sequence[str] = (),
                    **kwargs) -> dict:
     """:func:`play_pulse_plan` in its own rclpy context (the command line); ``ros_arguments``
-    apply to its nodes (the graph's namespace: :func:`cartpole_bringup.namespaces.ros_arguments`)."""
+    apply to its nodes (the graph's namespace:
+    :func:`cartpole_bringup.namespaces.ros_arguments`)."""
     rclpy.init(args=['cartpole', '--ros-args', *ros_arguments] if ros_arguments else None)
     try:
         return play_pulse_plan(player, **kwargs)
