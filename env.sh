@@ -8,7 +8,7 @@ _cp_root="$(cd "$(dirname "${BASH_SOURCE[0]:-$0}")" && pwd)"
 if [ -d "$_cp_root/.venv" ]; then
     # shellcheck disable=SC1091
     source "$_cp_root/.venv/bin/activate"
-    # The wheels register their ament packages inside the venv itself (SPEC 1a).
+    # The wheels register their ament packages inside the venv itself.
     case ":${AMENT_PREFIX_PATH:-}:" in
         *":$VIRTUAL_ENV:"*) ;;
         *) export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}" ;;

@@ -1,6 +1,7 @@
 """`cartpole run --hw` on the serial bridge, pointed at the device emulator on a real
 pseudo-terminal: the whole graph swings up and balances through the Joint protocol
-(SPEC section 4). Real time: the emulator paces itself by the wall clock like the firmware, and the
+(docs/rig.md, "The Joint protocol"). Real time: the emulator paces itself by the wall
+clock like the firmware, and the
 bridge's 50 ms host watchdog disarms on any stall of the control loop, so this test
 runs the graph without the in-process recorder (recording is tested in lockstep).
 It runs the defaults, what a user runs first: no --swingup, no --stabilizer (the

@@ -2,7 +2,7 @@
 
 The verdict must be the plant's: the cart starts resting against the left
 stop, where round-off leaves its position at about -1e-22 m before the first
-command; that is not an end-stop contact (SPEC 5, `end_stop_contact`).
+command; that is not an end-stop contact (README.md, "The run summary": `end_stop_contact`).
 """
 import json
 import signal
@@ -28,7 +28,7 @@ def test_real_time_sim_run_records_and_succeeds(tmp_path):
     assert summary['theta_amp_deg'] < 2.0 and summary['x_err_max_m'] <= 0.10, summary
     assert summary['success'] is True, summary
     assert summary['swingup_law'] == 'pendulum_energy', summary
-    # In real time nobody waits for the recorder: what it missed is counted (SPEC 8).
+    # In real time nobody waits for the recorder: what it missed is counted.
     assert isinstance(summary['recorder_missed'], int) and summary['recorder_missed'] >= 0
     assert len(list(runs.glob('*/bag/metadata.yaml'))) == 1  # the recorded run reads back
 

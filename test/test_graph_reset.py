@@ -1,4 +1,5 @@
-"""``/sim/reset`` while balancing hands over cleanly (SPEC section 2, ``~/reset``): the simulator announces the
+"""``/sim/reset`` while balancing hands over cleanly (``~/reset`` in docs/architecture.md,
+"ROS interfaces"): the simulator announces the
 reset, the EKF re-initialises from the reset sample and the controller manager starts a new
 swing-up instead of its rail guard seeing the jump of the estimate (one-process graph,
 lockstep, ground truth).

@@ -85,7 +85,7 @@ def test_switch_stabilizer_while_balancing(graph):
         assert _max_tilt_deg(graph, start) < UP_DEG, f'pendulum fell after switching to {name}'
     # Still the first catch only: no fall happened.
     assert graph.monitor.builder.catch_ns == b.catch_ns
-    # The summary names every stabiliser that ran, each from its switch on (SPEC 8).
+    # The summary names every stabiliser that ran, each from its switch on.
     from cartpole_bringup.analysis.plots import run_title
     from cartpole_sim.model import CartPoleParameters
     _, summary = b.summarize(params=CartPoleParameters(), x_ref=0.3845, lockstep=True)

@@ -1,7 +1,7 @@
 """The thesis's closed loop without ROS: every swing-up x stabiliser pair swings up and balances.
 
 The thesis's acceptance runs: from the default initial state (cart at the left
-stop, pendulum hanging; SPEC 1a), 30 s each, with the plant's tip mass nominal,
+stop, pendulum hanging, as in the thesis), 30 s each, with the plant's tip mass nominal,
 10 % lighter and 10 % heavier (requirement 3.1.2-5; the controllers keep the
 nominal model). Each must be caught within 10 s, oscillate less than 2 deg and
 stay within 10 cm of x* over the last 10 s, and never touch an end stop.
@@ -62,13 +62,13 @@ def test_cartpole_offline_json_prints_the_summary_keys():
                              'omega0_sq', 'actuator_gain', 'actuator_delay_s']
     assert 0.0 < summary['force_rms_n'] <= summary['force_p2p_n']
     assert summary['catch_time_s'] < 10.0 and summary['theta_amp_deg'] < 2.0
-    # SPEC 8: the controllers that ran with their spans (from the manager's events), no fault.
+    # the controllers that ran with their spans (from the manager's events), no fault.
     catch = summary['catch_time_s']
     assert summary['controllers'] == [
         {'kind': 'swingup', 'name': 'sign_based', 'start_s': 0.0, 'end_s': catch},
         {'kind': 'stabilizer', 'name': 'smc', 'start_s': catch, 'end_s': 20.0}]
     assert summary['fault'] is None and summary['longest_cycle_gap_s'] is None
-    assert summary['swingup_law'] == 'sign_based'  # the law that swung up (SPEC 8)
+    assert summary['swingup_law'] == 'sign_based'  # the law that swung up
 
 
 def test_cartpole_offline_refuses_an_unknown_controller_with_the_list():
@@ -135,7 +135,8 @@ def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_
 
 @pytest.mark.slow
 def test_default_stabiliser_is_quiet_while_balancing():
-    """The effort targets (SPEC section 7) on the nominal plant with noise: about the Coulomb floor.
+    """The effort targets (README.md, "The run summary") on the nominal plant with noise:
+    about the Coulomb floor.
 
     A cart moving all the time needs its friction, 3.4 / 2.45 N: 2.96 N rms. Before,
     one encoder tick times K_theta and the feedforward's sign flips gave 16 N rms, 72 N p2p.

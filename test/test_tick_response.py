@@ -1,4 +1,4 @@
-"""One pendulum encoder tick's effect on the force command (SPEC 7's chatter), with the
+"""One pendulum encoder tick's effect on the force command (docs/controllers.md, "lqg"), with the
 thesis's settings, the earlier default and today's: the thesis's filter and feedforward turn it into more than 10 N at once, the
 defaults into about 1 N."""
 from cartpole_bringup.analysis.tick_response import THESIS_SETTINGS, tick_response

@@ -6,7 +6,7 @@ over DDS. The scene and plot channels must be advertised; the scene updates must
 at 30-60 Hz by their own stamps (never two closer than 1/60 s); the estimate they
 draw must be the ``/cartpole/state`` published with the same stamp (within 1 mm) and
 the plant the ``/cartpole/true_state`` of that stamp. The run with its viewer must
-still succeed (SPEC 5 verdict).
+still succeed (the run summary's verdict).
 """
 import importlib.util
 import json
@@ -31,7 +31,7 @@ _spec.loader.exec_module(foxglove_support)
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 RUN_S = 16.0
-"""Long enough for the SPEC 5 verdict (catch at about 5 s, then 10 s of stabilising)."""
+"""Long enough for the run summary's verdict (catch at about 5 s, then 10 s of stabilising)."""
 SCENES = 150
 """Scene updates the client checks (3 s at 50 Hz)."""
 

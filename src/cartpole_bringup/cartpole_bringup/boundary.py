@@ -126,7 +126,8 @@ def ros_parameters(path: Path | str | None, node_name: str,
     """The ``ros__parameters`` of ``node_name`` in a ROS 2 parameters file, flattened.
 
     Nested mappings become dotted names (``lqg: {q: [...]}`` -> ``lqg.q``), as
-    rclpy does; sections for ``/**`` apply to every node. A file that is not
+    rclpy does; sections for ``/**`` apply to every node, ``/**/<node>`` (the installed
+    share/<package>/config/<node>.yaml) to the node. A file that is not
     such a file (not a mapping, a node section without ``ros__parameters``, a
     key that is not a name) is an InputError.
     """
@@ -141,7 +142,7 @@ def ros_parameters(path: Path | str | None, node_name: str,
                          f'names to ros__parameters), got {_kind(data)}')
     _keys_are_names(data, option, path, '')
     out: dict[str, Any] = {}
-    for key in ('/**', node_name, '/' + node_name):
+    for key in ('/**', '/**/' + node_name, node_name, '/' + node_name):
         if key not in data:
             continue
         section = data[key]

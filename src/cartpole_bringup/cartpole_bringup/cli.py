@@ -1,4 +1,4 @@
-"""`cartpole`: the one front door (SPEC section 5).
+"""`cartpole`: the one front door (README.md, "At a glance").
 
 Each subcommand lives in ``cartpole_bringup.commands.<name>`` with
 ``add_arguments(parser)`` and ``main(args) -> int``; this module only

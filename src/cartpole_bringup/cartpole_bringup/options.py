@@ -14,7 +14,8 @@ from . import boundary
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    """Scenario options of the simulated plant (SPEC sections 5 and 8), and --plant-params.
+    """Scenario options of the simulated plant (docs/simulator.md, "Disturbances"), and
+    --plant-params.
 
     The scenario options themselves are :mod:`cartpole_sim.scenario_options`'s,
     which ``cartpole emulate`` shares.
@@ -110,6 +111,11 @@ def manager_parameters(nominal: CartPoleParameters, args: argparse.Namespace) ->
     """controller_manager parameters: the ``--params`` file's section, then ``--swingup`` and
     ``--stabilizer``; InputError with the manager's reason, naming the file or the option."""
     params = dict(load_ros_parameters(getattr(args, 'params', None), 'controller_manager'))
+    # The node's own construction parameters, at the values the loop uses anyway (a copy of
+    # the installed controller_manager.yaml); other values stay and are refused below.
+    for name, same in (('plant_params_file', ''), ('sample_time', nominal.sample_time)):
+        if params.get(name) == same:
+            del params[name]
     if params:
         _manager_takes(nominal, params, f'--params {args.params}: controller_manager')
     for name in ('swingup', 'stabilizer'):

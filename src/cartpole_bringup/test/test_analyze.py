@@ -1,4 +1,4 @@
-"""Analysis of bags with a known trajectory: the SPEC 5 summary, sources, plots, the CLI."""
+"""Analysis of bags with a known trajectory: the run summary, sources, plots, the CLI."""
 from __future__ import annotations
 
 import importlib.util
@@ -43,7 +43,7 @@ def test_known_trajectory_gives_the_known_summary(known_bag):
     assert s['end_stop_contact'] is False
     assert s['success'] is True
     assert s['swingup_law'] is None  # not recorded: not guessed
-    # The force commands, 2 sin(t), over the last 10 s (SPEC 8's force_rms_n, force_p2p_n).
+    # The force commands, 2 sin(t), over the last 10 s (the summary's force_rms_n, force_p2p_n).
     t, *_, force = bag_synth.trajectory()
     last = force[t >= t[-1] - 10.0]
     assert s['force_rms_n'] == pytest.approx(float(np.sqrt(np.mean(last ** 2))), rel=1e-9)

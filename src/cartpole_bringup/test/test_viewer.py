@@ -197,7 +197,8 @@ def test_real_time_player_paces_by_simulated_time(served_run):
 
 def test_layout_file_is_the_generated_one_and_uses_advertised_fields():
     from cartpole_bringup.viewer.server import CONTROL_SCHEMA, STATE_SCHEMA
-    assert (REPO / 'docs' / 'foxglove_layout.json').read_text() == layout_text()
+    assert (REPO / 'src' / 'cartpole_bringup' / 'config' / 'foxglove_layout.json').read_text() \
+        == layout_text()
     layout = foxglove_layout()
     fields = {TOPICS['state']: set(STATE_SCHEMA['properties']),
               TOPICS['control']: set(CONTROL_SCHEMA['properties'])}

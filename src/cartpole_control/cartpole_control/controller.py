@@ -301,7 +301,7 @@ class Controller(ABC):
 
     @property
     def law(self) -> str:
-        """What produces the output now (``swingup_law`` of the status and summary, SPEC 8).
+        """What produces the output now (``swingup_law`` of the status and summary).
 
         The plugin's name; a plugin that switches between laws says which,
         as ``<name>:<law>`` (e.g. ``time_optimal:plan``,

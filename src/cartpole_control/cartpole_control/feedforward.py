@@ -9,7 +9,8 @@ law (6.12),
 follows the sign of the *command* ``u``, not of the velocity, so the
 compensation never works against the controller (section 6.3). The thesis
 tuned c_c,R = 3.3 N and c_c,L = 2.8 N (section 9.2.1); k is a tuning
-parameter (per newton), about 10-100 (SPEC section 7). Without it the
+parameter (per newton), about 10-100 (docs/controller_manager.md, "Modes and
+transitions"). Without it the
 swing-up's first centring push (about 1.9 N) stays below the 3.4 N static
 friction and the cart never leaves the left stop.
 

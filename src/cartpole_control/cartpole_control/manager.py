@@ -109,7 +109,8 @@ class SetResult:
 
 @dataclass(frozen=True)
 class ManagerOutput:
-    """Everything one control cycle decided (the controller status of SPEC section 2)."""
+    """Everything one control cycle decided (the controller status of docs/architecture.md,
+    "ROS interfaces")."""
 
     t: float
     force: float

@@ -43,6 +43,12 @@ Wiring only; every decision is the manager's.
 - a parameter change is staged in the on-set callback (validated, and the
   new plugin instance built and configured there, :mod:`cartpole_control.staging`);
   the post-set callback queues that same instance, the cycle swaps it in;
+- its health on ``/diagnostics`` once a second of the node clock
+  (:meth:`health`, status ``controller_manager: control``);
+- the Python loggers of ``cartpole_control`` (the manager, the registry, the
+  plan cache, the plugins) go to this node's logger, so ``/rosout``, while the
+  node lives (:mod:`cartpole_sim.ros_logging`); a refused parameter change is
+  logged too;
 - zero force on shutdown (:meth:`publish_zero`, also called by
   :meth:`destroy_node`).
 """
@@ -65,8 +71,10 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from cartpole_sim.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics, plain
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
+from cartpole_sim.ros_logging import route_to_node
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
@@ -156,6 +164,16 @@ class ControllerManagerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        # Before the manager exists: a plugin its registry refuses is logged on /rosout.
+        self._log_route = route_to_node(self, 'cartpole_control')
+        try:
+            self._start()
+        except BaseException:  # refused to start: the loggers are no longer routed here
+            self._log_route.remove()
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the manager, topics, services, timers."""
         self.declare_parameter('plant_params_file', '', ParameterDescriptor(
             description="YAML of the controllers' plant model (CartPoleParameters); '' = the "
                         'thesis values', read_only=True))
@@ -211,6 +229,8 @@ class ControllerManagerNode(Node):
         self.bad_states = 0
         """State messages without the cart/pendulum positions and velocities (ignored)."""
         self.create_timer(STALE_CHECK_PERIOD, self._check_stale)
+        self.diagnostics = NodeDiagnostics(self, 'control', 'cartpole', self.health,
+                                           inputs=('states',), degraded=('bad_states',))
         values = self.manager.get_parameters()
         self.get_logger().info(
             f"controller_manager: swing-up {values['swingup']}, stabiliser "
@@ -226,6 +246,8 @@ class ControllerManagerNode(Node):
         The check builds and configures what the change needs (outside the
         control cycle); :meth:`_apply_parameters` queues that very instance."""
         result = self.manager.check_parameters(self._changes(parameters))
+        if not result.successful:
+            self.get_logger().warning(f'parameter change refused: {result.reason}')
         return SetParametersResult(successful=result.successful, reason=result.reason)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
@@ -326,6 +348,36 @@ class ControllerManagerNode(Node):
         self.publish_zero(stamp)
         self._publish_status(out, stamp)
 
+    # -- health ------------------------------------------------------------------------------
+    def health(self) -> Health:
+        """The manager's health for ``/diagnostics`` (``controller_manager: control``): OK
+        while it controls or idles (no state yet, control disabled), ERROR in a fault, STALE
+        while the states have stopped (the stale-state fault); WARN when states were ignored
+        since the previous report. The 200 Hz status stays the loop's telemetry."""
+        m = self.manager
+        plugins = m.active_plugins()
+        values = {
+            'mode': m.mode, 'enabled': m.enabled, 'fault_reason': m.fault_reason,
+            **{kind: plugin.name for kind, plugin in sorted(plugins.items())},
+            'catch_count': m.catch_count, 'fall_count': m.fall_count,
+            'states': self.cycle_gaps.cycles, 'bad_states': self.bad_states,
+            'state_stamp': 0.0 if self._last_stamp is None else _stamp_seconds(self._last_stamp),
+            'longest_cycle_gap_s': self.cycle_gaps.longest,
+            'cycle_compute_s': self.cycle_compute, 'max_cycle_compute_s': self.max_cycle_compute,
+        }
+        restart = 'zero force until ~/restart_swingup'
+        if m.mode == FAULT and self._stale:
+            return Health(STALE, f'no state for state_timeout: fault ({m.fault_reason}); '
+                                 f'{restart}', values)
+        if m.mode == FAULT:
+            return Health(ERROR, f'fault: {m.fault_reason}; {restart}', values)
+        if self._last_state_ns is None:
+            return Health(OK, 'waiting for /cartpole/state', values)
+        if m.mode == IDLE:
+            return Health(OK, 'idle' if m.enabled else 'idle: control disabled (enabled = false)',
+                          values)
+        return Health(OK, m.mode, values)
+
     # -- services and shutdown ---------------------------------------------------------------------
     def _on_restart(self, request, response):
         answer = self.manager.restart()
@@ -359,13 +411,15 @@ class ControllerManagerNode(Node):
             self._pub_force.wait_for_all_acked(Duration(seconds=LAST_COMMAND_ACK_TIMEOUT))
         except Exception:  # the context may already be shutting down; the node still goes
             pass
+        self._log_route.remove()
         super().destroy_node()
 
 
 def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
                    extra_event: str = '', cycle_compute: float = 0.0,
                    max_cycle_compute: float = 0.0) -> DiagnosticArray:
-    """The ``/cartpole/controller_status`` message of one cycle (numbers as repr(float)).
+    """The ``/cartpole/controller_status`` message of one cycle (counts as integers, other
+    numbers as repr(float)).
 
     ``extra_event`` (the node's own, e.g. ``plant_reset``) goes before the
     manager's events in ``event``.
@@ -373,9 +427,7 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
     event = ';'.join(e for e in (extra_event, out.event) if e)
     if out.mode == FAULT:
         level = DiagnosticStatus.ERROR
-    elif out.mode == IDLE:
-        level = DiagnosticStatus.WARN
-    else:
+    else:  # idle (control disabled, or the run stopped) is no trouble
         level = DiagnosticStatus.OK
     values = {
         'mode': out.mode,
@@ -387,8 +439,8 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
         'raw_force': repr(float(out.raw_force)),
         'feedforward': repr(float(out.feedforward)),
         'force': repr(float(out.force)),
-        'catch_count': repr(float(out.catch_count)),
-        'fall_count': repr(float(out.fall_count)),
+        'catch_count': plain(out.catch_count),
+        'fall_count': plain(out.fall_count),
         'event': event,
         'state_stamp': repr(_stamp_seconds(stamp)),
         'swingup_law': out.swingup_law,

@@ -27,6 +27,8 @@ P / w over [0, w]) and a horizon T:
                 F_min <= F(t) <= F_max                   Appendix C
                 m <= x(t) <= travel - m                  the rail (m = 0: the end stops,
                                                          m = 0.02 m: the rail guard's margin)
+                x_b(t) in [m + r, travel - m - r]        optional (``guard``): the rail guard's
+                                                         braking envelope, below
                 |theta(t)| <= 45 deg                     optional: the fall detector
                                                          (``fall.angle_deg``); a fall after
                                                          the catch fails a robustness run
@@ -48,6 +50,16 @@ the last feasible one. IPOPT finds local minima: a P it declares infeasible
 is infeasible only as far as the solver could tell (several starts are
 tried); a feasible P is certified by the solution itself (its dynamics
 gaps and constraint violations are checked).
+
+With ``guard`` the bound is the limit of any controller *behind this project's
+rail guard* (:mod:`cartpole_control.rail_guard`, the manager's defaults): its
+limiter bends every command so that the cart's stopping position under the
+guard's own braking model, x_b = x + x_dot T_d + sign(x_dot) x_dot^2 / (2 a_b),
+a_b = (F_b + c_c/2 - m_p (l theta_dot^2 + g)) / (m_c + m_p) with F_b = 30 N,
+stays inside ``[m + r, travel - m - r]`` (r = ``rail.limit_reserve``, 5 cm):
+a path constraint at every node (the term of the command during T_d, below
+0.1 mm, is left out). That envelope is a safety choice of ours, not physics:
+the gap between the two bounds is what the guard costs.
 
 A closed-form check (:func:`cart_push_momentum_bound`) bounds the cart
 push from above without the pendulum's details; see its docstring.
@@ -86,6 +98,9 @@ DEFAULT_HORIZON = 3.0
 """[s] From the start of the push to upright at rest (long enough: :func:`largest_push` with
 4 s gives the same bounds, docs/robustness.md)."""
 
+GUARD_RESERVE = 0.05
+"""[m] The rail guard limiter's reserve (``rail.limit_reserve``)."""
+
 FEASIBILITY_TOLERANCE = 1e-5
 """Largest slack sigma [m, rad] that still counts as feasible (10 um, 10 urad)."""
 
@@ -118,6 +133,13 @@ class PushRecoveryProblem:
         How long after the push's start the fine grid lasts [s].
     friction
         Keep the (smoothed) friction.
+    reaction
+        The controller's force is zero until this time [s] after the push starts: a
+        controller that cannot act before it sees the push (0: it knows the push in advance).
+    guard
+        Also keep the rail guard's braking envelope (module docstring): the stopping
+        position of the manager's default guard (margin ``rail_margin``, reserve
+        :data:`GUARD_RESERVE`, brake 30 N) inside ``[m + r, travel - m - r]``.
     """
 
     params: CartPoleParameters = CartPoleParameters()
@@ -131,6 +153,8 @@ class PushRecoveryProblem:
     step: float = 0.01
     fine_time: float = 0.5
     friction: bool = True
+    reaction: float = 0.0
+    guard: bool = False
 
     def __post_init__(self) -> None:
         if self.target not in PUSH_TARGETS:
@@ -149,6 +173,8 @@ class PushRecoveryProblem:
             raise ValueError('need 0 < push_step <= step')
         if not self.rail_margin <= self.start_x <= self.params.travel - self.rail_margin:
             raise ValueError(f'x0 = {self.start_x:g} m is outside the rail minus its margin')
+        if not 0.0 <= self.reaction < self.horizon - self.width:
+            raise ValueError(f'reaction must be in [0, horizon - width), got {self.reaction!r}')
 
     @property
     def start_x(self) -> float:
@@ -293,6 +319,10 @@ class _RecoveryNLP:
         g += [ca.reshape(X[0, 1:] - lo + sigma, -1, 1), ca.reshape(hi - X[0, 1:] + sigma, -1, 1)]
         lbg += [0.0] * (2 * n)
         ubg += [inf] * (2 * n)
+        if problem.guard:
+            g += self._guard_envelope(problem, X, sigma)
+            lbg += [0.0] * (2 * n)
+            ubg += [inf] * (2 * n)
         if problem.max_angle is not None:
             a = problem.max_angle
             g += [ca.reshape(a + sigma - X[1, 1:], -1, 1), ca.reshape(a + sigma + X[1, 1:], -1, 1)]
@@ -308,8 +338,11 @@ class _RecoveryNLP:
         ubx = np.full((n + 1, 4), inf)
         lbx[0] = ubx[0] = self.x0
         lbx[n, 2:] = ubx[n, 2:] = 0.0
-        self.lbw = np.concatenate([[0.0, 0.0], lbx.ravel(), np.full(n, p.force_min)])
-        self.ubw = np.concatenate([[inf, inf], ubx.ravel(), np.full(n, p.force_max)])
+        lbu, ubu = np.full(n, p.force_min), np.full(n, p.force_max)
+        blind = self.times[:-1] < problem.reaction - 1e-9  # intervals starting before it sees
+        lbu[blind] = ubu[blind] = 0.0
+        self.lbw = np.concatenate([[0.0, 0.0], lbx.ravel(), lbu])
+        self.ubw = np.concatenate([[inf, inf], ubx.ravel(), ubu])
         self.impulse_scale = 10.0 if problem.target == 'cart' else 0.1
         scale_u = max(p.force_max, -p.force_min)
         w = ca.vertcat(P, sigma, ca.reshape(X, -1, 1), ca.reshape(U, -1, 1))
@@ -322,6 +355,30 @@ class _RecoveryNLP:
                                            'tol': 1e-8, 'acceptable_tol': 1e-6,
                                            'acceptable_iter': 10, 'mu_strategy': 'adaptive',
                                            'max_cpu_time': 60.0}})
+
+    @staticmethod
+    def _guard_envelope(problem: PushRecoveryProblem, X, sigma) -> list:
+        """The rail guard's stopping positions inside its limiter's boundary, with slack:
+        ``x_b,k - (m + r) + sigma >= 0`` and ``travel - m - r - x_b,k + sigma >= 0`` (k >= 1);
+        the guard's own numbers (:class:`~cartpole_control.rail_guard.RailGuard`)."""
+        import casadi as ca
+
+        from .rail_guard import RailGuard
+        p = problem.params
+        guard = RailGuard(p, margin=problem.rail_margin, limit_reserve=GUARD_RESERVE)
+        mass = p.m_c + p.m_p
+        x, v, w = X[0, 1:], X[2, 1:], X[3, 1:]
+        pull = p.m_p * (p.l * w * w + p.g)
+        friction = 0.5 * min(p.c_c_right, p.c_c_left)
+        floor = 0.05 * mass
+        a_left = ca.fmax(guard.brake_force(-1.0) + friction - pull, floor) / mass
+        a_right = ca.fmax(guard.brake_force(1.0) + friction - pull, floor) / mass
+        ahead = x + v * guard.dead_time
+        left = ahead - ca.fmin(v, 0.0) ** 2 / (2.0 * a_left)
+        right = ahead + ca.fmax(v, 0.0) ** 2 / (2.0 * a_right)
+        lo = problem.rail_margin + GUARD_RESERVE
+        hi = p.travel - problem.rail_margin - GUARD_RESERVE
+        return [ca.reshape(left - lo + sigma, -1, 1), ca.reshape(hi - right + sigma, -1, 1)]
 
     def rest_guess(self, impulse: float) -> np.ndarray:
         """Every node at the start, no force."""
@@ -434,6 +491,7 @@ class PushBound:
         s = self.recovery.states
         return {'target': self.problem.target, 'unit': self.problem.unit,
                 'width_s': self.problem.width, 'rail_margin_m': self.problem.rail_margin,
+                'rail_guard': self.problem.guard, 'reaction_s': self.problem.reaction,
                 'max_angle_deg': (None if self.problem.max_angle is None
                                   else round(math.degrees(self.problem.max_angle), 6)),
                 'horizon_s': self.problem.horizon, 'x0_m': self.problem.start_x,

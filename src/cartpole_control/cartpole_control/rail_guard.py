@@ -1,4 +1,5 @@
-"""Rail guard: never drive the cart into an end stop (SPEC section 3.1 requirement, beyond the thesis).
+"""Rail guard: never drive the cart into an end stop (thesis section 3.1's requirement; the
+guard itself is beyond the thesis).
 
 Zero force alone does not stop the cart: with only Coulomb friction (about
 3 N on 5 kg) a cart at 2 m/s rolls almost 3 m. The guard therefore knows the

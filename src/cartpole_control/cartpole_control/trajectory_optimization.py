@@ -78,8 +78,8 @@ class CatchRegion:
     """The set the swing-up must reach at the final time T.
 
     ``at_rest`` False: |theta_w| <= ``angle`` and |E_p - E*| <= ``energy_tolerance`` E*
-    (the catch trigger (6.4) with the 10 deg upright region of SPEC 5). ``at_rest`` True: upright
-    and at rest, theta_w = theta_dot = x_dot = 0 (the cart may be anywhere on the rail).
+    (the catch trigger (6.4) with the 10 deg upright region of the run summary).
+    ``at_rest`` True: upright and at rest, theta_w = theta_dot = x_dot = 0 (the cart may be anywhere on the rail).
     """
 
     angle: float = math.radians(10.0)

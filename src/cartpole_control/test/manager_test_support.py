@@ -1,5 +1,6 @@
 """Test plugins and helpers shared by the ControllerManager tests (test_manager*.py)."""
 import math
+import textwrap
 
 from cartpole_control.controller import STABILIZER, SWINGUP, Controller, ControllerState, \
     ParameterSpec
@@ -110,3 +111,15 @@ def upright(t=0.0, theta=0.05, **kw):
 
 def plugin(manager, kind):
     return manager.active_plugins()[kind]
+
+
+# -- fake installed plugin distributions ------------------------------------------------------
+def fake_distribution(root, dist, version, module, source, entry_points):
+    """Install the distribution ``dist`` with one module and its entry points under ``root``."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / f'{module}.py').write_text(textwrap.dedent(source))
+    info = root / f"{dist.replace('-', '_')}-{version}.dist-info"  # as pip names it
+    info.mkdir()
+    (info / 'METADATA').write_text(f'Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n')
+    lines = ''.join(f'{name} = {value}\n' for name, value in entry_points)
+    (info / 'entry_points.txt').write_text(f'[cartpole_control.stabilizer]\n{lines}')

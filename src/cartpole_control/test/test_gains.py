@@ -19,7 +19,7 @@ PARAMS = CartPoleParameters()
 CONTEXT = ControlContext(plant=PARAMS, x_ref=PARAMS.x_middle, sample_time=PARAMS.sample_time)
 
 THESIS_LQR_GAIN = np.array([-100.0, 1012.0, -172.1, 266.8])            # (8.24)
-SPEC_LQR_POLES = np.array([-127.9, -1.68 + 1.41j, -1.68 - 1.41j, -1.00])  # SPEC 7, (8.25) corrected
+CORRECTED_LQR_POLES = np.array([-127.9, -1.68 + 1.41j, -1.68 - 1.41j, -1.00])  # (8.25) corrected
 THESIS_SMC_GAIN = np.array([10.0, -1.0, -2.0])                          # (8.39), "k ~"
 THESIS_PID_INNER_POLES = np.array([-37.187, -8.033, -0.15])             # (8.9)
 THESIS_Q = (100.0, 400.0, 100.0, 400.0)                                 # (8.21)/(8.22)
@@ -66,7 +66,8 @@ def test_lqr_closed_loop_poles_match_spec_and_are_stable():
     k = configured(LqgStabilizer, q=THESIS_Q).gain
     poles = np.linalg.eigvals(a - b @ k[None, :])
     assert np.all(poles.real < 0.0)
-    np.testing.assert_allclose(sorted_poles(poles), sorted_poles(SPEC_LQR_POLES), rtol=0.0, atol=0.06)
+    np.testing.assert_allclose(sorted_poles(poles), sorted_poles(CORRECTED_LQR_POLES), rtol=0.0,
+                               atol=0.06)
 
 
 def test_default_lqi_gain_solves_the_augmented_riccati_equation():
@@ -272,7 +273,7 @@ def hand_derived_cascade(cart_gains, pendulum_gains, sign=1.0, v_p=0.0):
     """The linear cascade (8.1)-(8.10) written out by hand, independent of the plugin.
 
     State [x - x*, theta, x_dot, theta_dot, int (x* - x), int (theta* - theta)]; the
-    cart follows the acceleration u exactly (x_ddot = u, what (7.10) makes of it, SPEC 7),
+    cart follows the acceleration u exactly (x_ddot = u, what (7.10) makes of it),
     the pendulum l theta_ddot = g theta + u - v_p/(m_p l) theta_dot; the outer loop
     theta* = -C_c (x* - x) for ``sign`` +1.
     """
@@ -301,7 +302,7 @@ def hand_derived_cascade(cart_gains, pendulum_gains, sign=1.0, v_p=0.0):
 def test_pid_linearised_cascade_with_7_10_is_stable(cart_gains, documented_poles):
     """Closed loop of the real plugin (update with (7.10), theta_ddot consistent with its force).
 
-    Its poles are those of the hand-derived cascade (x_ddot = u, SPEC 7; without friction,
+    Its poles are those of the hand-derived cascade (x_ddot = u; without friction,
     as the plugin's loop here); the documented ones (README) to their printed digits. The
     default's outer loop is faster (the integral takes up an encoder offset in seconds).
     """

@@ -66,7 +66,8 @@ def test_rail_guard_at_the_left_stop_at_rest_lets_the_swingup_start():
 
 
 def test_without_feedforward_the_swingup_never_leaves_the_left_stop():
-    """SPEC section 7: the first centring push (~1.9 N) is below the 3.4 N Coulomb friction."""
+    """The first centring push (~1.9 N) is below the 3.4 N Coulomb friction
+    (docs/controller_manager.md, "Modes and transitions")."""
     for steepness, moves in ((0.0, False), (20.0, True)):
         m = ControllerManager(P, **{'feedforward.steepness': steepness})
         plant = Plant(P, Scenario())

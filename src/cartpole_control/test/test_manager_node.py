@@ -241,8 +241,13 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     status, kv = values_of(stale)
     assert status.level == DiagnosticStatus.ERROR and kv['mode'] == 'fault'
     assert float(kv['force']) == 0.0 and h.commands[-1].effort[0] == 0.0
+    (report,) = node.diagnostics.publish().status            # /diagnostics: the input stopped
+    assert report.level == DiagnosticStatus.STALE and 'stale state' in report.message
     command, status_array = h.send_state(3.5)
     assert command.effort[0] == 0.0 and values_of(status_array)[1]['mode'] == 'fault'
+    (report,) = node.diagnostics.publish().status            # states again, still the fault
+    assert (report.name, report.level) == ('controller_manager: control', DiagnosticStatus.ERROR)
+    assert report.message.startswith('fault: stale state')
     reply = h.call(h.restart_client, Trigger.Request())
     assert reply.success and 'swing-up' in reply.message
     command, status_array = h.send_state(3.505)
@@ -287,8 +292,10 @@ def test_enabled_false_is_idle_with_zero_force(graph):
     assert result.successful
     command, status_array = h.send_state(4.0)
     status, kv = values_of(status_array)
-    assert command.effort[0] == 0.0 and status.level == DiagnosticStatus.WARN
+    assert command.effort[0] == 0.0 and status.level == DiagnosticStatus.OK  # idle: no trouble
     assert kv['mode'] == 'idle' and kv['enabled'] == 'false'
+    (report,) = node.diagnostics.publish().status
+    assert report.level == DiagnosticStatus.OK and 'control disabled' in report.message
     # No fault to clear: the answer says there is nothing to restart, and nothing changes.
     reply = h.call(h.restart_client, Trigger.Request())
     assert not reply.success and 'nothing to restart' in reply.message
@@ -313,7 +320,7 @@ def test_plant_reset_starts_a_new_swingup_from_the_first_state_after_it(graph):
     assert values_of(status_array)[1]['mode'] == 'stabilizing'
     _, status_array = h.send_state(5.01, x=0.0, theta=math.pi)        # the reset state
     kv = values_of(status_array)[1]
-    assert (kv['mode'], kv['event'], kv['catch_count']) == ('swingup', 'plant_reset', '0.0')
+    assert (kv['mode'], kv['event'], kv['catch_count']) == ('swingup', 'plant_reset', '0')
     assert float(kv['longest_cycle_gap_s']) >= 0.0
 
 

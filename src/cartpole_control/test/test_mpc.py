@@ -123,10 +123,10 @@ def test_after_a_6_ns_cart_push_the_mpc_never_drives_the_cart_into_an_end_stop()
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason='issue 20 item 1 open: the 6 N s cart push is recovered '
-                   'in 3 of 12 seeds only; the recovery needs more rail than the guard\'s '
-                   'envelope leaves for a controller that knows the motion to first order '
-                   '(docs/controllers.md)')
+@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 3 of 12 seeds only: '
+                   'it is 90 % of what a controller that sees the push after 20 ms can recover '
+                   'behind the rail guard (6.66 N s, docs/robustness.md, "Behind the rail '
+                   'guard, reacting to what the encoders show")')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
     assert all(recovered for recovered, _ in _after_a_6_ns_cart_push('mpc'))
 

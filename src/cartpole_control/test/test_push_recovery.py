@@ -158,3 +158,26 @@ def test_bound_with_the_fall_limit_is_below_the_bound_without_and_the_momentum_b
     assert fall.recovery.feasible and free.recovery.feasible
     assert fall.infeasible <= 1.05 * fall.impulse * (1 + 1e-6)
     assert np.abs(fall.recovery.states[:, 1]).max() <= pr.FALL_ANGLE + 1e-6
+
+
+def test_behind_the_rail_guard_a_controller_that_reacts_late_keeps_the_envelope_and_recovers_less():
+    """With ``guard`` every node's stopping position, by the rail guard's own model, stays
+    inside its limiter's boundary (margin + reserve = 0.07 m); with ``reaction`` the force is
+    zero until then. A 0.04 N m s pendulum push is recovered that way (30 ms late); 0.065,
+    which the 0.02 m margin alone allows (bound 0.0629 on the fine grid; without the
+    reaction and the envelope), is not."""
+    from cartpole_control.rail_guard import RailGuard
+    problem = coarse('pendulum', max_angle=pr.FALL_ANGLE, rail_margin=pr.RAIL_GUARD_MARGIN,
+                     guard=True, reaction=0.03)
+    nlp = pr.recovery_nlp(problem)
+    r, _ = nlp.elastic(0.04)
+    assert r.feasible, r.status
+    blind = r.times[:-1] < 0.03 - 1e-9
+    assert blind.sum() == 3 and np.all(r.forces[blind] == 0.0) and r.forces[3] < -10.0
+    guard = RailGuard(P, margin=pr.RAIL_GUARD_MARGIN, limit_reserve=pr.GUARD_RESERVE)
+    stops = [guard.stopping_position(x, v, w, 0.0) for x, _, v, w in r.states[1:]]
+    inner = pr.RAIL_GUARD_MARGIN + pr.GUARD_RESERVE
+    assert min(stops) >= inner - 1e-5 and max(stops) <= P.travel - inner + 1e-5
+    assert min(stops) < inner + 0.005  # the envelope binds: the recovery uses it all
+    late, _ = nlp.elastic(0.065)
+    assert not late.feasible and late.violation > 0.05

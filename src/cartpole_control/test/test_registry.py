@@ -7,9 +7,9 @@ to its module: what ``pip install`` of a third-party plugin leaves behind.
 import importlib
 import logging
 import sys
-import textwrap
 
 import pytest
+from manager_test_support import fake_distribution
 
 from cartpole_control import registry
 from cartpole_control.controller import STABILIZER, SWINGUP
@@ -23,17 +23,6 @@ class {cls}(Controller):
     def update(self, state):
         return 0.0
 '''
-
-
-def fake_distribution(root, dist, version, module, source, entry_points):
-    """Install the distribution ``dist`` with one module and its entry points under ``root``."""
-    root.mkdir(parents=True, exist_ok=True)
-    (root / f'{module}.py').write_text(textwrap.dedent(source))
-    info = root / f"{dist.replace('-', '_')}-{version}.dist-info"  # as pip names it
-    info.mkdir()
-    (info / 'METADATA').write_text(f'Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n')
-    lines = ''.join(f'{name} = {value}\n' for name, value in entry_points)
-    (info / 'entry_points.txt').write_text(f'[cartpole_control.stabilizer]\n{lines}')
 
 
 @pytest.fixture

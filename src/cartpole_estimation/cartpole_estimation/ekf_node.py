@@ -4,7 +4,10 @@ Subscribes ``/joint_states`` (the quantised positions of ``cart`` and
 ``pendulum``) and ``/cartpole/force_command`` (``cart`` effort), publishes
 ``/cartpole/state`` (estimated positions and velocities, stamp copied from
 the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
-(diagnostic_msgs/DiagnosticArray) every ``health_period``. The numerical work
+(diagnostic_msgs/DiagnosticArray) every ``health_period``, and the same health as
+``ekf: estimation`` on ``/diagnostics`` once a second (:mod:`cartpole_sim.diagnostics`:
+OK, idle before the first sample; WARN when a :data:`DEGRADED` counter grew; STALE when
+the samples stopped). The numerical work
 is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
 wires it to ROS.
 
@@ -28,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -37,6 +40,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from cartpole_sim.diagnostics import OK, Health, HealthReport, NodeDiagnostics
 from cartpole_sim.model import CartPoleParameters
 from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_sim.realtime import CycleGapMeter
@@ -45,6 +49,9 @@ from .ekf import EkfConfig, ExtendedKalmanFilter
 from .ekf_config import DISCRETISATIONS, changes_from_parameters, q_parameter
 
 JOINT_NAMES = ('cart', 'pendulum')
+HARDWARE_ID = 'cartpole'
+DEGRADED = ('resets', 'missed_samples', 'bad_messages', 'bad_commands', 'rejected_samples')
+"""Health counters whose growth since the previous report makes it WARN."""
 
 
 @dataclass
@@ -77,7 +84,7 @@ def _positive_array_reason(name: str, value, length: int) -> str:
 
 
 class EkfNode(Node):
-    """The ``ekf`` node (SPEC section 2, docs/architecture.md).
+    """The ``ekf`` node (docs/architecture.md, "ROS interfaces").
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``,
     ``parameter_overrides``, ``namespace``, ...).
@@ -163,12 +170,14 @@ class EkfNode(Node):
         self.last_bad = ''
         self._last_estimate = None
         self._last_reset_reason = ''
-        self._resets_reported = 0
 
         self._state_msg = JointState()
         self._state_msg.name = list(JOINT_NAMES)
         self._state_pub = self.create_publisher(JointState, 'cartpole/state', PUBLISH_DEPTH)
         self._health_pub = self.create_publisher(DiagnosticArray, 'cartpole/ekf/health', 10)
+        self._health_report = HealthReport('ekf', HARDWARE_ID, ('samples',), DEGRADED)
+        self.diagnostics = NodeDiagnostics(self, 'estimation', HARDWARE_ID, self.health,
+                                           inputs=('samples',), degraded=DEGRADED)
         self._reset_from: float | None = None
         self.cycle_gaps = CycleGapMeter()
         # Before /joint_states: when both are ready at once, the reset is taken first.
@@ -371,26 +380,17 @@ class EkfNode(Node):
         return response
 
     # -- health ---------------------------------------------------------------------------
-    def health_status(self) -> DiagnosticStatus:
-        """The DiagnosticStatus ``ekf`` (see the README, "State estimation", for the keys)."""
+    def health(self) -> Health:
+        """The filter's figures now (keys: docs/estimation.md); OK, idle before the first
+        sample. The reports add WARN when a :data:`DEGRADED` counter grew, STALE when the
+        samples stopped."""
         est = self._last_estimate
         f = self.filter
-        status = DiagnosticStatus(name='ekf', hardware_id='cartpole')
         if est is None:
-            status.level = DiagnosticStatus.WARN
-            status.message = 'no sample yet'
-            innovation = (0.0, 0.0)
-            p_diag = f.config.p0_diag
-            dt = 0.0
+            innovation, p_diag, dt, message = (0.0, 0.0), f.config.p0_diag, 0.0, 'no sample yet'
         else:
             innovation, p_diag, dt = est.innovation, est.covariance_diagonal, est.dt
-            if f.resets > self._resets_reported:
-                status.level = DiagnosticStatus.WARN
-                status.message = f're-initialised: {self._last_reset_reason}'
-            else:
-                status.level = DiagnosticStatus.OK
-                status.message = 'ok'
-        self._resets_reported = f.resets
+            message = 'estimating'
         values = {
             'innovation_x': innovation[0], 'innovation_theta': innovation[1],
             'p_x': p_diag[0], 'p_theta': p_diag[1], 'p_x_dot': p_diag[2],
@@ -402,9 +402,12 @@ class EkfNode(Node):
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,
         }
-        status.values = [KeyValue(key=k, value=repr(float(v)) if isinstance(v, (int, float))
-                                  else str(v)) for k, v in values.items()]
-        return status
+        return Health(OK, message, values)
+
+    def health_status(self) -> DiagnosticStatus:
+        """The DiagnosticStatus ``ekf`` of ``/cartpole/ekf/health`` (see the README, "State
+        estimation", for the keys)."""
+        return self._health_report.status(self.health())
 
     def _publish_health(self) -> None:
         msg = DiagnosticArray()

@@ -215,6 +215,33 @@ def test_health_topic_and_reset_service(harness, spin_until):
     assert float(values['samples']) == 6.0
 
 
+def test_diagnostics_idle_ok_then_stale_when_the_samples_stop_warn_when_dropped(
+        harness, spin_until):
+    """``ekf: estimation`` on /diagnostics: OK before any sample (idle) and while samples
+    come, STALE when none came since the previous report, WARN for a dropped sample."""
+    from diagnostic_msgs.msg import DiagnosticStatus as S
+    h = harness()
+
+    def report():
+        (status,) = h.ekf.diagnostics.publish().status
+        return status.level, status.message, {kv.key: kv.value for kv in status.values}
+
+    level, message, values = report()
+    assert (level, message, values['samples']) == (S.OK, 'no sample yet', '0')
+    assert connected(h, spin_until)
+    for k in range(3):
+        h.meas_pub.publish(joint_state(1.0 + k * TS, 0.3, math.pi))
+        assert spin_until(h.executor, lambda: len(h.states) > k, timeout=5.0)
+    assert report()[:2] == (S.OK, 'estimating')
+    assert report()[:2] == (S.STALE, 'estimating; no samples since the last report')
+    h.meas_pub.publish(joint_state(1.0 + 3 * TS, float('nan'), math.pi))
+    h.meas_pub.publish(joint_state(1.0 + 4 * TS, 0.3, math.pi))
+    assert spin_until(h.executor, lambda: len(h.states) == 4, timeout=5.0)
+    level, message, values = report()
+    assert level == S.WARN and 'bad_messages +1' in message          # (and a missed sample)
+    assert (values['samples'], values['bad_messages']) == ('4', '1')   # plain counts
+
+
 def test_installed_executable_answers_and_stops_on_sigint(ros_context, spin_until):
     from ament_index_python import get_package_prefix
     from rclpy.executors import SingleThreadedExecutor

@@ -6,7 +6,7 @@ time into lines to send and samples to publish. The serial link
 only move bytes and messages; every safety rule lives here and is tested
 without a port. Time ``now`` is ``time.monotonic()`` seconds.
 
-Safety rules (SPEC section 4, "any fault commands zero force"):
+Safety rules (docs/rig.md, "Starting the bridge"; any fault commands zero force):
 
 - Disarmed (the default): the device is kept disabled (``E,0``, re-sent if a
   sample shows it enabled) and no ``U`` other than ``U,0`` is ever sent.
@@ -27,7 +27,7 @@ Safety rules (SPEC section 4, "any fault commands zero force"):
   every :meth:`BridgeCore.on_tick` (at least every ``tick_period``, the
   link's read timeout), and the host watchdog trips at the tick that would
   otherwise be the last one before the deadline: ``U,0`` goes out at most
-  ``command_timeout`` after the last command arrived (SPEC 8), not up to a
+  ``command_timeout`` after the last command arrived, not up to a
   tick later.
 - A checksummed sample whose sequence number jumps further ahead than the
   device can have counted since the last accepted sample (one per
@@ -91,7 +91,7 @@ class BridgeConfig:
 
     calibration: jp.Calibration = field(default_factory=jp.Calibration)
     command_timeout: float = 0.05
-    """Host watchdog: longest gap between fresh force commands while armed [s] (SPEC 4)."""
+    """Host watchdog: longest gap between fresh force commands while armed [s]."""
     sample_timeout: float = 0.05
     """Longest gap between valid samples while armed [s] (10 samples)."""
     answer_timeout: float = 0.5

@@ -5,7 +5,7 @@ This is the logic of ``firmware/cartpole_bridge/joint_protocol.cpp``
 sketch does. Time is an argument (device ``micros()``, uint32, wrapping), so
 every behaviour is a pure function of the inputs and testable without a clock.
 
-Rules (SPEC section 4):
+Rules (docs/rig.md, "The Joint protocol"):
 
 - ``E,1`` enables the amplifier with a zero setpoint and restarts the
   watchdog; ``E,0`` disables it (zero current, DAC at ``dac_zero``).
@@ -16,7 +16,7 @@ Rules (SPEC section 4):
   once a sample period, at the tick that crosses the deadline: a tick trips
   it when the next tick would come more than :data:`WATCHDOG_US` after the
   last ``U``, so the current is zero at most 50 ms after the last ``U``
-  arrived (SPEC 8), and at least 45 ms after it.
+  arrived, and at least 45 ms after it.
 - ``R`` zeroes the counters; refused (``!,9``) while enabled: the position
   reference must not move under a running controller.
 - ``P`` answers ``V,2,<name>``; ``L,1``/``L,0`` start/stop streaming.
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from . import protocol as jp
 
 WATCHDOG_US = 50_000
-"""Device watchdog: longest time without ``U`` while enabled [us] (SPEC 4)."""
+"""Device watchdog: longest time without ``U`` while enabled [us]."""
 SAMPLE_PERIOD_US = 5_000
 """The firmware's sample period Ts [us]: the watchdog runs once a period."""
 

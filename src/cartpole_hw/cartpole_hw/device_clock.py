@@ -2,7 +2,7 @@
 
 The device samples its encoders every 5 ms on its own crystal and sends the
 sample with ``t_us``, its ``micros()`` at that moment (uint32, wraps every
-2**32 us = 71.6 min, SPEC section 4). The line reaches the host after a
+2**32 us = 71.6 min, docs/rig.md, "The Joint protocol"). The line reaches the host after a
 latency ``d`` (UART, the USB-serial chip's buffering, the USB frame, the
 kernel, this process being scheduled) that is never below some ``d_min`` and
 sometimes milliseconds above it. With device time ``tau`` (unwrapped, [s])

@@ -18,7 +18,7 @@ time under the output in force, then the line acts, so a ``U`` drives the
 plant from its arrival, as the firmware writes the DAC at once (the plant
 runs lazily, always up to the latest event's device time). The watchdog
 measures from a ``U``'s real arrival and the current is zero from the period
-that starts at most 50 ms after it (SPEC 8).
+that starts at most 50 ms after it.
 
 Latency report (protocol version 2): a tagged ``U,<s>,<tag>`` is handed to
 the plant with its tag, and the plant says when it acted

@@ -1,5 +1,5 @@
 """ROS 2 node ``hw_bridge``: the rig (or its emulator) on ``/joint_states`` and
-``/cartpole/force_command`` through the Joint serial protocol (SPEC section 4).
+``/cartpole/force_command`` through the Joint serial protocol (docs/rig.md, "The Joint protocol").
 
 The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 :class:`~cartpole_hw.bridge.BridgeCore`, where every rule lives (read
@@ -24,7 +24,8 @@ The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
 - ``~/arm`` (std_srvs/SetBool) and the ``armed`` parameter arm/disarm;
   ``~/home`` (std_srvs/Trigger) resets the encoders (disarmed only);
 - publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
-  status ``hw_bridge``) every ``health_period``;
+  status ``hw_bridge``) every ``health_period``, and the same health as
+  ``hw_bridge: serial link`` on ``/diagnostics`` once a second (:meth:`HwBridgeNode.health`);
 - publishes ``/cartpole/command_applied`` (sensor_msgs/TimeReference,
   ``source='hw_bridge'``) from the reader thread, once for every command the
   device reports in force (protocol version 2): ``time_ref`` = the stamp this
@@ -44,7 +45,7 @@ import threading
 
 from builtin_interfaces.msg import Time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.node import Node
@@ -56,10 +57,15 @@ from std_srvs.srv import SetBool, Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
+from cartpole_sim.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
 from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 RECEIPTS_KEPT = 400
 """Receipt times kept for the command-age rule (2 s of samples at 200 Hz)."""
+
+DEGRADED = ('lost_samples', 'seq_gaps', 'bad_lines', 'bad_samples', 'bad_commands',
+            'stale_commands', 'watchdog_trips', 'device_watchdog_trips', 'reconnects')
+"""Health counters whose growth since the previous report makes it WARN."""
 
 _CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
                 'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
@@ -164,6 +170,10 @@ class HwBridgeNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(self.get_parameter('health_period').value, self._on_health_timer)
+        port_id = str(self.get_parameter('port').value)
+        self._health_report = HealthReport('hw_bridge', port_id, ('samples',), DEGRADED)
+        self.diagnostics = NodeDiagnostics(self, 'serial link', port_id, self.health,
+                                           inputs=('samples',), degraded=DEGRADED)
 
         self.link = SerialLink(self.core, port, self.get_parameter('baud').value,
                                on_sample=self._publish_sample,
@@ -336,23 +346,28 @@ class HwBridgeNode(Node):
                 self.set_parameters([Parameter('armed', value=False)])
             finally:
                 self._syncing = False
-        status = DiagnosticStatus()
-        status.name = 'hw_bridge'
-        status.hardware_id = str(self.link.port)
-        if not connected or not link_ready:
-            status.level = DiagnosticStatus.ERROR
-            status.message = 'disconnected' if not connected else 'waiting for the device'
-        elif not armed:
-            status.level = DiagnosticStatus.WARN
-            status.message = 'disarmed' + (f' ({values["last_error"]})' if values['last_error'] else '')
-        else:
-            status.level = DiagnosticStatus.OK
-            status.message = 'armed'
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [status]
+        msg.status = [self._health_report.status(self.health(values))]
         self._health_pub.publish(msg)
+
+    def health(self, values: dict[str, str] | None = None) -> Health:
+        """The bridge's health (``values``: the core's, read under the lock if not given):
+        ERROR disconnected or disarmed by a fault, WARN waiting for the device's answer, OK
+        armed or disarmed (idle); the reports add STALE when the samples stopped."""
+        with self._lock:
+            values = self.core.health() if values is None else values
+            armed, connected = self.core.armed, self.core.connected
+            link_ready, error = self.core.link_ready, self.core.last_error
+        if not connected:
+            return Health(ERROR, 'disconnected', values)
+        if not link_ready:
+            return Health(WARN, 'waiting for the device', values)
+        if armed:
+            return Health(OK, 'armed', values)
+        if error:
+            return Health(ERROR, f'disarmed: {error}', values)
+        return Health(OK, 'disarmed', values)
 
     def destroy_node(self) -> None:
         """Zero force and disable on the way out, then close the port."""

@@ -1,4 +1,5 @@
-"""The Joint serial protocol (SPEC section 4): codec, stream splitter, conversions.
+"""The Joint serial protocol (docs/rig.md, "The Joint protocol"): codec, stream splitter,
+conversions.
 
 ASCII lines between the host and the Arduino Due I/O bridge, ``\\n``
 terminated (a ``\\r`` before it is tolerated), 115200 baud 8N1. Every line
@@ -546,7 +547,7 @@ class Calibration(EncoderResolution):
 
     The encoder figures default to those of :class:`CartPoleParameters` (the
     one place the thesis's 8737 ticks over 0.769 m, 2000 ticks/rev and 16-bit
-    counters are written, SPEC section 3), as floats (the bridge's parameters
+    counters are written), as floats (the bridge's parameters
     are doubles); the resolutions are :class:`EncoderResolution`'s. Signs are +1 when a positive count means the cart moved right (x grows)
     and the pendulum turned towards positive theta, and when a positive
     setpoint pushes the cart right; flip them if the wiring is reversed.

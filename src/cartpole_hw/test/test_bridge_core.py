@@ -95,7 +95,7 @@ def test_host_watchdog_trips_after_command_timeout_and_disarms():
 @pytest.mark.parametrize('phase', [0.0, 0.0003, 0.0011, 0.0019])
 @pytest.mark.parametrize('jitter', [0.0, 0.0004])
 def test_host_watchdog_zero_force_within_50_ms_of_the_last_command(phase, jitter):
-    """SPEC 8 in simulated time: commands every 5 ms (arrival jitter), the link ticking
+    """The 50 ms watchdog in simulated time: commands every 5 ms (arrival jitter), the link ticking
     every ``tick_period`` at some phase; after the last command, U,0 goes out at the
     last tick inside the 50 ms, not one tick later (nor earlier than needed)."""
     cfg = BridgeConfig(sample_timeout=10.0)                 # samples are not this test's

@@ -93,7 +93,7 @@ def test_device_watchdog_trips_within_50ms_of_the_last_setpoint(emulator):
     assert c.pump(lambda c: any(s.watchdog_tripped for s in c.samples))
     first = next(s for s in c.samples if s.watchdog_tripped)
     # By device time: the U's arrival (as the device stamped it) to the first sample
-    # showing the trip, from which the current is zero (SPEC 8).
+    # showing the trip, from which the current is zero.
     assert 45_000 < first.t_us - emulator.device.last_u_us <= 50_000
     assert any(isinstance(m, jp.DeviceError) and m.code == 16 for m in c.messages)
     assert emulator.device.output_setpoint() == 0

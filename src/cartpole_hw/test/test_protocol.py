@@ -1,4 +1,5 @@
-"""Joint protocol codec (SPEC section 4): shared vectors, round trips, fuzzing, conversions."""
+"""Joint protocol codec (docs/rig.md, "The Joint protocol"): shared vectors, round trips,
+fuzzing, conversions."""
 import importlib.util
 import math
 from pathlib import Path
@@ -203,7 +204,7 @@ def test_calibration_defaults_are_the_plant_parameters_encoder_figures():
     default, p = jp.Calibration(), CartPoleParameters()
     assert default == jp.Calibration.from_parameters(p)
     assert (default.cart_ticks_over_travel, default.travel, default.pendulum_ticks_per_rev,
-            default.counter_bits) == (8737.0, 0.769, 2000.0, 16)     # SPEC section 3, thesis 2.3
+            default.counter_bits) == (8737.0, 0.769, 2000.0, 16)     # thesis section 2.3
     assert isinstance(default.cart_ticks_over_travel, float)            # the bridge's doubles
     assert (default.cart_resolution, default.pendulum_resolution) == (p.cart_resolution,
                                                                       p.pendulum_resolution)

@@ -57,8 +57,8 @@ class EncoderResolution:
 class CartPoleParameters(EncoderResolution):
     """Physical parameters of the rig (Table 2.1, Table 4.1 "new", Appendix A/C).
 
-    Every field is in SI units. The defaults are the thesis values of SPEC
-    section 3. Instances are immutable; use :meth:`replace` or
+    Every field is in SI units. The defaults are the thesis values
+    (docs/simulator.md, "Plant parameters"). Instances are immutable; use :meth:`replace` or
     :meth:`with_scenario` for variants.
     """
 

@@ -1,4 +1,4 @@
-"""``main()`` of every cartpole node: the STYLE.md pattern, made safe for a clean stop.
+"""``main()`` of every cartpole node: init, spin, destroy, shutdown, made safe for a clean stop.
 
 Why it lives here, in the bottom package, though it has nothing of the
 simulator: the five top-level packages are fixed (sim at the bottom;

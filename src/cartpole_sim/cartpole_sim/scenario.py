@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from .model import CartPoleParameters
 
 DELAY_MAX = 0.04
-"""[s] Largest sensor-to-actuator delay (and largest jitter) a scenario takes (SPEC 8)."""
+"""[s] Largest sensor-to-actuator delay (and largest jitter) a scenario takes."""
 ACTUATOR_TAU_MAX = 1.0
 """[s] Largest extra amplifier time constant a scenario takes."""
 DROP_MAX = 0.99

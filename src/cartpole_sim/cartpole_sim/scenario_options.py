@@ -1,5 +1,5 @@
 """The scenario's command-line options, one definition for ``cartpole offline``,
-``cartpole run --sim`` and ``cartpole emulate`` (SPEC sections 5 and 8).
+``cartpole run --sim`` and ``cartpole emulate`` (docs/simulator.md, "Disturbances").
 
 Here rather than in ``cartpole_bringup`` because the emulator
 (``cartpole_hw``) takes them too and must not depend on the bringup package.

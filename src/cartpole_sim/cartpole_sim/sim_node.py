@@ -41,6 +41,9 @@ before the first sample after it, so that the EKF re-initialises and the
 controller manager starts a new swing-up instead of seeing the jump. Force
 commands stamped before the reset (answers to the old run) are ignored.
 
+Health: ``sim: simulation`` on ``/diagnostics`` once a second of the node clock
+(:meth:`SimNode.health`, :mod:`cartpole_sim.diagnostics`).
+
 Topic names are relative (``joint_states`` is ``/joint_states`` without a
 namespace), so a graph can run in a namespace; ``/clock`` stays global.
 """
@@ -61,6 +64,7 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from .diagnostics import OK, STALE, Health, NodeDiagnostics
 from .model import CartPoleParameters
 from .plant import Scenario
 from .scenario import DELAY_MAX, DROP_MAX, parse_push
@@ -81,6 +85,9 @@ SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'fric
                        'force_noise', 'actuator_gain', 'actuator_tau', 'pushes')
 """Parameters that take effect at the next reset (service ``~/reset``)."""
 
+
+DEGRADED = ('rejected_commands', 'lockstep_timeouts', 'late_samples', 'watchdog_trips')
+"""Health counters whose growth since the previous report makes it WARN."""
 
 LOST_IN_A_ROW_MAX = 2000
 """Lockstep: samples lost in a row stepped past at once (10 s at 5 ms); beyond, the node
@@ -151,6 +158,8 @@ class SimNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('sim', **kwargs)
         self._declare_parameters()
+        self.commands = 0
+        """Force commands taken (the health's ``commands``)."""
         self.rejected_commands = 0
         """Force commands without a finite effort for ``cart`` (ignored)."""
         self.stale_commands = 0
@@ -192,6 +201,8 @@ class SimNode(Node):
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self.diagnostics = NodeDiagnostics(self, 'simulation', 'cartpole', self.health,
+                                           inputs=('commands',), degraded=DEGRADED)
 
         self._step_timer = None
         self._timeout_timer = None
@@ -490,11 +501,13 @@ class SimNode(Node):
                 self.stale_commands += 1
                 return
             self._runner.command(force, stamp_ns)
+            self.commands += 1
             return
         if stamp_ns != self._runner.stamp_ns:
             self.stale_commands += 1
             return
         self._runner.command(force, stamp_ns)
+        self.commands += 1
         self._answered = True
         self._try_advance()
 
@@ -522,6 +535,26 @@ class SimNode(Node):
                             f'sample {sample.index}')
         self.get_logger().info(response.message)
         return response
+
+    # -- health ------------------------------------------------------------------------------
+    def health(self) -> Health:
+        """The simulator's health for ``/diagnostics`` (``sim: simulation``): OK while it
+        runs or waits for a controller; STALE once the force commands stopped (the watchdog
+        holds zero force); WARN when a :data:`DEGRADED` counter grew since the last report."""
+        runner = self._runner
+        values = {
+            'lockstep': self._lockstep, 'sample': runner.index,
+            'stamp': self._stamp_ns_of(runner.index) * 1e-9, 'commands': self.commands,
+            'rejected_commands': self.rejected_commands, 'stale_commands': self.stale_commands,
+            'lockstep_timeouts': self.lockstep_timeouts, 'late_samples': self.late_samples,
+            'watchdog_trips': runner.watchdog_trips, 'watchdog_tripped': runner.watchdog_tripped,
+        }
+        if not self.commands:
+            return Health(OK, 'waiting for a controller (no force command yet)', values)
+        if runner.watchdog_tripped:
+            return Health(STALE, 'no force command for command_timeout: the watchdog holds '
+                                 'zero force', values)
+        return Health(OK, 'lockstep' if self._lockstep else 'real time', values)
 
     # -- introspection for tests and bringup ----------------------------------------------------
     @property

@@ -4,10 +4,11 @@
 simulator node drives it: the plant is sampled every Ts (5 ms, section 9.2),
 the latest force command is held over the next period (zero-order hold), and a
 watchdog in simulated time sets zero force when no command has arrived for
-``command_timeout`` (SPEC section 4: 50 ms). All numerical work stays in the
+``command_timeout`` (50 ms, as the device: docs/rig.md, "The Joint protocol"). All
+numerical work stays in the
 plant; this class only counts samples and decides which force is held.
 
-The watchdog keeps its word as SPEC 8 measures it, from the last command's
+The watchdog keeps its word as the tests measure it, from the last command's
 arrival to the first sample that shows zero force: a command received while
 sample k is out acts from t_k, and the force held over [t_j, t_j + Ts) shows
 in sample j + 1. So the watchdog zeroes the period whose closing sample would

@@ -4,8 +4,8 @@ The installed ``share/cartpole_sim/urdf/cartpole.urdf`` is :func:`rig_urdf`
 of the thesis values (a test keeps the two equal); ``python -m
 cartpole_sim.urdf --plant-params FILE.yaml`` writes the one of your rig.
 
-Links ``rail`` (the root: rail and both end stops), ``cart``, ``pendulum``
-(the rod) and ``tip_mass``; joints:
+Links ``base_link`` (:data:`ROOT_LINK`, the root: the rail and both end stops),
+``cart``, ``pendulum`` (the rod) and ``tip_mass``; joints:
 
 - ``cart``, prismatic along +x of the rail frame, 0 at the left end stop,
   limits [0, travel], effort the larger amplifier force, velocity the
@@ -36,6 +36,8 @@ from .geometry import RigGeometry
 from .model import CartPoleParameters
 
 ROBOT_NAME = 'cartpole'
+ROOT_LINK = 'base_link'
+"""The root link (REP 105's name): the rail with both end stops, the rail frame of the model."""
 JOINT_NAMES = ('cart', 'pendulum')
 """The movable joints, named as on ``/joint_states``."""
 
@@ -100,7 +102,7 @@ def rig_urdf(params: CartPoleParameters | None = None,
         '  <material name="cart"><color rgba="0.2 0.4 0.75 1"/></material>\n'
         '  <material name="rod"><color rgba="0.75 0.75 0.75 1"/></material>\n'
         '  <material name="tip"><color rgba="0.85 0.35 0.1 1"/></material>\n'
-        '  <link name="rail">\n'
+        f'  <link name="{ROOT_LINK}">\n'
         + _box((right - left, g.rail_depth, g.rail_height),
                (0.5 * (left + right), g.cart_centre_y, g.rail_centre_z), 'rail')
         + _box(stop_size, (stop_left, g.cart_centre_y, stop_z), 'stop')
@@ -118,7 +120,7 @@ def rig_urdf(params: CartPoleParameters | None = None,
         + _inertial(params.m_p, (0.0, 0.0, 0.0), tip_ixx, tip_ixx, tip_izz)
         + '  </link>\n'
         '  <joint name="cart" type="prismatic">\n'
-        '    <parent link="rail"/>\n    <child link="cart"/>\n'
+        f'    <parent link="{ROOT_LINK}"/>\n    <child link="cart"/>\n'
         '    <origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="1 0 0"/>\n'
         f'    <limit lower="0" upper="{_n(params.travel)}" '
         f'effort="{_n(max(params.force_max, -params.force_min))}" '

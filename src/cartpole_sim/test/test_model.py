@@ -191,7 +191,7 @@ def test_linearisation_matches_finite_difference_jacobian():
 
 def test_lqr_gain_and_poles_match_thesis():
     # Q = diag(100, 400, 100, 400), R = 0.01 -> (8.24) k = [-100, 1012, -172.1, 266.8],
-    # u = -k x. Poles (8.25) as corrected in SPEC section 7: -127.9, -1.68 +/- 1.41j, -1.00.
+    # u = -k x. Poles (8.25) corrected (docs/controllers.md, "lqg"): -127.9, -1.68 +/- 1.41j, -1.00.
     a, b = linearise_upright(NOMINAL)
     q, r = np.diag([100.0, 400.0, 100.0, 400.0]), np.array([[0.01]])
     p_are = scipy.linalg.solve_continuous_are(a, b, q, r)

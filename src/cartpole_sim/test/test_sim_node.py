@@ -122,7 +122,7 @@ def test_installed_executable_publishes_joint_states_in_real_time(ros_context, s
             f'{len(probe.joints)} samples received'
         msgs = probe.joints
         assert all(list(m.name) == ['cart', 'pendulum'] for m in msgs)
-        # Default scenario: cart at the left stop, pendulum hanging (SPEC 1a).
+        # Default scenario: cart at the left stop, pendulum hanging.
         assert all(abs(m.position[0]) < 1e-3 for m in msgs)
         assert all(abs(m.position[1] - math.pi) < 0.01 for m in msgs)
         # Real time: the stamps are the node clock's (the wall clock, not simulated time
@@ -156,7 +156,7 @@ def test_real_time_applies_command_then_watchdog_zeroes_it(graph, spin_until):
                                             for m in probe.truth[pushed:]), timeout=10.0)
     assert sim.runner.watchdog_trips == 1
     # The command acts from the sample it arrived after (t_k) and shows in samples
-    # k+1..k+9; sample k+10, 50 ms after t_k, shows zero force (SPEC 8).
+    # k+1..k+9; sample k+10, 50 ms after t_k, shows zero force.
     pushed_samples = sum(1 for m in probe.truth[pushed:] if m.effort[0] > 1.0)
     assert pushed_samples == 9
     assert probe.truth[-1].position[0] > 0.3
@@ -184,7 +184,7 @@ def test_real_time_stamps_are_the_plants_clock_and_a_stall_is_caught_up(graph, s
 
 def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(graph,
                                                                              spin_until):
-    """SPEC 8 by simulated stamps: the last command answers sample 2 (it arrives at t_2);
+    """The watchdog by simulated stamps: the last command answers sample 2 (it arrives at t_2);
     the controller then falls silent and the sim steps on its lockstep timeout."""
     from rclpy.parameter import Parameter
 

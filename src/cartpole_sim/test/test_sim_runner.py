@@ -61,7 +61,7 @@ def first_zero_force_sample(runner, limit=100):
 
 @pytest.mark.parametrize('timeout', [0.05, 0.052, 0.0125, 0.1])
 def test_watchdog_zero_force_sample_within_the_timeout_of_the_command(timeout):
-    """SPEC 8: from the last command's arrival to the first zero-force sample, by stamps.
+    """The watchdog from the last command's arrival to the first zero-force sample, by stamps.
 
     The command arrives while sample k is out, i.e. at or after t_k; the first
     sample whose true actuator force is zero must be stamped at most

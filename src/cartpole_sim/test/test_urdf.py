@@ -101,7 +101,9 @@ def test_joints_are_the_two_of_joint_states_with_the_travel_as_limits(urdf):
     # The pendulum turns freely (theta is not wrapped on /joint_states): URDF's unlimited
     # revolute joint.
     assert movable['pendulum'].get('type') == 'continuous'
-    assert urdf.links == {'rail', 'cart', 'pendulum', 'tip_mass'}
+    assert urdf.links == {'base_link', 'cart', 'pendulum', 'tip_mass'}
+    children = {j.find('child').get('link') for j in urdf.joints.values()}
+    assert urdf.links - children == {'base_link'}  # the root, as REP 105 names it
     assert [j.get('name') for j in urdf.chain('tip_mass')] == ['cart', 'pendulum', 'tip']
 
 
@@ -134,7 +136,7 @@ def test_visuals_have_the_dimensions_of_table_2_1(urdf):
     tip, = shapes['tip_mass']
     assert float(tip.get('length')) == pytest.approx(0.104)   # h_mass
     assert float(tip.get('radius')) == pytest.approx(0.00975)  # d_mass 1.95 cm
-    rail = shapes['rail'][0]
+    rail = shapes['base_link'][0]
     assert _vec(rail.get('size'))[0] == pytest.approx(0.889)   # l_rail
     cart, = shapes['cart']
     assert _vec(cart.get('size'))[0] == pytest.approx(0.889 - 0.769) == pytest.approx(g.cart_width)

@@ -1,4 +1,4 @@
-"""Run analysis from recorded bags (no ROS): time series, the SPEC 5 summary, plots.
+"""Run analysis from recorded bags (no ROS): time series, the run summary, plots.
 
 :class:`SeriesBuilder` turns the graph's messages (from a bag here, or live in
 ``cartpole run``) into a :class:`~cartpole_bringup.analysis.plots.RunSeries` and the
@@ -75,7 +75,8 @@ CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
 TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
-"""Summary keys of SPEC 8 that the comparison table shows besides SPEC 5's."""
+"""Summary keys the comparison table shows besides the success measures
+(README.md, "The run summary")."""
 HW_LIMIT_KEYS = ('limit_left', 'limit_right')
 """Keys of the limit-switch flags in the hw bridge's health status."""
 
@@ -173,7 +174,7 @@ class SeriesBuilder:
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
         """Limit switches: a flag closing after it was seen open is a contact.
 
-        The cart starts at the left stop (SPEC 1a), where the left switch may
+        The cart starts at the left stop (README.md, "Quick start"), where the left switch may
         be closed; that is the starting position, not a contact.
         """
         self.hw_health_seen = True
@@ -261,7 +262,8 @@ class SeriesBuilder:
     def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
                   label: str = '', end_ns: int | None = None,
                   fault: str | None = None) -> tuple[RunSeries, dict[str, Any]]:
-        """The series and the run summary (SPEC 5 and 8); ``fault`` overrides the reported one."""
+        """The series and the run summary (README.md, "The run summary"); ``fault``
+        overrides the reported one."""
         series, contact = self.build(params=params, x_ref=x_ref, lockstep=lockstep, label=label,
                                      end_ns=end_ns)
         summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
@@ -362,7 +364,7 @@ def run_end_ns(custom: Mapping[str, str]) -> int | None:
 
 def analyze_bag(path: str | Path, *, x_ref: float | None = None,
                 params: CartPoleParameters | None = None, label: str = '') -> BagAnalysis:
-    """Series and SPEC 5 summary of one recorded run.
+    """Series and run summary of one recorded run.
 
     Parameters
     ----------
@@ -391,7 +393,7 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
 
 
 def recorder_missed(custom: Mapping[str, str]) -> int | None:
-    """Messages the recorder missed (custom_data ``recorder_missed``, SPEC 8); None if not counted."""
+    """Messages the recorder missed (custom_data ``recorder_missed``); None if not counted."""
     try:
         return int(custom['recorder_missed'])
     except (KeyError, ValueError):

@@ -1,4 +1,4 @@
-"""The run summary of SPEC section 5, from time series.
+"""The run summary (README.md, "The run summary"), from time series.
 
 One module for every consumer: ``cartpole offline``, ``cartpole analyze`` and
 the benchmarks compute the same numbers from the same code. Inputs are the
@@ -41,7 +41,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
               longest_cycle_gap_s: float | None = None, swingup_law: str | None = None,
               force: Sequence[float] | None = None,
               t_force: Sequence[float] | None = None) -> dict[str, Any]:
-    """The SPEC section 5 summary of one run from hanging rest.
+    """The run summary of one run from hanging rest.
 
     Parameters
     ----------
@@ -57,7 +57,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     window
         Length of the final window for the amplitude, error, MSE and force figures.
     fault
-        Why the run stopped early or lost control (SPEC 8): a node that
+        Why the run stopped early or lost control: a node that
         died, the controller manager's first fault; None when nothing went
         wrong. A run with a fault is not a success.
     controllers
@@ -67,7 +67,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         The longest gap between two control cycles the controller manager
         reported [s]; None when not reported (offline).
     swingup_law
-        What produced the swing-up (SPEC 8): the swing-up plugin's law at the
+        What produced the swing-up: the swing-up plugin's law at the
         first catch (else at the end), e.g. ``pendulum_energy``,
         ``time_optimal:plan``, ``time_optimal:fallback(no plan)``; None when
         not known (a bag recorded before the status carried it).
@@ -107,7 +107,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
 
 def control_effort(force: Sequence[float] | None, t_force: Sequence[float],
                    since: float) -> dict[str, float | None]:
-    """``force_rms_n`` and ``force_p2p_n`` (SPEC 8) of the commands stamped at or after ``since``.
+    """``force_rms_n`` and ``force_p2p_n`` of the commands stamped at or after ``since``.
 
     The root mean square of the force command and its peak-to-peak range
     over the window, what an amplifier sees: heat and noise. Null when no

@@ -1,4 +1,5 @@
-"""One encoder tick's effect on the force command: the chatter of SPEC section 7, measured.
+"""One encoder tick's effect on the force command, measured: the chatter that
+docs/controllers.md, "lqg", describes.
 
 While balancing, the pendulum sits within a tick or two of upright, and the
 measured angle steps by a whole tick (2 pi / 2000 rad) now and then. What

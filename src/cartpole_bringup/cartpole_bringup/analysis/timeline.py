@@ -1,4 +1,4 @@
-"""Which controller ran when: the run summary's ``controllers`` (SPEC 8), without ROS.
+"""Which controller ran when: the run summary's ``controllers``, without ROS.
 
 Only one controller runs at a time (thesis section 6.4): the swing-up law in
 mode ``swingup``, the stabiliser in mode ``stabilizing``, none in ``idle``
@@ -28,7 +28,7 @@ def active_controller(mode: str, swingup: str, stabilizer: str) -> tuple[str, st
 
 
 class ControllerTimeline:
-    """Accumulates the active controller cycle by cycle; :meth:`spans` gives the SPEC 8 list.
+    """Accumulates the active controller cycle by cycle; :meth:`spans` gives the summary's list.
 
     Feed :meth:`update` in time order (times in any unit, typically ns).
     """

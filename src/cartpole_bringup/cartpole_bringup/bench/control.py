@@ -1,12 +1,12 @@
 """Controller comparison under uncertainty: every swing-up x stabiliser pair over a scenario grid.
 
 The thesis compared its controllers on one run each (Table 10.2); this sweep
-runs many, with the robustness scenarios of SPEC section 6: tip mass -20 %,
+runs many, with robustness scenarios: tip mass -20 %,
 -10 %, +10 % (section 10.3), cart and pendulum friction x0.8, x1.2 and x1.5,
 the encoders reset with the pendulum 0.01 to 0.1 rad off hanging (Appendix H:
 the encoder then reads pi while the pendulum is not at pi; it is released from
 there at rest), that offset together with a 20 % lighter tip, measurement
-noise on, several seeds. Besides the SPEC 5 summary (with the control effort
+noise on, several seeds. Besides the run summary (with the control effort
 ``force_rms_n``/``force_p2p_n``) each run reports ``x_err_mean_m``, the mean
 |x - x*| over its last 5 s: what is left of an offset once the transients of
 the catch are over (the "offset-free" measure).
@@ -53,7 +53,7 @@ SCENARIOS: dict[str, dict[str, float]] = {
     'offset -0.1': _offset(-0.1),
     'offset +0.05 mass-20%': _offset(0.05, tip_mass=NOMINAL_TIP_MASS * 0.8),
 }
-"""The scenario grid of SPEC section 6 (and docs/benchmarks.md), by name."""
+"""The scenario grid (docs/benchmarks.md, "Controller comparison"), by name."""
 
 SETTLE_WINDOW_S = 5.0
 """``x_err_mean_m`` is the mean |x - x*| over the last this many seconds."""
@@ -82,7 +82,7 @@ class BenchCase:
 
 
 def run_case(case: BenchCase) -> dict[str, Any]:
-    """Run one case offline; returns the case, its SPEC 5 summary and the catch time."""
+    """Run one case offline; returns the case, its run summary and the catch time."""
     from ..offline.closed_loop import run_closed_loop
 
     run = run_closed_loop(CartPoleParameters(), case.make_scenario(), duration=case.duration,

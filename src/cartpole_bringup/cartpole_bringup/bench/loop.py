@@ -1,4 +1,5 @@
-"""Loop latency of the real node graph against the bare rclpy floor (SPEC section 6).
+"""Loop latency of the real node graph against the bare rclpy floor
+(docs/realtime.md, "Benchmarks").
 
 What is measured, the same way for the graph and for its floor:
 

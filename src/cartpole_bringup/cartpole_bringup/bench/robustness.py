@@ -1,8 +1,9 @@
 """The sim-to-real gap, scored: ``cartpole bench robustness``.
 
-After the robustness leaderboard of the DFKI double_pendulum benchmark (SPEC
-section 8): each category of uncertainty is swept over levels from nominal
-outwards, several seeds a level; a run succeeds as SPEC 5 says (caught,
+After the robustness leaderboard of the DFKI double_pendulum benchmark: each
+category of uncertainty is swept over levels from nominal outwards, several
+seeds a level; a run succeeds as the run summary says (README.md, "The run
+summary": caught,
 |theta| < 2 deg and |x - x*| <= 10 cm over the last 10 s, no end-stop
 contact), without a controller-manager fault (the rail guard's: it leaves
 the pendulum to fall), and after a push also without a fall; a level *counts* when more than half
@@ -228,7 +229,7 @@ def make_grid(pairs: Sequence[tuple[str, str]], sweeps: Sequence[Sweep], seeds: 
 
 
 def run_one(run: RobustnessRun) -> dict[str, Any]:
-    """One offline run: its SPEC 5 summary, the falls after the catch and the faults.
+    """One offline run: its run summary, the falls after the catch and the faults.
 
     The run stops early once it cannot succeed (end-stop contact, or a
     manager fault such as the rail guard's: the pendulum is left to fall),
@@ -257,7 +258,7 @@ def run_grid(runs: Sequence[RobustnessRun], *, workers: int = 1, dask_address: s
 
 
 def succeeded(sweep: Sweep, summary: dict[str, Any]) -> bool:
-    """SPEC 5 success without a manager fault; after a push no fall either."""
+    """The summary's success without a manager fault; after a push no fall either."""
     return (bool(summary['success']) and not summary['faults']
             and not (sweep.after_catch and summary['falls_after_catch']))
 

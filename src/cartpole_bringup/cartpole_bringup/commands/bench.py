@@ -1,4 +1,4 @@
-"""`cartpole bench control|robustness|loop|offline|all`: the benchmarks of SPEC sections 6 and 8.
+"""`cartpole bench control|robustness|loop|offline|all`: the benchmarks (docs/benchmarks.md).
 
 Each benchmark prints a markdown report and writes it (and its figures and raw
 JSON) under ``--out``. No benchmark asserts anything: they measure.
@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='run the sweep on a Dask distributed scheduler instead (tcp://host:8786)')
 
     r = sub.add_parser('robustness', help='the sim-to-real gap, scored: every disturbance swept '
-                                          'from nominal outwards (SPEC 8)')
+                                          'from nominal outwards')
     _common(r)
     r.add_argument('--pairs', nargs='*', default=None, metavar='SWINGUP:STABILIZER',
                    help='default: the default pair and every stabiliser with pendulum_energy')

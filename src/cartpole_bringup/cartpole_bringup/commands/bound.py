@@ -18,7 +18,12 @@ balanced at rest in the middle, the cart kept in ``[m, travel - m]``:
 - ``push_pendulum``: a constant torque towards increasing theta for 0.05 s [N m s];
 
 each for every ``--margin`` (default 0 and the rail guard's 0.02 m), without
-and with the fall detector's |theta| <= ``--fall-angle`` (45 deg).
+and with the fall detector's |theta| <= ``--fall-angle`` (45 deg); with
+``--guard`` inside the rail guard's braking envelope too (its limiter keeps
+the cart's stopping position 5 cm inside the margin: what any controller
+behind this project's guard can recover from); with ``--reaction S`` the
+controller's force is zero for the first S of the push (one that acts only on
+what it has seen).
 
 No ROS.
 """
@@ -52,6 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument('--margin', action='append', type=float, default=None, metavar='M',
                    help='keep the cart in [M, travel - M] [m] (repeatable); default: 0 and 0.02 '
                         '(the end stops, the rail guard\'s margin)')
+    g.add_argument('--guard', action='store_true',
+                   help='also keep the rail guard\'s braking envelope: the stopping position of '
+                        'the manager\'s default guard 5 cm (rail.limit_reserve) inside the margin')
+    add_number_argument(g, '--reaction', 0.0, 'the controller\'s force is zero this long after the '
+                        'push starts [s]: one that only acts on what it has seen (0: it knows '
+                        'the push in advance)', metavar='S')
     add_number_argument(g, '--fall-angle', 45.0, 'the no-fall bound keeps |theta| within this '
                         '[deg] (the fall detector); the other has no angle limit', metavar='DEG')
     add_number_argument(g, '--horizon', 3.0, 'time from the push to upright at rest [s]',
@@ -129,6 +140,7 @@ def _pushes(args: argparse.Namespace, params, cases, print_table: bool) -> tuple
                     unit='deg')
     boundary.number('--horizon', args.horizon, 0.5, 20.0, low_open=True, unit='s')
     boundary.number('--tolerance', args.tolerance, 0.0, 0.5, low_open=True, high_open=True)
+    boundary.number('--reaction', args.reaction, 0.0, 0.5 * args.horizon, unit='s')
     say = progress_printer('cartpole bound')
     angles = (None, math.radians(args.fall_angle))
     out, ok = {}, True
@@ -138,7 +150,8 @@ def _pushes(args: argparse.Namespace, params, cases, print_table: bool) -> tuple
         for margin in margins:
             for angle in angles:
                 problem = PushRecoveryProblem(params, target, rail_margin=margin, max_angle=angle,
-                                              horizon=args.horizon, friction=not args.no_friction)
+                                              horizon=args.horizon, friction=not args.no_friction,
+                                              guard=args.guard, reaction=args.reaction)
                 bound = largest_push(problem, args.tolerance)
                 row = bound.to_dict()
                 row['converged'] = math.isfinite(bound.infeasible)
@@ -148,7 +161,7 @@ def _pushes(args: argparse.Namespace, params, cases, print_table: bool) -> tuple
                         params, problem.width, margin, angle, problem.start_x), 4)
                 limit = ('no angle limit' if angle is None
                          else f'|theta| <= {args.fall_angle:g} deg')
-                say(f'{case} margin {margin:g} m, {limit}: '
+                say(f'{case} margin {margin:g} m{" + guard" if args.guard else ""}, {limit}: '
                     f'{row["impulse"]:g} {row["unit"]} ({row["solve_s"]:.0f} s)')
                 rows.append(row)
         out[case] = {'unit': rows[0]['unit'], 'width_s': PUSH_WIDTHS[target], 'bounds': rows}
@@ -165,7 +178,8 @@ def _pushes(args: argparse.Namespace, params, cases, print_table: bool) -> tuple
             infeasible = (f'{r["infeasible_from"]:.4g}' if r['infeasible_from'] is not None
                           else 'not found')
             momentum = f'{r["momentum_bound"]:.2f}' if 'momentum_bound' in r else '-'
-            print(f'{case:<14} {r["rail_margin_m"]:>10g} {angle:>11} {r["impulse"]:>8.4g} '
+            margin = f'{r["rail_margin_m"]:g}' + ('+guard' if r['rail_guard'] else '')
+            print(f'{case:<14} {margin:>10} {angle:>11} {r["impulse"]:>8.4g} '
                   f'{r["unit"]:<6} {infeasible:>10} {xr:>14} {th:>14} {momentum:>8} '
                   f'{r["solve_s"]:>9.1f}')
     return out, ok

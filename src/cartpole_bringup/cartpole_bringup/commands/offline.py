@@ -1,4 +1,4 @@
-"""`cartpole offline`: the closed loop without ROS, far faster than real time (SPEC 5)."""
+"""`cartpole offline`: the closed loop without ROS, far faster than real time."""
 from __future__ import annotations
 
 import argparse

@@ -121,7 +121,7 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     else:
         out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
         if args.hw_arm:
-            # The bridge arms only with homed encoders: home them at start (SPEC 1a start:
+            # The bridge arms only with homed encoders: home them at start (the thesis's start:
             # cart at the left stop, pendulum hanging still).
             out['hw_bridge']['home_on_start'] = True
     if args.plant_params is not None:

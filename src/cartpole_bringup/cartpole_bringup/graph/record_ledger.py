@@ -1,7 +1,7 @@
 """What the recorder has of each sample: lockstep progress, repeats, and the messages it missed.
 
 Every 200 Hz topic of the graph carries the stamp of the sample it belongs to
-(SPEC 4: the plant's samples, the estimate and the force command copy it):
+(docs/architecture.md, "ROS interfaces": the estimate and the force command copy it):
 ``/joint_states``, ``/cartpole/true_state``, ``/clock`` (the plant),
 ``/cartpole/state`` (EKF), ``/cartpole/force_command`` and
 ``/cartpole/controller_status`` (controller manager). That stamp is the

@@ -57,7 +57,7 @@ def recording_from_messages(samples: Sequence[tuple[int, float, float]],
     stamped at or before sample k (a command carries the stamp of the sample
     it answers, docs/architecture.md), zero before the first command and
     once the last command is older than ``command_timeout`` (the watchdogs
-    of the bridge and the device then set zero current, SPEC section 4).
+    of the bridge and the device then set zero current, docs/rig.md, "The Joint protocol").
     """
     name = label or 'recording'
     if not samples:

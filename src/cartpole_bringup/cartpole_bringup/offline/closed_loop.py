@@ -1,7 +1,7 @@
 """The closed loop without ROS: plant, 5 ms sampling, quantisation, EKF, controller manager.
 
 The very objects the ROS nodes host, wired the way the node graph wires them
-(docs/architecture.md, "one control cycle"), stepped as fast as Python goes.
+(docs/architecture.md, "The closed loop, one control cycle"), stepped as fast as Python goes.
 Deterministic: the same parameters, scenario and controller settings give the
 same run bit for bit.
 """
@@ -68,7 +68,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
                     progress: Callable[[str], None] | None = None,
                     observer: Callable[[Measurement, StateEstimate, ManagerOutput, list[float]],
                                        None] | None = None) -> RunResult:
-    """Run the closed loop for ``duration`` simulated seconds and summarise it (SPEC 5).
+    """Run the closed loop for ``duration`` simulated seconds and summarise it (the run summary).
 
     ``nominal`` are the parameters the EKF and the controllers use; the plant
     is ``scenario`` applied to them (tip mass, friction scale, start, noise).

@@ -24,6 +24,8 @@ TOPIC_NOTES: dict[str, str] = {
                                  'effect (`header.stamp`) and the stamp of the sample it was '
                                  "computed from (`time_ref`): the loop's latency",
     '/clock': 'simulated time for `use_sim_time` (lockstep)',
+    '/diagnostics': "every node's health once a second of its clock, one status "
+                    '`<node>: <what>` (see "Diagnostics and logs")',
     '/cartpole/recorder/progress': '`stamp` = the sample up to which the recorder holds every '
                                    '200 Hz topic (lockstep with `--record`: complete bags; '
                                    "without a recorder `cartpole run`'s monitor publishes it)",
@@ -60,6 +62,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'show the reset plant (the reset sample\'s stamp in lockstep, the reset\'s time in real '
         'time). Reliable, transient local (the last one is kept for late joiners). The EKF and '
         'the controller manager hand over on it (below)',
+    ('sim', '/diagnostics'): 'status `sim: simulation` once a second (see "Diagnostics and logs")',
     ('sim', '/sim/reset'):
         'the plant goes back to the scenario\'s initial state (below)',
     ('ekf', '/joint_states'):
@@ -71,6 +74,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'theta_dot]`, `header.stamp` copied from the sample; published inside the '
         '`/joint_states` callback',
     ('ekf', '/cartpole/ekf/health'): 'one DiagnosticStatus `ekf`, every `health_period`',
+    ('ekf', '/diagnostics'): 'status `ekf: estimation` once a second (see "Diagnostics and logs")',
     ('ekf', '/ekf/reset'): 're-initialise from the next sample (reported as `requested`)',
     ('ekf', '/cartpole/plant_reset'):
         'the plant (simulator reset) or the position reference (bridge homing) moved: '
@@ -81,8 +85,8 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
     ('controller_manager', '/cartpole/force_command'):
         "`name=['cart']`, `effort=[F]`, `header.stamp` = the state's stamp",
     ('controller_manager', '/cartpole/controller_status'):
-        'every cycle: one status named `controller_manager`. Level is OK, WARN (idle) or ERROR '
-        '(fault); `message` is the mode. KeyValues: `mode`, `swingup`, `stabilizer`, `enabled` '
+        'every cycle: one status named `controller_manager`. Level is OK (running or idle) or '
+        'ERROR (fault); `message` is the mode. KeyValues: `mode`, `swingup`, `stabilizer`, `enabled` '
         '(`true`/`false`), `energy`, `energy_error`, `raw_force`, `feedforward`, `force`, '
         '`catch_count`, `fall_count`, `event`, `state_stamp`, `swingup_law` (the swing-up '
         "plugin's `law`: its name, or for `time_optimal` `time_optimal:plan` / "
@@ -97,9 +101,11 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'divided by and its estimated extra dead time, added to the horizon with `actuator.delay` '
         '`auto`), then the active plugin\'s own figures (e.g. `mpc_solve_us`, '
         '`mpc_fallbacks`). '
-        'Numbers are `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
+        'Counts are integers, other numbers `repr(float)`. `event` is `catch`, `fall`, `restart`, `plant_reset`, '
         '`fault:<reason>`, `switch:<kind>=<name>` or empty; several events in one cycle are '
         'joined by `;`',
+    ('controller_manager', '/diagnostics'):
+        'status `controller_manager: control` once a second (see "Diagnostics and logs")',
     ('controller_manager', '/cartpole/command_applied'):
         'the plant\'s report of when each command took effect: `header.stamp - time_ref` is '
         'one sample of the loop\'s latency (`latency_s`)',
@@ -119,7 +125,12 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'the sample it answered, `header.stamp` = the device\'s time of the setpoint that '
         'carried it, mapped to the host clock like the samples\' (protocol version 2); '
         '`source` = `hw_bridge`',
-    ('hw_bridge', '/cartpole/hw/health'): 'one status `hw_bridge` every `health_period` (keys below)',
+    ('hw_bridge', '/cartpole/hw/health'):
+        'one status `hw_bridge` every `health_period`, levels as on `/diagnostics` (OK armed or '
+        'disarmed, ERROR disconnected or disarmed by a fault); every key: '
+        '[docs/rig.md](docs/rig.md#cartpolehwhealth)',
+    ('hw_bridge', '/diagnostics'):
+        'status `hw_bridge: serial link` once a second (see "Diagnostics and logs")',
     ('hw_bridge', '/cartpole/plant_reset'):
         'after a homing: stamp = the first sample counted from the new zero',
     ('hw_bridge', '/cartpole/force_command'):

@@ -1,4 +1,4 @@
-"""The Foxglove layout of the live view: ``docs/foxglove_layout.json``.
+"""The Foxglove layout of the live view: ``config/foxglove_layout.json`` of this package.
 
 A 3D panel of the rig (``/cartpole/view/scene``, looking at the rail from
 the front) above the controller's mode and the events, and on the right
@@ -11,9 +11,10 @@ show the last 30 s.
 The file is in the layout format that both the Foxglove app and the
 open-source Lichtblick import ("Import from file..." in the layout menu):
 ``configById`` (panel id -> settings) and a ``layout`` tree of splits.
-``python -m cartpole_bringup.viewer.layout > docs/foxglove_layout.json``
-writes it; a test keeps the committed file equal to :func:`foxglove_layout`
-and every path in it an advertised channel's field.
+``python -m cartpole_bringup.viewer.layout > src/cartpole_bringup/config/foxglove_layout.json``
+writes it (installed as ``share/cartpole_bringup/config/foxglove_layout.json``); a test
+keeps the committed file equal to :func:`foxglove_layout` and every path in it an
+advertised channel's field.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from typing import Any
 
 from cartpole_sim.geometry import RigGeometry
 
+from .scene import FRAME
 from .server import TOPICS
 
 STATE = TOPICS['state']
@@ -65,12 +67,12 @@ def _three_d(geometry: RigGeometry) -> dict[str, Any]:
     middle = 0.5 * geometry.travel
     floor = -(geometry.pendulum_length + geometry.tip_height)
     return {
-        'foxglovePanelTitle': 'rig (rail frame)',
+        'foxglovePanelTitle': f'rig ({FRAME})',
         'cameraState': {'distance': 1.5, 'perspective': True, 'phi': 80.0, 'thetaOffset': 0.0,
                         'target': [0.0, 0.0, 0.0], 'targetOffset': [middle, 0.0, 0.0],
                         'targetOrientation': [0.0, 0.0, 0.0, 1.0], 'fovy': 45.0, 'near': 0.01,
                         'far': 50.0},
-        'followMode': 'follow-none', 'followTf': 'rail',
+        'followMode': 'follow-none', 'followTf': FRAME,
         'scene': {'enableStats': False, 'transforms': {'showLabel': False}},
         'transforms': {},
         'topics': {TOPICS['scene']: {'visible': True}},

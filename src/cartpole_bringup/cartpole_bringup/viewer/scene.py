@@ -1,7 +1,7 @@
 """The 3D scene of the rig as ``foxglove.SceneUpdate`` messages (no ROS).
 
 The rig is drawn at its true dimensions (:class:`cartpole_sim.geometry.RigGeometry`,
-Table 2.1) in the frame ``rail`` of the URDF: x along the rail from the
+Table 2.1) in the URDF's root frame ``base_link`` (the rail): x along the rail from the
 left end stop, z up, the pendulum in the plane y = 0, the tip mass at
 ``(x - l sin theta, 0, l cos theta)`` (4.5). One update holds four entities:
 
@@ -30,8 +30,9 @@ from foxglove.messages import (
     Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector3)
 
 from cartpole_sim.geometry import RigGeometry
+from cartpole_sim.urdf import ROOT_LINK
 
-FRAME = 'rail'
+FRAME = ROOT_LINK
 """Frame of every entity (the URDF's root link)."""
 
 MODE_COLOURS: dict[str, tuple[float, float, float]] = {

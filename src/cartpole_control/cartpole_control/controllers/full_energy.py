@@ -24,7 +24,7 @@ positive definite and the potential is zero hanging), so ``E* - E <= E*`` and
 (7.30) and its k_v = 8.3 leave a margin of 0.75 %). :meth:`on_configure`
 refuses gains (or a plant model, e.g. a heavier tip mass) that break it, since
 a denominator that changes sign reverses the cart term and drives the cart into
-an end stop (SPEC section 7). E is always computed with the controller's own
+an end stop (docs/controllers.md, "full_energy"). E is always computed with the controller's own
 model, so the guard holds whatever the true tip mass is.
 
 Near the hanging rest the denominator is small (D = k_v/m_c - k_e E* = 0.10

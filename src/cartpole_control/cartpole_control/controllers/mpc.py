@@ -55,8 +55,11 @@ takes up. Including it would only make the QP larger (a sixth state).
 What the constraints buy, measured (docs/controllers.md): little. The
 robustness score is lqg's within a level either way; a 6 N s cart push is
 recovered in 3 of 12 seeds, as by lqg, a 0.05 N m s pendulum push in none:
-the recovery leans the pendulum far beyond where the linearisation holds,
-and the rail guard's limiter bends the command in the middle of it. The
+the loop sees the push too late (docs/robustness.md, "Behind the rail
+guard, reacting to what the encoders show": even the time-optimal recovery
+that starts 20 ms after the push recovers at most 0.0513 N m s behind the
+guard), runs the cart into the guard's limiter boundary, and the braking
+there swings the pendulum over towards the stop. The
 rail penalty is 1e4, not larger: with 1e5 a cart that reached the boundary
 at rest stays parked there (to come back it must first move towards the
 stop, the cart's non-minimum phase, which such a penalty forbids).

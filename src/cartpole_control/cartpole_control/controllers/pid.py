@@ -6,7 +6,7 @@ Two PID controllers of the form (8.8), ``C = K_p + K_i / s + K_d s``:
   pendulum must lean to bring the cart back. The sign: to move the cart
   right the pendulum must first lean right, i.e. theta < 0 (the tip is at
   ``x - l sin theta``); the other sign catches and then loses the pendulum
-  (SPEC section 7).
+  (docs/controllers.md, "pid").
 - inner, pendulum angle: ``u = C_p (theta* - theta)``, a cart acceleration
   [m/s^2] (the input u_2 of (8.6)/(8.7)), turned into a force by (7.10). A
   pendulum leaning left (theta > theta*) gives u < 0: the cart accelerates

@@ -14,7 +14,7 @@ pumping part, as for the sign.
 ``u`` is a cart acceleration [m/s^2] and becomes a force through (7.10):
 the thesis's ``u_max = 1`` means 1 m/s^2, about 5 N on the 5 kg cart (plus
 the feedforward), its "switches between +-10" of Figure 7.13 including the
-friction compensation (SPEC section 7). As a force, 1 N would not move the cart.
+friction compensation (docs/controllers.md, "sign_based"). As a force, 1 N would not move the cart.
 """
 from __future__ import annotations
 

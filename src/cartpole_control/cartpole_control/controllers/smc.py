@@ -43,7 +43,7 @@ back its increment when the manager reports the force as cut in its
 direction or held, starts from zero at activation (bumpless) and does not
 run during swing-up.
 
-Derivative of s, derived again from (4.34) (SPEC section 7: the printed (8.41)
+Derivative of s, derived again from (4.34) (docs/controllers.md, "smc": the printed (8.41)
 puts the term ``(k_3 - k_2 sin/l) x_dot`` into Gamma and drops the theta_dot
 of ``d/dt cos theta = -theta_dot sin theta``). With ``x_ddot = f_c + g_c u``,
 ``theta_ddot = f_p + g_p u`` (8.27), ``d = m_c + m_p sin^2 theta``,

@@ -160,7 +160,7 @@ class TimeOptimalSwingUp(Controller):
         ParameterSpec('rail_margin', 0.05, 'distance the plan keeps from each end stop [m]',
                       low=0.0, high=0.2),
         ParameterSpec('terminal_angle_deg', 10.0, 'plan: |theta_w| at the final time below '
-                      'this [deg] (the upright region of SPEC 5: 10)', low=1.0, high=30.0),
+                      'this [deg] (the upright region of the run summary: 10)', low=1.0, high=30.0),
         ParameterSpec('terminal_energy_tolerance', 0.03, 'plan: |E_p - E*| <= this E* at the '
                       'final time (tighter than the catch trigger\'s 0.05: calmer hand-over)',
                       low=0.005, high=0.2),
