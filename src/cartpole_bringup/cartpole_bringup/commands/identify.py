@@ -80,6 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='record the test into this bag (in-process recorder)')
     pulse.add_argument('--arm', action='store_true',
                        help='arm the hw bridge (/hw_bridge/arm) after the rehearsal')
+    pulse.add_argument('--namespace', default='', metavar='NS',
+                       help='ROS namespace of the graph to play on (that of its cartpole run '
+                            '--namespace); default: the root')
     add_number_argument(pulse, '--margin', 0.1,
                         'rail guard: no pulse towards a stop closer than this, and the '
                         'rehearsal must keep the cart this far from both stops', metavar='M')
@@ -234,6 +237,11 @@ def pulse_main(args: argparse.Namespace) -> int:
         return _fail(f'--record {args.record}: already exists; choose a new bag directory')
     if args.record is not None:
         boundary.output_directory(args.record.parent, '--record')
+    from .. import namespaces
+    try:
+        namespace = namespaces.normalize(args.namespace)
+    except ValueError as error:
+        return _fail(f'--namespace: {error}')
     options = dict(lead_in=args.lead_in, settle=args.settle, margin=args.margin)
 
     def check(x0: float, theta0: float) -> tuple[list[str], object]:
@@ -263,6 +271,7 @@ def pulse_main(args: argparse.Namespace) -> int:
     player = PulsePlayer(pulses, params, **options)
     try:
         played = run_pulse_plan(player, record=args.record, arm=args.arm, timeout=args.timeout,
+                                ros_arguments=namespaces.ros_arguments(namespace),
                                 check=lambda x0, theta0: check(x0, theta0)[0],
                                 log=lambda line: print(line, file=sys.stderr))
     except RuntimeError as error:  # the test failed while it played

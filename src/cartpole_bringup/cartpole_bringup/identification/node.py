@@ -11,6 +11,9 @@ hw bridge's stale-command check applies). :func:`play_pulse_plan` runs it
 When the plan ends, or on any error or Ctrl-C, the node publishes zero
 force once and stops publishing; the hw bridge's watchdog then disarms
 (zero current) 50 ms later.
+
+Its names are relative (``joint_states``, ``hw_bridge/arm``): in a namespace
+(``cartpole identify --namespace rig2``) it plays on that graph.
 """
 from __future__ import annotations
 
@@ -43,8 +46,8 @@ class PulsePlayerNode(Node):
         self.first_sample: tuple[float, float, float] | None = None
         """(t, x, theta) of the first sample seen."""
         self.answered = 0
-        self._pub = self.create_publisher(JointState, '/cartpole/force_command', 10)
-        self.create_subscription(JointState, '/joint_states', self._on_sample, 10)
+        self._pub = self.create_publisher(JointState, 'cartpole/force_command', 10)
+        self.create_subscription(JointState, 'joint_states', self._on_sample, 10)
 
     def _on_sample(self, msg: JointState) -> None:
         try:
@@ -115,9 +118,10 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
                                    + '; '.join(problems))
         if arm:
             from std_srvs.srv import SetBool
-            client = node.create_client(SetBool, '/hw_bridge/arm')
+            client = node.create_client(SetBool, 'hw_bridge/arm')
             if not spin_until(client.service_is_ready, 2.0):
-                raise RuntimeError('/hw_bridge/arm is not available: is the hw bridge running?')
+                raise RuntimeError(f'{client.service_name} is not available: is the hw bridge '
+                                   'running?')
             future = client.call_async(SetBool.Request(data=True))
             if not spin_until(future.done, 2.0) or not future.result().success:
                 reason = future.result().message if future.done() else 'no answer'
@@ -144,9 +148,12 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
         executor.shutdown()
 
 
-def run_pulse_plan(player: PulsePlayer, **kwargs) -> dict:
-    """:func:`play_pulse_plan` in its own rclpy context (the command line)."""
-    rclpy.init()
+def run_pulse_plan(player: PulsePlayer, *, ros_arguments: Sequence[str] = (),
+                   **kwargs) -> dict:
+    """:func:`play_pulse_plan` in its own rclpy context (the command line); ``ros_arguments``
+    apply to its nodes (the graph's namespace:
+    :func:`cartpole_bringup.namespaces.ros_arguments`)."""
+    rclpy.init(args=['cartpole', '--ros-args', *ros_arguments] if ros_arguments else None)
     try:
         return play_pulse_plan(player, **kwargs)
     finally:
