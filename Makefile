@@ -9,7 +9,7 @@ STAMP_BUILD := install/.built
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
-.PHONY: run test build venv clean bench help
+.PHONY: run test build venv clean bench help firmware-deps
 
 help:
 	@echo "make run   - simulated swing-up with the default controllers, recorded and summarised"
@@ -32,8 +32,13 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 	    --event-handlers console_cohesion- summary- status- --base-paths src
 	touch $@
 
-test: $(STAMP_BUILD)
+# The firmware tests on the emulated Cortex-M3 need gcc-arm-none-eabi, libnewlib-arm-none-eabi and
+# qemu-system-arm: installed here when missing and we are root (CI); else those tests skip, naming them.
+test: $(STAMP_BUILD) firmware-deps
 	source ./env.sh && python -m pytest -q
+
+firmware-deps:
+	@$(MAKE) -s -C firmware arm-deps
 
 # make run also animates the run it recorded (the newest runs/*/bag) into run.gif next to its plots.
 run: $(STAMP_BUILD)

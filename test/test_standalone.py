@@ -17,8 +17,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SKIP_DIRS = {'.git', '.venv', 'build', 'install', 'log', 'runs', '__pycache__', '.hypothesis',
              '.pytest_cache'}
-EXCLUDED = ('firmware/',)
-"""Rewritten with its references on the firmware's own branch (issue 22)."""
 CITATION = re.compile(r'\b' + 'SP' + r'EC\b|\b' + 'STY' + r'LE\.md')
 REFERENCE = re.compile(r'\b((?:docs/)?[\w./-]+\.md), "([^"]+)"')
 _HEADING = re.compile(r'^#{1,6} +(.*?) *#*$')
@@ -43,7 +41,6 @@ def text_files(root: Path = ROOT):
 
 def citations(files) -> list[str]:
     return [f'{rel}:{n}: {line.strip()}' for rel, text in files
-            if not rel.startswith(EXCLUDED)
             for n, line in enumerate(text.splitlines(), 1) if CITATION.search(line)]
 
 

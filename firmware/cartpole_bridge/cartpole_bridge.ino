@@ -1,6 +1,9 @@
-// cartpole_bridge: Arduino Due I/O bridge of the cart-pole rig (SPEC section 4).
+// cartpole_bridge: Arduino Due I/O bridge of the cart-pole rig (the Joint protocol:
+// docs/rig.md, "The Joint protocol").
 //
-// The control runs on the host; this sketch only
+// The control runs on the host. The firmware's logic is board-independent
+// (bridge_core.cpp and joint_protocol.cpp, also built for QEMU's Cortex-M3 in
+// firmware/qemu_mps2/); this sketch is the Due's board layer. Together they
 //   - reads both HCTL-2021 quadrature decoders over the shared 8-bit bus
 //     (thesis section 2.1) every 5 ms (micros() deadlines, no drift),
 //   - streams S lines, answers P, obeys E, R, L, U (joint_protocol.cpp),
@@ -15,7 +18,7 @@
 // SEL, enable, RST) but its text gives no pin numbers. Every number below is
 // an ASSUMPTION listed in the wiring table of the README ("Running on the real
 // rig"); they MUST be checked against the PCB before the first power-up.
-#include "joint_protocol.h"
+#include "bridge_core.h"
 
 // ---- wiring (ASSUMED; must match the PCB) -----------------------------------------
 static const uint8_t PIN_BUS[8] = {33, 34, 35, 36, 37, 38, 39, 40};  // D0..D7 of both HCTL-2021
@@ -40,10 +43,8 @@ static const bool POSITIVE_SETPOINT_DRIVES_RIGHT = true;
 static const uint32_t BAUD = 115200;      // ignored by the native port, used by Serial
 static const uint32_t SAMPLE_US = JP_SAMPLE_US;   // Ts = 5 ms (thesis section 9.2)
 
-static JpDevice dev;
-static JpLineBuffer rx;
-static uint32_t next_sample_us;
-static char out[3 * (JP_MAX_LINE + 2)];
+static BridgeCore core;
+static JpDevice &dev = core.dev;          // the protocol state (tests read it)
 
 // Read one HCTL-2021: OE low, low byte (SEL high), high byte (SEL low), OE high,
 // combine to a signed 16-bit count (thesis section 2.1).
@@ -62,10 +63,20 @@ static int16_t read_decoder(uint8_t pin_oe, uint8_t pin_sel) {
   delayMicroseconds(1);
   uint8_t hi = read_bus();
   digitalWrite(pin_oe, HIGH);
-  return (int16_t)((uint16_t)hi << 8 | lo);
+  return bridge_count(hi, lo);
 }
 
-static void reset_counters() {
+// ---- the board hooks of the core (bridge_core.h) -------------------------------------
+static uint32_t board_micros(void *) { return micros(); }
+static size_t board_tx_room(void *) { return (size_t)HOST.availableForWrite(); }
+static void board_tx(void *, const char *buf, size_t n) { HOST.write((const uint8_t *)buf, n); }
+
+static void board_write_output(void *, int dac, bool enable, char) {
+  analogWrite(DAC0, dac);
+  digitalWrite(PIN_AMP_ENABLE, enable ? HIGH : LOW);
+}
+
+static void board_reset_counters(void *) {
   digitalWrite(PIN_CART_RST, LOW);
   digitalWrite(PIN_PEND_RST, LOW);
   delayMicroseconds(2);
@@ -73,15 +84,8 @@ static void reset_counters() {
   digitalWrite(PIN_PEND_RST, HIGH);
 }
 
-static void send(const char *buf, size_t n) {
-  // never block the loop on a host that does not read: drop instead
-  if (n > 0 && (size_t)HOST.availableForWrite() >= n) HOST.write((const uint8_t *)buf, n);
-}
-
-static void apply_output() {
-  analogWrite(DAC0, jp_dac_value(jp_device_output_setpoint(&dev)));
-  digitalWrite(PIN_AMP_ENABLE, dev.enabled ? HIGH : LOW);
-}
+static const BridgeBoard board = {0, board_micros, board_tx_room, board_tx,
+                                  board_write_output, board_reset_counters};
 
 void setup() {
   for (uint8_t i = 0; i < 8; ++i) pinMode(PIN_BUS[i], INPUT);
@@ -98,35 +102,18 @@ void setup() {
   pinMode(PIN_LIMIT_RIGHT, INPUT_PULLUP);
 #endif
   analogWriteResolution(12);
-  jp_device_init(&dev, "cartpole_bridge", POSITIVE_SETPOINT_DRIVES_RIGHT);
-  jp_line_init(&rx);
-  apply_output();                         // disabled, DAC at 1953: zero current
-  reset_counters();                       // power-up reference; the host homes with R
+  // disabled, DAC at 1953 (zero current); the counters reset (the host homes with R)
+  bridge_init(&core, &board, "cartpole_bridge", POSITIVE_SETPOINT_DRIVES_RIGHT);
   HOST.begin(BAUD);
-  next_sample_us = micros() + SAMPLE_US;
+  core.next_sample_us = micros() + SAMPLE_US;
 }
 
 void loop() {
-  // 1. commands, handled as they arrive
-  while (HOST.available() > 0) {
-    size_t n = 0;
-    int r = jp_line_feed(&rx, (char)HOST.read(), &n);
-    if (r == 1) {
-      size_t reply_len = 0;
-      bool reset = jp_device_handle_line(&dev, rx.buf, n, micros(), out, sizeof out, &reply_len);
-      if (reset) reset_counters();
-      apply_output();
-      jp_device_output_written(&dev, micros());   // a tagged U took effect now
-      send(out, reply_len);
-    } else if (r == -1) {
-      send(out, jp_format_error(out, sizeof out, JP_OVERSIZED, "oversized"));
-    }
-  }
+  // 1. commands, handled as they arrive (the output written at once)
+  while (HOST.available() > 0) bridge_receive(&core, &board, (char)HOST.read());
   // 2. the 5 ms sample, on micros() deadlines
   uint32_t now = micros();
-  if ((int32_t)(now - next_sample_us) >= 0) {
-    next_sample_us += SAMPLE_US;
-    if ((int32_t)(now - next_sample_us) > (int32_t)(4 * SAMPLE_US)) next_sample_us = now + SAMPLE_US;
+  if (bridge_sample_due(&core, now)) {
     int16_t cart = read_decoder(PIN_CART_OE, PIN_CART_SEL);
     int16_t pend = read_decoder(PIN_PEND_OE, PIN_PEND_SEL);
 #if HAVE_LIMIT_SWITCHES
@@ -134,9 +121,8 @@ void loop() {
 #else
     bool left = false, right = false;
 #endif
-    send(out, jp_device_tick(&dev, now, left, right, out, sizeof out));
-    send(out, jp_device_sample(&dev, now, cart, pend, out, sizeof out));
+    bridge_sample(&core, &board, now, cart, pend, left, right);
   }
   // 3. the DAC and the enable pin follow the state (watchdog, limits) every pass
-  apply_output();
+  bridge_apply_output(&core, &board, 0);
 }

@@ -1,10 +1,11 @@
-// Joint serial protocol (SPEC section 4) for the Arduino Due I/O bridge.
+// Joint serial protocol (docs/rig.md, "The Joint protocol") for the Arduino Due I/O bridge.
 //
 // Plain C++ (no Arduino headers): the checksum, the line parser, the line
 // formatters and the device's command state machine with its watchdog as a
-// pure function of time. The sketch (cartpole_bridge.ino) only moves bytes and
-// pins; firmware/test/test_joint_protocol.cpp tests this file on the host with
-// g++ against the shared vectors (firmware/test_vectors/protocol_vectors.txt),
+// pure function of time. The board layers (the sketch cartpole_bridge.ino and
+// firmware/qemu_mps2/board.cpp) only move bytes and pins, through the loop in
+// bridge_core.cpp; firmware/test/test_joint_protocol.cpp tests this file on the
+// host with g++ against the shared vectors (firmware/test_vectors/protocol_vectors.txt),
 // which the Python codec (src/cartpole_hw/cartpole_hw/protocol.py) also passes.
 //
 // Lines: ASCII, '\n' terminated ('\r' before it tolerated), at most
@@ -136,7 +137,7 @@ void jp_device_output_written(JpDevice *d, uint32_t now_us);
 // (! watchdog, ! limit) are concatenated into out; returns their total length.
 // The watchdog trips at the tick that crosses its deadline: when the next tick
 // (JP_SAMPLE_US later) would come more than JP_WATCHDOG_US after the last U, so
-// the current is zero within 50 ms of the last U (SPEC 8), never later.
+// the current is zero within 50 ms of the last U (docs/rig.md), never later.
 size_t jp_device_tick(JpDevice *d, uint32_t now_us, bool limit_left, bool limit_right,
                       char *out, size_t cap);
 // The setpoint the DAC outputs now: 0 unless enabled, watchdog quiet and not

@@ -219,7 +219,7 @@ static void test_device() {
   handle(&d, "U,9999", 3000);
   CHECK(d.setpoint == 2142, "U clamped to the DAC range, got %d", d.setpoint);
   // watchdog, once a 5 ms tick: quiet at 45 ms (the next tick is inside the deadline),
-  // trips at the tick after, which is at most 50 ms after the U (SPEC 8)
+  // trips at the tick after, which is at most 50 ms after the U (docs/rig.md)
   CHECK(jp_device_tick(&d, 3000 + 45000, false, false, out, sizeof out) == 0, "no trip at 45 ms");
   size_t n = jp_device_tick(&d, 3000 + 50000, false, false, out, sizeof out);
   CHECK(std::string(out, n) == line_of("!,16,watchdog"), "trip at 50 ms: %.*s", (int)n, out);

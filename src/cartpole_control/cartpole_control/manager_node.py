@@ -196,20 +196,20 @@ class ControllerManagerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        self._pub_force = self.create_publisher(JointState, '/cartpole/force_command',
+        self._pub_force = self.create_publisher(JointState, 'cartpole/force_command',
                                                 PUBLISH_DEPTH)
-        self._pub_status = self.create_publisher(DiagnosticArray, '/cartpole/controller_status',
+        self._pub_status = self.create_publisher(DiagnosticArray, 'cartpole/controller_status',
                                                  PUBLISH_DEPTH)
         # Created before the state subscription: when both are ready at once, the
         # executor hands over the reset first.
-        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+        self.create_subscription(Header, 'cartpole/plant_reset', self._on_plant_reset,
                                  PLANT_RESET_QOS)
-        self.create_subscription(JointState, '/cartpole/state', self._on_state, 10)
+        self.create_subscription(JointState, 'cartpole/state', self._on_state, 10)
         # What the plant reports: when each command took effect (the loop's latency), and
         # the encoders' samples (the pendulum's natural frequency).
-        self.create_subscription(TimeReference, '/cartpole/command_applied',
+        self.create_subscription(TimeReference, 'cartpole/command_applied',
                                  self._on_command_applied, PUBLISH_DEPTH)
-        self.create_subscription(JointState, '/joint_states', self._on_joint_states,
+        self.create_subscription(JointState, 'joint_states', self._on_joint_states,
                                  PUBLISH_DEPTH)
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
         self._reset_from: float | None = None

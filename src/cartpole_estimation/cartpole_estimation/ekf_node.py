@@ -173,18 +173,18 @@ class EkfNode(Node):
 
         self._state_msg = JointState()
         self._state_msg.name = list(JOINT_NAMES)
-        self._state_pub = self.create_publisher(JointState, '/cartpole/state', PUBLISH_DEPTH)
-        self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/ekf/health', 10)
+        self._state_pub = self.create_publisher(JointState, 'cartpole/state', PUBLISH_DEPTH)
+        self._health_pub = self.create_publisher(DiagnosticArray, 'cartpole/ekf/health', 10)
         self._health_report = HealthReport('ekf', HARDWARE_ID, ('samples',), DEGRADED)
         self.diagnostics = NodeDiagnostics(self, 'estimation', HARDWARE_ID, self.health,
                                            inputs=('samples',), degraded=DEGRADED)
         self._reset_from: float | None = None
         self.cycle_gaps = CycleGapMeter()
         # Before /joint_states: when both are ready at once, the reset is taken first.
-        self.create_subscription(Header, '/cartpole/plant_reset', self._on_plant_reset,
+        self.create_subscription(Header, 'cartpole/plant_reset', self._on_plant_reset,
                                  PLANT_RESET_QOS)
-        self.create_subscription(JointState, '/joint_states', self._on_joint_states, 10)
-        self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
+        self.create_subscription(JointState, 'joint_states', self._on_joint_states, 10)
+        self.create_subscription(JointState, 'cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self._health_timer = self.create_timer(self.get_parameter('health_period').value,
                                                self._publish_health)

@@ -355,6 +355,18 @@ class Emulator:
                 self.disconnect(duration)
 
     # -- main loop -------------------------------------------------------------------------
+    def _cable(self, now: float) -> None:
+        """Pull the cable if asked (:meth:`disconnect`), plug it back in when it is time."""
+        with self._lock:
+            pending, self._pending_disconnect = self._pending_disconnect, None
+        if pending is not None and self._master is not None:
+            self.close()
+            self.disconnect_count += 1
+            self._reconnect_at = now + pending
+        if self._reconnect_at is not None and now >= self._reconnect_at:
+            self._reconnect_at = None
+            self.open()
+
     def run(self, duration: float | None = None) -> None:
         """Serve until :meth:`stop` (or ``duration`` seconds), in simulated real time."""
         if self._master is None and self._reconnect_at is None:
@@ -366,15 +378,7 @@ class Emulator:
             now = time.monotonic()
             if duration is not None and now - t0 >= duration:
                 break
-            with self._lock:
-                pending, self._pending_disconnect = self._pending_disconnect, None
-            if pending is not None and self._master is not None:
-                self.close()
-                self.disconnect_count += 1
-                self._reconnect_at = now + pending
-            if self._reconnect_at is not None and now >= self._reconnect_at:
-                self._reconnect_at = None
-                self.open()
+            self._cable(now)
             deadline = t0 + k * ts
             release = self._flush_outbox(now)
             if now >= deadline:
@@ -412,6 +416,10 @@ class Emulator:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+        self.shutdown()
+
+    def shutdown(self) -> None:
+        """The end of the device: the pty closed (a subclass also powers its board off)."""
         self.close()
 
     def __enter__(self) -> 'Emulator':
@@ -452,7 +460,17 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
     p.add_argument('--link', metavar='PATH',
                    help='symlink pointing at the current pty (stable across disconnects), '
                         'e.g. /tmp/cartpole-emu; give this path to the bridge')
-    p.add_argument('--name', default='cartpole_emulator', help='firmware name in the V answer')
+    p.add_argument('--firmware', choices=('python', 'qemu'), default='python',
+                   help='the device: python (default) runs the firmware\'s Python mirror; qemu runs '
+                        'the firmware compiled for the Cortex-M3 in qemu-system-arm (hardware in '
+                        'the loop, needs gcc-arm-none-eabi, libnewlib-arm-none-eabi, '
+                        'qemu-system-arm)')
+    p.add_argument('--image', metavar='ELF',
+                   help='with --firmware qemu: the firmware image (default: make -C firmware '
+                        'arm-image builds firmware/build/arm/cartpole_bridge.elf)')
+    p.add_argument('--name', default='cartpole_emulator',
+                   help='firmware name in the V answer (python; the compiled firmware says '
+                        'cartpole_bridge)')
     p.add_argument('--duration', type=float, default=None, metavar='S', help='exit after S seconds')
     p.add_argument('--params', metavar='FILE.yaml', help='plant parameters (CartPoleParameters YAML)')
     p.add_argument('--limit-margin', type=float, default=0.003, metavar='M',
@@ -472,6 +490,16 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
     return p
 
 
+def _qemu_device(args, scenario: Scenario, params: CartPoleParameters, faults: FaultConfig):
+    """``--firmware qemu``: the compiled firmware in QEMU (:mod:`cartpole_hw.qemu_device`)."""
+    from .qemu_device import QemuDevice, firmware_available
+    available, why = firmware_available()
+    if not available:
+        raise RuntimeError(why)
+    return QemuDevice(scenario, params, link=args.link, faults=faults,
+                      limit_margin=args.limit_margin, seed=args.seed, image=args.image)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``cartpole emulate`` / ``emulator``: run until Ctrl-C (or ``--duration``)."""
     args = build_parser().parse_args(argv)
@@ -481,9 +509,12 @@ def main(argv: list[str] | None = None) -> int:
         faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt,
                              usb_jitter=args.usb_jitter, stalls=list(args.stall),
                              disconnects=list(args.disconnect))
-        emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
-                            limit_margin=args.limit_margin, seed=args.seed)
-    except (ValueError, OSError) as exc:
+        if args.firmware == 'qemu':
+            emulator = _qemu_device(args, scenario, params, faults)
+        else:
+            emulator = Emulator(scenario, params, link=args.link, name=args.name, faults=faults,
+                                limit_margin=args.limit_margin, seed=args.seed)
+    except (ValueError, OSError, RuntimeError) as exc:
         print(f'cartpole emulate: error: {exc}', file=sys.stderr)
         return 2
 
@@ -498,22 +529,39 @@ def main(argv: list[str] | None = None) -> int:
     previous = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
     hygiene = None
     try:
+        if args.firmware == 'qemu':
+            emulator.power_on()
         emulator.open()
-        hygiene = realtime.enter_loop(what='emulator',
+        priority = None
+        if args.firmware == 'qemu':
+            # the emulated device (QEMU and the plant's relay) has a CPU of its own on the rig:
+            # one step above the host's loop, so the host's threads never hold it up
+            base = realtime.priority_from_environment()
+            priority = min(base + 1, realtime.MAX_PRIORITY) if base > 0 else 0
+        hygiene = realtime.enter_loop(priority, what='emulator',
                                       log=lambda text: print(text, file=sys.stderr))
+        if args.firmware == 'qemu' and hygiene.priority > 0:
+            threads = emulator.board.prioritise(hygiene.priority)
+            print(f'emulator: qemu-system-arm at SCHED_FIFO {hygiene.priority} on {threads} '
+                  'threads', file=sys.stderr)
         emulator.run(args.duration)
-    except ValueError as exc:          # a bad CARTPOLE_REALTIME
+    except (ValueError, RuntimeError, OSError) as exc:   # a bad CARTPOLE_REALTIME, QEMU failed
         print(f'cartpole emulate: error: {exc}', file=sys.stderr)
         return 2
     finally:
         if hygiene is not None:
             hygiene.leave()
-        emulator.close()
+        emulator.shutdown()
         for s, handler in previous.items():
             signal.signal(s, handler)
     print(f'emulator: {emulator.samples} samples, {emulator.lines_in} lines in, '
           f'{emulator.lines_out} lines out, {emulator.tx_dropped} dropped, '
           f'{emulator.overruns} overruns', flush=True)
+    stats = getattr(emulator, 'statistics', None)
+    if stats is not None:
+        print(f'firmware: {stats.samples} samples, {stats.lines_in} lines in, '
+              f'{stats.refused} refused, stack {stats.stack_bytes} bytes, '
+              f'{stats.plant_timeouts} plant timeouts', flush=True)
     return 0
 
 

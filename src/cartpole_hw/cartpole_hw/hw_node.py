@@ -207,10 +207,10 @@ class HwBridgeNode(LifecycleNode):
         self.handoff_dropped = 0
         """Samples dropped because the executor had not taken :data:`RECEIPTS_KEPT` yet."""
 
-        self._joint_pub = self.create_publisher(JointState, '/joint_states', PUBLISH_DEPTH)
-        self._health_pub = self.create_publisher(DiagnosticArray, '/cartpole/hw/health', 10)
-        self._reset_pub = self.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)
-        self._applied_pub = self.create_publisher(TimeReference, '/cartpole/command_applied',
+        self._joint_pub = self.create_publisher(JointState, 'joint_states', PUBLISH_DEPTH)
+        self._health_pub = self.create_publisher(DiagnosticArray, 'cartpole/hw/health', 10)
+        self._reset_pub = self.create_publisher(Header, 'cartpole/plant_reset', PLANT_RESET_QOS)
+        self._applied_pub = self.create_publisher(TimeReference, 'cartpole/command_applied',
                                                   PUBLISH_DEPTH)
         self._homes_announced = 0
         self._version_logged: int | None = None
@@ -220,7 +220,7 @@ class HwBridgeNode(LifecycleNode):
         self._stamp_of_seq: dict[int, int] = {}
         """seq of each recent published sample -> its stamp [ns]."""
         self._received_order: collections.deque = collections.deque()
-        self.create_subscription(JointState, '/cartpole/force_command', self._on_force_command, 10)
+        self.create_subscription(JointState, 'cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/home', self._on_home)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)

@@ -24,10 +24,11 @@ SpinUntil = Callable[[Callable[[], bool], float], bool]
 
 
 class LifecycleClient:
-    """The lifecycle services of node ``target`` (e.g. ``/hw_bridge``), called from ``node``."""
+    """The lifecycle services of node ``target``, called from ``node``: ``/hw_bridge``, or
+    relative, ``hw_bridge``: the one in ``node``'s namespace."""
 
     def __init__(self, node: Node, target: str, spin_until: SpinUntil) -> None:
-        self.target = target if target.startswith('/') else '/' + target
+        self.target = target
         self.spin_until = spin_until
         self._get_state = node.create_client(GetState, f'{self.target}/get_state')
         self._transitions = node.create_client(GetAvailableTransitions,

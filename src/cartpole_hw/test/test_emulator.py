@@ -1,5 +1,12 @@
 """The device emulator over a real pseudo-terminal, spoken to with pyserial.
 
+The protocol tests are one conformance suite over both devices (the ``device``
+parameter): ``python``, the firmware's Python mirror (:class:`Emulator`), and
+``qemu``, the firmware itself compiled for the Cortex-M3 and run in
+qemu-system-arm (:class:`~cartpole_hw.qemu_device.QemuDevice`), with the same
+assertions, so the two can never drift apart. (The qemu cases skip, naming the
+Debian packages, where the ARM toolchain and QEMU are not installed.)
+
 Rates and intervals are measured with the device's own seq/t_us (simulated
 device time), never asserted against the wall clock beyond a generous count.
 """
@@ -44,9 +51,22 @@ class Client:
         return [m for m in self.messages if isinstance(m, jp.Sample)]
 
 
+DEVICES = ['python', 'qemu']
+
+
+@pytest.fixture(params=DEVICES)
+def make_device(request):
+    """``make_device(scenario=None, **emulator_options)``: the device under test, not started."""
+    if request.param == 'qemu':
+        from cartpole_hw.qemu_device import QemuDevice
+        image = request.getfixturevalue('firmware_image')
+        return lambda scenario=None, **kw: QemuDevice(scenario, image=str(image), **kw)
+    return lambda scenario=None, **kw: Emulator(scenario, **kw)
+
+
 @pytest.fixture
-def emulator(tmp_path):
-    em = Emulator(link=str(tmp_path / 'emu'))
+def emulator(tmp_path, make_device):
+    em = make_device(link=str(tmp_path / 'emu'))
     em.start()
     try:
         yield em
@@ -75,16 +95,16 @@ def test_setpoint_reaches_the_amplifier_and_moves_the_cart_right(emulator):
     c = Client(emulator.link)
     c.send(jp.Stream(True), jp.Enable(True))
     c.pump(lambda c: len(c.samples) >= 2)
-    n0 = len(c.samples)
-    c.pump(lambda c: len(c.samples) >= n0 + 60, every=lambda: c.send(jp.Setpoint(600)))
+    # U,600 at every read (a test process stalled for 45 ms lets the watchdog of the QEMU
+    # device, which runs on, zero the current until the next U: so "until", not "after N")
+    assert c.pump(lambda c: c.samples[-1].cart_ticks > 100 and not c.samples[-1].watchdog_tripped,
+                  every=lambda: c.send(jp.Setpoint(600)))
     moved = c.samples[-1]
-    assert moved.enabled and not moved.watchdog_tripped
-    assert moved.cart_ticks > 100                       # 600 / 56.744 = 10.6 N > friction
+    assert moved.enabled                                # 600 / 56.744 = 10.6 N > friction
     assert emulator.device.dac_value() == 1953 + 600
     # and left with a negative setpoint: the cart comes back
-    n1 = len(c.samples)
-    c.pump(lambda c: len(c.samples) >= n1 + 80, every=lambda: c.send(jp.Setpoint(-600)))
-    assert c.samples[-1].cart_ticks < moved.cart_ticks
+    assert c.pump(lambda c: c.samples[-1].cart_ticks < moved.cart_ticks,
+                  every=lambda: c.send(jp.Setpoint(-600)))
 
 
 def test_device_watchdog_trips_within_50ms_of_the_last_setpoint(emulator):
@@ -144,9 +164,9 @@ def test_reset_rezeroes_and_malformed_commands_are_answered(emulator):
     assert abs(c.samples[-1].cart_ticks) <= 1           # re-zeroed where the cart stands
 
 
-def test_disconnect_makes_the_port_vanish_and_come_back_at_the_link(tmp_path):
+def test_disconnect_makes_the_port_vanish_and_come_back_at_the_link(tmp_path, make_device):
     link = tmp_path / 'emu'
-    with Emulator(link=str(link), faults=FaultConfig(corrupt=0.0)) as em:
+    with make_device(link=str(link), faults=FaultConfig(corrupt=0.0)) as em:
         c = Client(str(link))
         c.send(jp.Stream(True))
         c.pump(lambda c: len(c.samples) >= 2)
@@ -169,8 +189,8 @@ def test_disconnect_makes_the_port_vanish_and_come_back_at_the_link(tmp_path):
         del old
 
 
-def test_corruption_is_always_detected(tmp_path):
-    with Emulator(link=str(tmp_path / 'emu'), faults=FaultConfig(corrupt=0.5), seed=3) as em:
+def test_corruption_is_always_detected(tmp_path, make_device):
+    with make_device(link=str(tmp_path / 'emu'), faults=FaultConfig(corrupt=0.5), seed=3) as em:
         c = Client(em.link)
         c.send(jp.Stream(True))
         assert c.pump(lambda c: len(c.samples) + len(c.errors) >= 200)
@@ -189,13 +209,13 @@ def test_command_line_refuses_bad_options(capsys):
         main(['--stall', 'x'])
 
 
-def test_scenario_drop_loses_exactly_the_seeded_samples(tmp_path):
+def test_scenario_drop_loses_exactly_the_seeded_samples(tmp_path, make_device):
     # The scenario's drop loses samples on the link: their seq is skipped, so the host sees
     # the gap; which ones is fixed by the seed (one draw per 5 ms period of the device).
     from cartpole_sim.plant import Plant, Scenario
 
     scenario = Scenario(drop=0.25, seed=6)
-    with Emulator(scenario, link=str(tmp_path / 'emu')) as em:
+    with make_device(scenario, link=str(tmp_path / 'emu')) as em:
         c = Client(em.link)
         c.send(jp.Stream(True))
         assert c.pump(lambda c: len(c.samples) >= 150)

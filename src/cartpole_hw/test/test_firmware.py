@@ -1,5 +1,6 @@
 """The firmware's protocol code, compiled with g++ on the host, passes the shared vectors;
-the sketch itself compiles against a minimal Arduino stub (syntax and types only)."""
+the sketch (the Due's board layer around the portable core, bridge_core.cpp) compiles
+against a minimal Arduino stub and runs its loop there."""
 import re
 import shutil
 import subprocess
@@ -88,7 +89,8 @@ def test_sketch_compiles_against_an_arduino_stub(tmp_path):
     sketch = FIRMWARE / 'cartpole_bridge'
     build = subprocess.run(
         [GXX, '-std=c++11', '-Wall', '-Wextra', '-Werror', f'-I{tmp_path}', f'-I{sketch}',
-         '-o', str(exe), str(tmp_path / 'main.cpp'), str(sketch / 'joint_protocol.cpp')],
+         '-o', str(exe), str(tmp_path / 'main.cpp'), str(sketch / 'joint_protocol.cpp'),
+         str(sketch / 'bridge_core.cpp')],
         capture_output=True, text=True, timeout=120)
     assert build.returncode == 0, build.stderr
     result = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30)

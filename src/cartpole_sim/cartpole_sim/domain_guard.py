@@ -1,28 +1,34 @@
-"""One graph per ROS domain: a node refuses to start when its name is taken on the domain.
+"""One graph per namespace of a ROS domain: a node refuses to start where its role is taken.
 
-Two graphs on one ``ROS_DOMAIN_ID`` see each other's topics: one graph's
-controller would drive the other's plant, one's shutdown would switch off
-the other's controller. So every node executable
-(:func:`cartpole_sim.node_runner.run_node` calls :func:`refuse_duplicate_node`)
-and ``cartpole run`` (:func:`claim_node_names` for the whole graph) check
-before they create a node, in two ways:
+Two graphs in one namespace of one ``ROS_DOMAIN_ID`` share their topics: one
+graph's controller would drive the other's plant, one's shutdown would switch
+off the other's controller. Graphs in different namespaces (``cartpole run
+--namespace rig2``, ``--ros-args -r __ns:=/rig2``) do not meet. So every node
+executable (:func:`cartpole_sim.node_runner.run_node` calls
+:func:`refuse_duplicate_node`) and ``cartpole run`` (:func:`claim_graph` for
+the whole graph) check before they create a node, by the node's role
+(:mod:`cartpole_sim.roles`: what the node is, not what it is called, so a
+node renamed with ``-r __node:=...`` is still found), in two ways:
 
 1. **On this machine, certain and at once:** an exclusive ``flock`` on
-   ``<tmp>/cartpole-ros-domain-<N>/<namespace>_<name>.lock``, held for the
-   life of the process (the kernel releases it when the process ends, also
-   on SIGKILL). The file names the holder (PID and command line).
+   ``<tmp>/cartpole-ros-domain-<N>/<namespace>.<role>.lock`` (``<role>.lock``
+   in the root namespace), held for the life of the process (the kernel
+   releases it when the process ends, also on SIGKILL). The file names the
+   holder (its node, PID and command line).
 2. **On the DDS graph:** a hidden probe node (``_cartpole_probe_<pid>``)
-   looks for the names among the nodes it discovers within
-   :func:`discovery_wait` seconds (0.5 s with
+   looks for a publisher of the role's own topic in the namespace
+   (:data:`cartpole_sim.roles.ROLE_TOPICS`: the plant's samples, the estimate,
+   the controller status) within :func:`discovery_wait` seconds (0.5 s with
    ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, where 1. already covers every
    cartpole node; 3.5 s otherwise, about one participant announcement
    period of Fast DDS, for graphs on other machines).
 
-A refusal raises :class:`DuplicateNodeError` with a message naming the
-domain, the holder and the fix (another ``ROS_DOMAIN_ID``). It is skipped
-with ``cartpole run --allow-duplicates`` or, for an executable, the ROS
-argument ``-p allow_duplicates:=true`` (or ``allow_duplicates: true`` under
-``/**`` in a parameters file).
+A refusal raises :class:`DuplicateNodeError` with a one-line message naming
+the namespace, the domain, the node found and the fixes (another namespace,
+another ``ROS_DOMAIN_ID``). It is skipped with ``cartpole run
+--allow-duplicates`` or, for an executable, the ROS argument ``-p
+allow_duplicates:=true`` (or ``allow_duplicates: true`` under ``/**`` in a
+parameters file).
 """
 from __future__ import annotations
 
@@ -33,16 +39,10 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Mapping
 
-NODE_OF_CLASS: dict[str, str] = {
-    'cartpole_sim.sim_node.SimNode': 'sim',
-    'cartpole_estimation.ekf_node.EkfNode': 'ekf',
-    'cartpole_control.manager_node.ControllerManagerNode': 'controller_manager',
-    'cartpole_hw.hw_node.HwBridgeNode': 'hw_bridge',
-    'cartpole_bringup.graph.recorder.RecorderNode': 'recorder',
-}
-"""Node class (module.Class) -> the node name it creates (docs/architecture.md)."""
+from .roles import ROLE_TOPICS, topic_in_namespace
+
 ALLOW_PARAMETER = 'allow_duplicates'
 LOCAL_WAIT = 0.5
 """Discovery wait [s] with localhost-only discovery (the locks cover this machine)."""
@@ -52,7 +52,7 @@ POLL = 0.05
 
 
 class DuplicateNodeError(ValueError):
-    """A node of the same name is already on the domain (the message says where and what to do)."""
+    """A node of the same role runs in the namespace already (the message says where and what to do)."""
 
 
 def domain_id() -> int:
@@ -81,21 +81,24 @@ def lock_directory(domain: int) -> Path:
     return path
 
 
-def _lock_path(domain: int, namespace: str, name: str) -> Path:
-    stem = (namespace.strip('/').replace('/', '_') + '_' if namespace.strip('/') else '') + name
+def _lock_path(domain: int, namespace: str, role: str) -> Path:
+    # '.' is in no ROS name: the namespace's tokens and the role never run together.
+    stem = '.'.join([token for token in namespace.split('/') if token] + [role])
     return lock_directory(domain) / f'{stem}.lock'
 
 
-def _full_name(namespace: str, name: str) -> str:
-    return namespace.rstrip('/') + '/' + name
+def full_name(namespace: str, name: str) -> str:
+    """``/rig1/sim`` of node ``sim`` in namespace ``/rig1`` (``/sim`` in the root)."""
+    return topic_in_namespace(name, namespace)
 
 
 @dataclass
 class NodeClaim:
-    """Names held on a domain by this process; :meth:`release` gives them back."""
+    """Roles held in a namespace of a domain by this process; :meth:`release` gives them back."""
 
     domain: int
-    names: list[str] = field(default_factory=list)
+    namespace: str = '/'
+    roles: list[str] = field(default_factory=list)
     _fds: list[int] = field(default_factory=list, repr=False)
 
     def release(self) -> None:
@@ -105,7 +108,7 @@ class NodeClaim:
             except OSError:
                 pass
         self._fds.clear()
-        self.names.clear()
+        self.roles.clear()
 
 
 def _holder(fd: int) -> str:
@@ -117,7 +120,7 @@ def _holder(fd: int) -> str:
 
 
 def _in_use(domain: int) -> bool:
-    """Whether a cartpole node on this machine holds a name lock of ``domain``."""
+    """Whether a cartpole node on this machine holds a lock of ``domain``."""
     directory = Path(tempfile.gettempdir()) / f'cartpole-ros-domain-{domain}'
     for path in directory.glob('*.lock') if directory.is_dir() else ():
         try:
@@ -142,29 +145,32 @@ def free_domain(after: int) -> int:
     return (after + 1) % 233
 
 
-def refusal(domain: int, what: str, allow: str) -> DuplicateNodeError:
-    """The error that refuses a start: ``what`` was found on ``domain``; ``allow`` overrides."""
+def refusal(domain: int, namespace: str, what: str, allow: str) -> DuplicateNodeError:
+    """The error that refuses a start: ``what`` was found in ``namespace`` of ``domain``."""
     free = free_domain(domain)
     return DuplicateNodeError(
-        f'{what} on ROS_DOMAIN_ID={domain}: another graph is using this domain, and two graphs '
-        f'on one domain drive each other\'s nodes. Stop the other graph, or run this one on '
-        f'another domain (ROS_DOMAIN_ID={free} is free on this machine: export '
-        f'ROS_DOMAIN_ID={free}), or start anyway with {allow}.')
+        f'{what}: another graph runs in namespace {namespace} on ROS_DOMAIN_ID={domain}, and '
+        f'two graphs in one namespace drive each other\'s nodes. Stop the other graph, or run '
+        f'this one in another namespace (cartpole run --namespace NAME; a node: --ros-args -r '
+        f'__ns:=/NAME) or on another domain (ROS_DOMAIN_ID={free} is free on this machine: '
+        f'export ROS_DOMAIN_ID={free}), or start anyway with {allow}.')
 
 
-def claim_node_names(names: Iterable[str], *, namespace: str = '/', domain: int | None = None,
-                     hold: bool = True, allow: str = '--allow-duplicates') -> NodeClaim:
-    """Take the machine-local locks of ``names`` on the domain (1. of the module docstring).
+def claim_roles(roles: Iterable[str], *, namespace: str = '/', domain: int | None = None,
+                hold: bool = True, allow: str = '--allow-duplicates',
+                names: Mapping[str, str] | None = None) -> NodeClaim:
+    """Take the machine-local locks of ``roles`` in ``namespace`` (1. of the module docstring).
 
-    With ``hold=False`` the locks are only tried and given back at once (a
-    process that starts the nodes as children, which take them themselves).
-    Raises :class:`DuplicateNodeError` naming the holder of a taken name.
+    ``names`` gives the node name of a role (default: the role) for the
+    holder's line in the lock file. With ``hold=False`` the locks are only
+    tried and given back at once (a process that starts the nodes as
+    children, which take them themselves). Raises :class:`DuplicateNodeError`
+    naming the holder of a taken role.
     """
     domain = domain_id() if domain is None else domain
-    claim = NodeClaim(domain)
-    me = f'{os.getpid()} {_command_line()}'
-    for name in names:
-        path = _lock_path(domain, namespace, name)
+    claim = NodeClaim(domain, namespace)
+    for role in roles:
+        path = _lock_path(domain, namespace, role)
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
             writable = True
@@ -177,17 +183,17 @@ def claim_node_names(names: Iterable[str], *, namespace: str = '/', domain: int 
             holder = _holder(fd)
             os.close(fd)
             claim.release()
-            held = f' (held by PID {holder})' if holder else ''
-            raise refusal(domain, f'node {_full_name(namespace, name)} is running already'
-                                   f'{held}', allow) from None
+            raise refusal(domain, namespace, f'{role} node {holder or "of another process"} '
+                                             f'is running', allow) from None
         if not hold:
             os.close(fd)
             continue
         if writable:
+            name = full_name(namespace, (names or {}).get(role, role))
             os.ftruncate(fd, 0)
-            os.pwrite(fd, me.encode(), 0)
+            os.pwrite(fd, f'{name} (PID {os.getpid()}: {_command_line()})'.encode(), 0)
         claim._fds.append(fd)
-        claim.names.append(name)
+        claim.roles.append(role)
     return claim
 
 
@@ -198,82 +204,94 @@ def _command_line() -> str:
         return ''
 
 
-def graph_duplicates(node, names: Iterable[str], *, namespace: str = '/',
-                     wait: float | None = None, own: str | None = None) -> list[str]:
-    """Names among ``names`` that the DDS graph shows in ``namespace`` (2. of the docstring).
+def role_publishers(node, roles: Iterable[str], namespace: str = '/') -> dict[str, list[str]]:
+    """The nodes (full names) the graph shows publishing each role's topic in ``namespace``.
+
+    Keyed by the topic's absolute name; roles without a topic of their own
+    (:data:`cartpole_sim.roles.ROLE_TOPICS`) are not looked for.
+    """
+    out: dict[str, list[str]] = {}
+    for topic in sorted({ROLE_TOPICS[r] for r in roles if r in ROLE_TOPICS}):
+        name = topic_in_namespace(topic, namespace)
+        out[name] = sorted(full_name(info.node_namespace or '/', info.node_name)
+                           for info in node.get_publishers_info_by_topic(name))
+    return out
+
+
+def graph_duplicates(node, roles: Iterable[str], *, namespace: str = '/',
+                     wait: float | None = None) -> list[str]:
+    """What the DDS graph shows of ``roles`` in ``namespace`` (2. of the module docstring).
 
     Polls ``node``'s graph for up to ``wait`` seconds (default
-    :func:`discovery_wait`) and returns as soon as one is seen. ``own`` is a
-    name the looking node itself carries (seen once without being a duplicate).
+    :func:`discovery_wait`) and returns as soon as one is seen: one
+    ``node /rig1/sim publishes /rig1/joint_states`` a node found.
     """
-    wanted = set(names)
+    roles = list(roles)
     deadline = time.monotonic() + (discovery_wait() if wait is None else wait)
     while True:
-        counts: dict[str, int] = {}
-        for name, ns in node.get_node_names_and_namespaces():
-            if name in wanted and (ns or '/') == namespace:
-                counts[name] = counts.get(name, 0) + 1
-        found = sorted(n for n, c in counts.items() if c > (1 if n == own else 0))
+        found = [f'node {publisher} publishes {topic}'
+                 for topic, publishers in role_publishers(node, roles, namespace).items()
+                 for publisher in publishers]
         if found or time.monotonic() >= deadline:
             return found
         time.sleep(POLL)
 
 
-def probe_node(context=None):
-    """A hidden node for looking at the graph (no rosout, no parameter services)."""
+def probe_node(context=None, cli_args: list[str] | None = None):
+    """A hidden node for looking at the graph (no rosout, no parameter services).
+
+    ``cli_args`` (``['--ros-args', '-r', '__ns:=/rig1']``) puts it where the graph will be.
+    """
     from rclpy.node import Node
     return Node(f'_cartpole_probe_{os.getpid()}', context=context, enable_rosout=False,
-                start_parameter_services=False,
+                start_parameter_services=False, cli_args=cli_args,
                 automatically_declare_parameters_from_overrides=True)
 
 
-def claim_unique_names(probe, names: list[str], *, held: Iterable[str] | None = None,
-                       namespace: str = '/', own: str | None = None,
-                       allow: str = '--allow-duplicates') -> NodeClaim:
-    """Both checks of the module docstring for ``names``, looking through ``probe``.
+def claim_graph(probe, roles: list[str], *, held: Iterable[str] | None = None,
+                namespace: str = '/', names: Mapping[str, str] | None = None,
+                allow: str = '--allow-duplicates') -> NodeClaim:
+    """Both checks of the module docstring for ``roles`` in ``namespace``, looking through ``probe``.
 
-    The locks of ``held`` (default: all of ``names``) are kept in the returned
+    The locks of ``held`` (default: all of ``roles``) are kept in the returned
     claim; the others are only tried (their processes take them). Raises
     :class:`DuplicateNodeError`, holding nothing then.
     """
-    held = list(names) if held is None else list(held)
-    claim = claim_node_names(held, namespace=namespace, allow=allow)
+    held = list(roles) if held is None else list(held)
+    claim = claim_roles(held, namespace=namespace, allow=allow, names=names)
     try:
-        others = [n for n in names if n not in held]
+        others = [r for r in roles if r not in held]
         if others:
-            claim_node_names(others, namespace=namespace, hold=False, allow=allow)
-        found = graph_duplicates(probe, names, namespace=namespace, own=own)
+            claim_roles(others, namespace=namespace, hold=False, allow=allow)
+        found = graph_duplicates(probe, roles, namespace=namespace)
         if found:
-            what = ', '.join(_full_name(namespace, n) for n in found)
-            raise refusal(claim.domain, f'node{"s" if len(found) > 1 else ""} {what} on the '
-                                        f'graph already', allow)
+            raise refusal(claim.domain, namespace, '; '.join(found), allow)
     except BaseException:
         claim.release()
         raise
     return claim
 
 
-def refuse_duplicate_node(make_node, context=None) -> NodeClaim | None:
-    """The check of a node executable, before its node exists (see the module docstring).
+def refuse_duplicate_node(role: str | None, context=None) -> NodeClaim | None:
+    """The check of a node executable of ``role``, before its node exists (module docstring).
 
-    ``make_node`` is the node class; classes not in :data:`NODE_OF_CLASS`
-    are not checked. Returns the claim (held until the context shuts down),
-    None when not checked or allowed. Raises :class:`DuplicateNodeError`.
+    A node without a role (None) is not checked. The node's namespace and
+    name come from the process's ROS arguments (``-r __ns:=``, ``-r __node:=``).
+    Returns the claim (held until the context shuts down), None when not
+    checked or allowed. Raises :class:`DuplicateNodeError`.
     """
-    name = NODE_OF_CLASS.get(f'{getattr(make_node, "__module__", "")}.'
-                             f'{getattr(make_node, "__qualname__", "")}')
-    if name is None:
+    if role is None:
         return None
     probe = probe_node(context)
     try:
         allow = probe.get_parameter_or(ALLOW_PARAMETER, None).value
         if allow is True or str(allow).lower() == 'true':
             return None
-        own = None
-        if not probe.get_name().startswith('_cartpole_probe_'):
-            name = own = probe.get_name()  # a global __node remapping renames every node
-        claim = claim_unique_names(probe, [name], namespace=probe.get_namespace(), own=own,
-                                   allow=f'-p {ALLOW_PARAMETER}:=true')
+        name = probe.get_name()
+        if name.startswith('_cartpole_probe_'):
+            name = role  # no global __node remapping: the node keeps its role's name
+        claim = claim_graph(probe, [role], namespace=probe.get_namespace(),
+                            names={role: name}, allow=f'-p {ALLOW_PARAMETER}:=true')
     finally:
         probe.destroy_node()
     (context or _default_context()).on_shutdown(functools.partial(NodeClaim.release, claim))

@@ -21,7 +21,7 @@ and SIGTERM only note the request; the spin loop, which wakes at least every
 0.1 s, ends after the callback in progress, and the context is still alive
 while the node shuts down. Bad start-up parameters (and a bad
 ``CARTPOLE_REALTIME``) are reported on one line, exit 2, and so is a node
-whose name is taken on the domain already (:mod:`cartpole_sim.domain_guard`).
+whose role is taken in its namespace already (:mod:`cartpole_sim.domain_guard`).
 
 After start-up the process gets the real-time hygiene of
 :mod:`cartpole_sim.realtime` (collector frozen and run between callbacks;
@@ -42,6 +42,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from . import realtime
 from .domain_guard import refuse_duplicate_node
+from .roles import role_of_executable
 
 
 class _StopRequest:
@@ -60,8 +61,11 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
              on_interrupt: Callable[[Node, Executor], None] | None = None) -> None:
     """Create the node, spin it until SIGINT/SIGTERM, then destroy it and shut down.
 
-    ``on_interrupt(node, executor)`` runs after the signal while the context
-    is still valid (e.g. the recorder drains its queues into the bag).
+    ``name`` is the installed executable: its role (:mod:`cartpole_sim.roles`)
+    decides the duplicate check and the real-time priority, whatever the node
+    is called (``-r __node:=...``). ``on_interrupt(node, executor)`` runs after
+    the signal while the context is still valid (e.g. the recorder drains its
+    queues into the bag).
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
@@ -70,11 +74,13 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     hygiene = None
     executor = make_executor()
     try:
-        refuse_duplicate_node(make_node)  # one graph per domain (cartpole_sim.domain_guard)
+        role = role_of_executable(name)
+        refuse_duplicate_node(role)  # one graph a namespace (cartpole_sim.domain_guard)
         node = make_node()
         executor.add_node(node)
-        hygiene = realtime.node_hygiene(node.get_name(), node.get_logger(),
-                                        node.get_parameter('use_sim_time').value)
+        hygiene = realtime.node_hygiene(role, node.get_logger(),
+                                        node.get_parameter('use_sim_time').value,
+                                        name=node.get_name())
         while rclpy.ok() and stop.signum is None:
             executor.spin_once(timeout_sec=0.1)
             realtime.collect_when_idle()

@@ -27,8 +27,9 @@ start-up by :func:`enter_loop` and undone by :meth:`LoopHygiene.leave`:
   ``SCHED_RESET_ON_FORK`` so that child processes (and threads started later,
   e.g. background work) start at normal priority: call it once the executor
   spins, when the loop's threads exist.
-  Only the loop's processes take it (:data:`LOOP_NODES`, the one-process
-  graph, the device emulator), and only in real time: a lockstep run
+  Only the loop's processes take it (the roles of
+  :data:`cartpole_sim.roles.LOOP_ROLES`, whatever their node is called; the
+  one-process graph; the device emulator), and only in real time: a lockstep run
   (simulated time) runs flat out by design and must not hold a core at
   real-time priority. So that it can never starve the machine, a
   thread that runs :data:`RUNAWAY_LIMIT` s without blocking gets ``SIGXCPU``
@@ -58,6 +59,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, MutableMapping
 
+from .roles import LOOP_ROLES
+
 NUMERICAL_THREAD_VARIABLES = ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS',
                               'BLIS_NUM_THREADS', 'VECLIB_MAXIMUM_THREADS',
                               'NUMEXPR_NUM_THREADS')
@@ -68,8 +71,6 @@ DEFAULT_PRIORITY = 20
 """SCHED_FIFO priority of the loop's threads: above every normal process, well below
 the kernel's threaded interrupts (50) and its migration and watchdog threads (99)."""
 MAX_PRIORITY = 49
-LOOP_NODES = frozenset({'sim', 'hw_bridge', 'ekf', 'controller_manager'})
-"""Nodes whose executables take the real-time priority (the recorder does not)."""
 IDLE_THRESHOLDS = (700, 10)
 """CPython's default thresholds of the young generations, applied by :func:`collect_when_idle`."""
 SAFETY_THRESHOLD = 200_000
@@ -306,16 +307,20 @@ def enter_loop(priority: int | None = None, *, log: Callable[[str], None] = prin
     return hygiene
 
 
-def node_hygiene(node_name: str, logger, simulated_time: bool = False) -> LoopHygiene:
-    """:func:`enter_loop` for a node process: priority only for :data:`LOOP_NODES` in
-    real time (not on ``simulated_time``, i.e. ``use_sim_time`` in lockstep).
+def node_hygiene(role: str | None, logger, simulated_time: bool = False,
+                 name: str | None = None) -> LoopHygiene:
+    """:func:`enter_loop` for a node process: priority only for a ``role`` of
+    :data:`cartpole_sim.roles.LOOP_ROLES` in real time (not on ``simulated_time``,
+    i.e. ``use_sim_time`` in lockstep).
 
     ``logger`` has ``info`` and ``warning`` (an rclpy logger or a
-    :class:`logging.Logger`). Every node gets the collector policy.
+    :class:`logging.Logger`); ``name`` (default: the role) is the node's name
+    in the log line. Every node gets the collector policy.
     """
-    real_time_loop = node_name in LOOP_NODES and not simulated_time
+    real_time_loop = role in LOOP_ROLES and not simulated_time
     priority = priority_from_environment() if real_time_loop else 0
-    return enter_loop(priority, log=logger.info, warn=logger.warning, what=node_name)
+    return enter_loop(priority, log=logger.info, warn=logger.warning,
+                      what=name or role or 'node')
 
 
 # -- stall figure ---------------------------------------------------------------------------------

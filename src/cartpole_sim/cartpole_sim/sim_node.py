@@ -195,7 +195,7 @@ class SimNode(Node):
         window = int(self.get_parameter('recorder_window').value)
         if self._lockstep and window > 0:
             self._recorder_window_ns = window * int(round(params.sample_time * 1e9))
-            self.create_subscription(Header, '/cartpole/recorder/progress', self._on_progress,
+            self.create_subscription(Header, 'cartpole/recorder/progress', self._on_progress,
                                      QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.create_subscription(JointState, 'cartpole/force_command', self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -212,6 +212,8 @@ class SimNode(Node):
             # As deep as the sample topics: a reader that stalls (a recorder frozen by the
             # machine) must find every /clock message the sim published meanwhile (it steps
             # at most recorder_window + one a lockstep_timeout past the recorder).
+            # Absolute, where every node's sim time reads it; a graph in a namespace
+            # remaps it for all its nodes (-r /clock:=/<namespace>/clock).
             self._pub_clock = self.create_publisher(
                 ClockMsg, '/clock',
                 QoSProfile(depth=PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE))

@@ -163,6 +163,7 @@ def test_not_permitted_says_so_and_runs_at_normal_priority(monkeypatch):
 
 
 def test_only_the_loop_nodes_take_the_priority(monkeypatch):
+    """By role, whatever the node is called (``-r __node:=plant`` keeps the sim's priority)."""
     asked = []
     monkeypatch.setattr(realtime, 'enter_loop',
                         lambda priority, **kw: asked.append((kw['what'], priority)))
@@ -173,8 +174,18 @@ def test_only_the_loop_nodes_take_the_priority(monkeypatch):
     for name in ('controller_manager', 'ekf', 'hw_bridge', 'sim', 'recorder'):
         realtime.node_hygiene(name, Logger())
     realtime.node_hygiene('controller_manager', Logger(), simulated_time=True)   # lockstep
+    realtime.node_hygiene('sim', Logger(), name='plant')                          # renamed
+    realtime.node_hygiene(None, Logger(), name='sim')               # no role: a name is not one
     assert asked == [('controller_manager', 9), ('ekf', 9), ('hw_bridge', 9), ('sim', 9),
-                     ('recorder', 0), ('controller_manager', 0)]
+                     ('recorder', 0), ('controller_manager', 0), ('plant', 9), ('sim', 0)]
+
+
+def test_an_executable_s_role_does_not_depend_on_its_node_name():
+    from cartpole_sim.roles import LOOP_ROLES, role_of_executable
+    assert {role_of_executable(exe) for exe in ('sim_node', 'hw_bridge', 'ekf_node',
+                                                'controller_manager')} == LOOP_ROLES
+    assert role_of_executable('recorder') == 'recorder'
+    assert role_of_executable('viewer') is None and role_of_executable('sim') is None
 
 
 # -- stall figure --------------------------------------------------------------------------------

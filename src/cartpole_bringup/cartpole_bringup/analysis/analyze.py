@@ -60,6 +60,7 @@ from cartpole_sim.model import CartPoleParameters
 
 from . import metrics
 from ..bags.writer import bag_custom_data
+from ..namespaces import bag_namespace, graph_topic
 from ..bags.cdr_parse import parse_diagnostic_array, parse_joint_state  # noqa: F401 (re-exported)
 from .plots import RunSeries
 from .timeline import ControllerTimeline
@@ -309,8 +310,20 @@ class BagAnalysis:
     """The stamp [ns] of the series' t = 0 (0 in lockstep, else the first state sample)."""
 
 
+def root_topics(reader, custom: Mapping[str, str]) -> dict[str, str]:
+    """A rosbags reader's topics -> their root-namespace names: a bag recorded in a
+    namespace (``/rig2/joint_states``) reads as one of the root (``/joint_states``);
+    :mod:`cartpole_bringup.namespaces`."""
+    names = [c.topic for c in reader.connections]
+    namespace = bag_namespace(custom, names)
+    return {name: graph_topic(name, namespace) for name in names}
+
+
 def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
-    """Feed every relevant message of a bag into a :class:`SeriesBuilder`."""
+    """Feed every relevant message of a bag into a :class:`SeriesBuilder`.
+
+    Topics by their root-namespace names (:func:`root_topics`).
+    """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -321,19 +334,23 @@ def read_bag(path: str | Path) -> tuple[SeriesBuilder, dict[str, int]]:
     builder = SeriesBuilder()
     wanted = {TRUE_STATE, STATE, FORCE, STATUS, HW_HEALTH}
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        topics = {c.topic: c.msgcount for c in reader.connections}
-        connections = [c for c in reader.connections if c.topic in wanted]
+        root = root_topics(reader, bag_custom_data(path))
+        topics: dict[str, int] = {}
+        for c in reader.connections:
+            topics[root[c.topic]] = topics.get(root[c.topic], 0) + c.msgcount
+        connections = [c for c in reader.connections if root[c.topic] in wanted]
         for connection, _, raw in reader.messages(connections=connections):
+            topic = root[connection.topic]
             if connection.msgtype == 'diagnostic_msgs/msg/DiagnosticArray':
                 stamp, statuses = parse_diagnostic_array(raw)
                 for _, values in statuses:
-                    if connection.topic == STATUS:
+                    if topic == STATUS:
                         builder.status(stamp, values)
                     else:
                         builder.hw_health(stamp, values)
             elif connection.msgtype == 'sensor_msgs/msg/JointState':
                 stamp, _, position, velocity, effort = parse_joint_state(raw)
-                builder.joint_state(connection.topic, stamp, position, velocity, effort)
+                builder.joint_state(topic, stamp, position, velocity, effort)
     return builder, topics
 
 

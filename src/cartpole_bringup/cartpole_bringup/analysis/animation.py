@@ -99,7 +99,8 @@ def series_from_analysis(analysis) -> AnimationSeries:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from .analyze import STATUS
+    from ..bags.writer import bag_custom_data
+    from .analyze import STATUS, root_topics
 
     series = analysis.series
     mode_t: list[float] = []
@@ -107,7 +108,8 @@ def series_from_analysis(analysis) -> AnimationSeries:
     controllers: dict[str, str] = {}
     with AnyReader([Path(analysis.path)],
                    default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-        connections = [c for c in reader.connections if c.topic == STATUS]
+        root = root_topics(reader, bag_custom_data(analysis.path))
+        connections = [c for c in reader.connections if root[c.topic] == STATUS]
         for connection, _, raw in reader.messages(connections=connections):
             msg = reader.deserialize(raw, connection.msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

@@ -82,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help='arm the hw bridge after the rehearsal (its lifecycle activate, '
                             'after zero-force answers; deactivated at the end); the bridge '
                             'must be configured (ros2 lifecycle set /hw_bridge configure)')
+    pulse.add_argument('--namespace', default='', metavar='NS',
+                       help='ROS namespace of the graph to play on (that of its cartpole run '
+                            '--namespace); default: the root')
     add_number_argument(pulse, '--margin', 0.1,
                         'rail guard: no pulse towards a stop closer than this, and the '
                         'rehearsal must keep the cart this far from both stops', metavar='M')
@@ -236,6 +239,11 @@ def pulse_main(args: argparse.Namespace) -> int:
         return _fail(f'--record {args.record}: already exists; choose a new bag directory')
     if args.record is not None:
         boundary.output_directory(args.record.parent, '--record')
+    from .. import namespaces
+    try:
+        namespace = namespaces.normalize(args.namespace)
+    except ValueError as error:
+        return _fail(f'--namespace: {error}')
     options = dict(lead_in=args.lead_in, settle=args.settle, margin=args.margin)
 
     def check(x0: float, theta0: float) -> tuple[list[str], object]:
@@ -265,6 +273,7 @@ def pulse_main(args: argparse.Namespace) -> int:
     player = PulsePlayer(pulses, params, **options)
     try:
         played = run_pulse_plan(player, record=args.record, arm=args.arm, timeout=args.timeout,
+                                ros_arguments=namespaces.ros_arguments(namespace),
                                 check=lambda x0, theta0: check(x0, theta0)[0],
                                 log=lambda line: print(line, file=sys.stderr))
     except RuntimeError as error:  # the test failed while it played

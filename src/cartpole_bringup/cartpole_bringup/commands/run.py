@@ -10,8 +10,11 @@ import math
 import os
 import signal
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 from .. import boundary, options
 
@@ -46,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='write the PNG figures (into the run directory with --record, else DIR)')
     g.add_argument('--domain-id', type=int, default=None, metavar='N',
                    help='ROS_DOMAIN_ID of the graph (default: the environment\'s, else 0)')
+    g.add_argument('--namespace', default='', metavar='NS',
+                   help='ROS namespace of every node, topic and service of the graph (e.g. '
+                        'rig2: /rig2/joint_states, /rig2/clock), so that graphs in other '
+                        'namespaces share the domain; default: the root (/joint_states)')
     g.add_argument('--discovery', choices=DISCOVERY_RANGES, default='localhost',
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE of the graph (default localhost: the '
                         'graph is invisible to other machines)')
@@ -57,9 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='serve a live view for Foxglove / Lichtblick (the viewer node in its '
                         'own process; default 127.0.0.1:8765; port 0: any free port)')
     g.add_argument('--allow-duplicates', action='store_true',
-                   help='start even when nodes of the same names are on the domain already '
-                        '(another graph: the two then drive each other\'s nodes); default: '
-                        'refuse, naming the domain')
+                   help='start even when another graph runs in the same namespace of the '
+                        'domain (the two then drive each other\'s nodes); default: refuse, '
+                        'naming the namespace and the node found')
     g.add_argument('--realtime', metavar='on|off|PRIORITY', default=None,
                    help='SCHED_FIFO priority of the loop\'s threads in every node of the run: on '
                         '(default: 20), off, or 1..49; the same as CARTPOLE_REALTIME, which '
@@ -171,6 +178,11 @@ def check(args: argparse.Namespace) -> None:
         boundary.output_directory(args.record, '--record')
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise boundary.InputError(f'--domain-id must be in [0, 232], got {args.domain_id}')
+    from .. import namespaces
+    try:
+        namespaces.normalize(args.namespace)
+    except ValueError as error:
+        raise boundary.InputError(f'--namespace: {error}') from None
     options.check_view_address(args.view)
     nominal = options.nominal_parameters(args)
     options.manager_parameters(nominal, args)
@@ -238,18 +250,20 @@ def main(args: argparse.Namespace) -> int:
     custom = {'x_ref': repr(x_ref), 'lockstep': str(bool(args.lockstep)).lower(),
               'plant': 'sim' if args.sim else 'hw', **names,
               'command': ' '.join(['cartpole', 'run'] + sys.argv[2:])[:1000]}
+    scratch = tempfile.TemporaryDirectory(prefix='cartpole-run-')  # the run's own files
     spec = GraphSpec(plant='sim' if args.sim else 'hw_bridge', parameters=parameters,
-                     params_file=args.params.resolve() if args.params else None,
+                     params_file=_params_file(args, Path(scratch.name)),
                      lockstep=args.lockstep, processes=args.processes, record=bag,
                      custom_data=custom, log_level=args.log_level, executor=args.executor,
-                     allow_duplicates=args.allow_duplicates, hw_arm=bool(args.hw_arm))
+                     allow_duplicates=args.allow_duplicates, namespace=args.namespace,
+                     hw_arm=bool(args.hw_arm))
 
     viewer = None
     if args.view is not None:
         from ..viewer.process import start_viewer
         try:
             viewer = start_viewer(args.view, plant_params=args.plant_params,
-                                  log_level=args.log_level)
+                                  log_level=args.log_level, ros_arguments=spec.ros_arguments)
         except RuntimeError as exc:
             raise boundary.InputError(f'--view: {exc}') from None
         print(f'cartpole run: live view on {viewer.url} (Foxglove WebSocket)', file=sys.stderr,
@@ -267,9 +281,10 @@ def main(args: argparse.Namespace) -> int:
     try:
         graph = Graph(spec, context, should_stop=lambda: stop.requested)
         if viewer is not None:
-            viewer.attach(graph.executor, context, TRUE_STATE if args.sim else JOINTS)
+            viewer.attach(graph.executor, context, TRUE_STATE if args.sim else JOINTS,
+                          **spec.node_options())
         if not args.json:
-            print(_banner(args, names, bag), file=sys.stderr, flush=True)
+            print(_banner(args, names, bag, spec.namespace), file=sys.stderr, flush=True)
         graph.start()
         queried = graph.get_parameter('controller_manager', 'x_ref', timeout=2.0)
         if isinstance(queried, (int, float)) and math.isfinite(queried):
@@ -290,6 +305,7 @@ def main(args: argparse.Namespace) -> int:
             warnings += viewer.close()
         stop.restore()
         rclpy.try_shutdown(context=context)
+        scratch.cleanup()
     for w in warnings:
         print(f'cartpole run: warning: {w}', file=sys.stderr)
     end_ns = run_end_ns(graph.stop_stamp_ns, args.duration if args.lockstep else None)
@@ -299,13 +315,33 @@ def main(args: argparse.Namespace) -> int:
                   fault=graph.fault)
 
 
-def _banner(args: argparse.Namespace, names: dict[str, str], bag: Path | None) -> str:
+def _params_file(args: argparse.Namespace, scratch: Path) -> Path | None:
+    """``--params`` as the graph's nodes read it: in a namespace, a copy in ``scratch`` whose
+    node sections (``controller_manager:``) name the nodes there (``/rig2/controller_manager:``)."""
+    from .. import namespaces
+    from ..graph.processes import NODES
+
+    if args.params is None:
+        return None
+    namespace = namespaces.normalize(args.namespace)
+    if namespace == namespaces.ROOT:
+        return args.params.resolve()
+    data = boundary.read_yaml(args.params, '--params') or {}
+    path = scratch / 'params.yaml'
+    path.write_text(yaml.safe_dump(namespaces.parameters_in_namespace(data, namespace, NODES),
+                                   default_flow_style=False, sort_keys=False))
+    return path
+
+
+def _banner(args: argparse.Namespace, names: dict[str, str], bag: Path | None,
+            namespace: str = '/') -> str:
     where = f' recording into {bag}' if bag else ''
+    ns = f', namespace {namespace}' if namespace != '/' else ''
     return (f'cartpole run: {"simulator" if args.sim else "rig " + args.port}, '
             f'{"lockstep" if args.lockstep else "real time"}, '
             f'{"one process a node" if args.processes else "one process"}, '
             f'{names["swingup"]} + {names["stabilizer"]}, ROS_DOMAIN_ID='
-            f'{os.environ.get("ROS_DOMAIN_ID", "0")}{where}; '
+            f'{os.environ.get("ROS_DOMAIN_ID", "0")}{ns}{where}; '
             f'{"for %g s" % args.duration if args.duration else "Ctrl-C stops"}')
 
 

@@ -13,7 +13,8 @@ unconfigured, whether in this process or its own. The graph
   still working off its start-up backlog);
 - at the stop **deactivates** it (``U,0``, ``E,0``) with the zero force, and
   **cleans it up** (port closed) before the node stops;
-- watches ``/hw_bridge/transition_event``: the bridge going to
+- watches ``hw_bridge/transition_event`` (relative: the graph's namespace, as the
+  lifecycle services): the bridge going to
   ``errorprocessing`` (a fault while armed: it zeroed, disarmed and closed
   the port) is the run's fault (``hw_bridge: <its last_error>; ...``, the
   reason from ``/cartpole/hw/health`` when the monitor has it), and stops the run.
@@ -49,7 +50,7 @@ class BridgeLifecycle:
         """The lifecycle client of the bridge, created early (discovery of its responses)."""
         if self._bridge is None:
             self._bridge = LifecycleClient(self.monitor, BRIDGE, self.spin_until)
-            self.monitor.create_subscription(TransitionEvent, f'/{BRIDGE}/transition_event',
+            self.monitor.create_subscription(TransitionEvent, f'{BRIDGE}/transition_event',
                                              self._on_bridge_transition, 10)
         return self._bridge
 

@@ -1,9 +1,10 @@
-"""What goes wrong while a graph runs: a second graph on the domain, a node that dies or raises.
+"""What goes wrong while a graph runs: a second graph in its namespace, a node that dies or raises.
 
-**One graph per domain.** Before any node exists, the graph's node names are
-claimed on the domain (:mod:`cartpole_sim.domain_guard`); a name taken
-already refuses the start (:class:`~cartpole_sim.domain_guard.DuplicateNodeError`)
-unless ``allow_duplicates``. A duplicate that shows up later is reported.
+**One graph per namespace.** Before any node exists, the graph's roles are
+claimed in its namespace of the domain (:mod:`cartpole_sim.domain_guard`); a
+role taken already refuses the start
+(:class:`~cartpole_sim.domain_guard.DuplicateNodeError`) unless
+``allow_duplicates``. A duplicate that shows up later is reported.
 
 **A fault stops the run.** A node process that dies (or, in one process, a
 callback that raises) is noticed within one spin of the monitor
@@ -15,7 +16,8 @@ from __future__ import annotations
 import sys
 import traceback
 
-from cartpole_sim.domain_guard import NodeClaim, claim_unique_names, domain_id, probe_node
+from cartpole_sim.domain_guard import (NodeClaim, claim_graph, domain_id, probe_node,
+                                       role_publishers)
 
 from .processes import describe_exit
 from .run_monitor import NODE_NAME as MONITOR_NAME
@@ -33,18 +35,19 @@ class FaultWatch:
     ``_stopping``, ``_exits`` and ``_asked_to_stop``.
     """
 
-    # -- one graph per domain -------------------------------------------------------------
+    # -- one graph per namespace -----------------------------------------------------------
     def _claim_names(self) -> NodeClaim:
-        """Claim the graph's names on the domain (cartpole_sim.domain_guard) before any node exists.
+        """Claim the graph's roles in its namespace (cartpole_sim.domain_guard) before any node
+        exists.
 
-        One process holds every name for its life; with one process a node
-        this one holds ``cartpole_run`` and each child claims its own name.
+        One process holds every role for its life; with one process a node
+        this one holds ``cartpole_run`` and each child claims its own role.
         """
-        names = [MONITOR_NAME] + self.spec.nodes
-        probe = probe_node(self.context)
+        roles = [MONITOR_NAME] + self.spec.nodes
+        probe = probe_node(self.context, self.spec.node_options().get('cli_args'))
         try:
-            return claim_unique_names(probe, names,
-                                      held=[MONITOR_NAME] if self.spec.processes else names)
+            return claim_graph(probe, roles, namespace=self.spec.namespace,
+                               held=[MONITOR_NAME] if self.spec.processes else roles)
         finally:
             probe.destroy_node()
 
@@ -54,12 +57,14 @@ class FaultWatch:
             self._claim = None
 
     def _check_duplicates(self) -> None:
-        names = [MONITOR_NAME] + self.spec.nodes
-        for name in self.monitor.duplicated_names(names):
-            if name not in self._duplicates_reported:
-                self._duplicates_reported.add(name)
-                text = (f'a second node /{name} appeared on ROS_DOMAIN_ID={domain_id()}: another '
-                        f'graph shares this domain, and the two drive each other\'s nodes')
+        """A second publisher of a role's own topic in the namespace: another graph there."""
+        found = role_publishers(self.monitor, self.spec.nodes, self.spec.namespace)
+        for topic, publishers in found.items():
+            if len(publishers) > 1 and topic not in self._duplicates_reported:
+                self._duplicates_reported.add(topic)
+                text = (f'{topic} has a second publisher ({", ".join(publishers)}) in namespace '
+                        f'{self.spec.namespace} on ROS_DOMAIN_ID={domain_id()}: another graph '
+                        f'shares this namespace, and the two drive each other\'s nodes')
                 self.warnings.append(text)
                 self.report(f'warning: {text}')
 

@@ -12,10 +12,13 @@ watches the run: the time series for the summary, the run's duration
 - ``processes=True``: the installed executables, one process a node
   (:mod:`cartpole_bringup.graph.processes`).
 
-**One graph per domain.** Before any node exists, the graph's node names are
-claimed on the domain (:mod:`cartpole_sim.domain_guard`); a name taken
-already refuses the start (:class:`~cartpole_sim.domain_guard.DuplicateNodeError`)
-unless ``allow_duplicates``. A duplicate that shows up later is reported
+**One graph per namespace.** Every node of the graph, the monitor included,
+runs in the spec's namespace (``cartpole run --namespace rig2``:
+:mod:`cartpole_bringup.namespaces`). Before any node exists, the graph's
+roles are claimed in that namespace of the domain
+(:mod:`cartpole_sim.domain_guard`); a role taken already refuses the start
+(:class:`~cartpole_sim.domain_guard.DuplicateNodeError`) unless
+``allow_duplicates``. A duplicate that shows up later is reported
 (:mod:`cartpole_bringup.graph.faults`).
 
 **A fault stops the run.** A node process that dies (or, in one process, a
@@ -96,7 +99,7 @@ class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters, BridgeLifecy
         Called with a line of text when something goes wrong during the run
         (a fault, a duplicate node); default: stderr.
 
-    Raises DuplicateNodeError when a node name of the graph is taken on the domain.
+    Raises DuplicateNodeError when a role of the graph is taken in its namespace.
     """
 
     def __init__(self, spec: GraphSpec, context, should_stop: Callable[[], bool] = lambda: False,
@@ -131,7 +134,7 @@ class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters, BridgeLifecy
             self.monitor = RunMonitor(state_topic=TRUE_STATE if spec.plant == 'sim' else STATE,
                                       collect=spec.record is None,
                                       progress=spec.lockstep and spec.record is None,
-                                      context=context)
+                                      context=context, **spec.node_options())
         except BaseException:
             self._release_claim()
             raise

@@ -19,11 +19,12 @@ class NodeParameters:
         """A service client of a graph node, kept for the whole run.
 
         Created early (at start), so that discovery of the response path is
-        complete long before the stop needs it.
+        complete long before the stop needs it. The name is relative: the
+        node of the graph's namespace.
         """
         key = (node, service)
         if key not in self._clients:
-            self._clients[key] = self.monitor.create_client(srv_type, f'/{node}/{service}')
+            self._clients[key] = self.monitor.create_client(srv_type, f'{node}/{service}')
         return self._clients[key]
 
     def set_parameters(self, node: str, values: dict[str, Any],
@@ -34,7 +35,7 @@ class NodeParameters:
             return [(r.successful, r.reason) for r in self.nodes[node].set_parameters(params)]
         client = self._client(SetParameters, node, 'set_parameters')
         if not self.spin_until(client.service_is_ready, timeout):
-            return [(False, f'/{node}/set_parameters not available')] * len(params)
+            return [(False, f'{client.service_name} not available')] * len(params)
         request = SetParameters.Request(parameters=[p.to_parameter_msg() for p in params])
         for _ in range(attempts):  # a response can be lost while discovery completes
             future = client.call_async(request)

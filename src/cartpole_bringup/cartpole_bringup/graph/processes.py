@@ -56,9 +56,10 @@ def executable(name: str) -> Path:
 
 
 def node_command(name: str, parameters: Mapping[str, Any], *, log_level: str,
-                 params_file: Path | None) -> list[str]:
-    """The command starting node ``name`` as a process with these explicit parameters."""
-    cmd = [str(executable(name)), '--ros-args', '--log-level', log_level]
+                 params_file: Path | None, ros_arguments: Sequence[str] = ()) -> list[str]:
+    """The command starting node ``name`` as a process with these explicit parameters
+    (and ``ros_arguments``: remappings such as the namespace)."""
+    cmd = [str(executable(name)), '--ros-args', '--log-level', log_level, *ros_arguments]
     if params_file:
         cmd += ['--params-file', str(params_file)]
     for key, value in parameters.items():

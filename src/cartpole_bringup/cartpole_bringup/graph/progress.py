@@ -12,6 +12,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
+from ..namespaces import relative
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 
@@ -21,7 +22,7 @@ class LockstepProgress:
     def __init__(self, node: Node, ledger: RecordLedger) -> None:
         self.ledger = ledger
         self._published_ns = -1
-        self._pub = node.create_publisher(Header, PROGRESS_TOPIC, QoSProfile(
+        self._pub = node.create_publisher(Header, relative(PROGRESS_TOPIC), QoSProfile(
             depth=10, reliability=ReliabilityPolicy.RELIABLE))
 
     def update(self) -> None:

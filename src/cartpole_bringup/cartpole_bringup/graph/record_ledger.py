@@ -35,7 +35,8 @@ TRUE_STATE, STATUS, CLOCK = '/cartpole/true_state', '/cartpole/controller_status
 
 PROGRESS_TOPIC = '/cartpole/recorder/progress'
 """Lockstep: the stamp up to which the recorder (or, without one, the run monitor) holds
-every sample (std_msgs/Header); the simulator waits for it (``recorder_window``)."""
+every sample (std_msgs/Header); the simulator waits for it (``recorder_window``). Its
+root-namespace name; the nodes publish it relative, in their graph's namespace."""
 
 SAMPLE_TOPICS = (JOINT_STATES, TRUE_STATE, CLOCK, STATE, FORCE, STATUS)
 """The topics with one message per sample, stamped with the sample's stamp."""

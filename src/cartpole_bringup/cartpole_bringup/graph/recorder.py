@@ -23,6 +23,12 @@ step more than ``recorder_window`` samples ahead of it; a sample re-published
 while the graph starts is written once. In real time the messages it missed
 are counted by stamp and stored as ``recorder_missed`` in the bag's
 custom_data when it closes.
+
+In a namespace (``-r __ns:=/rig2``, ``cartpole run --namespace rig2``) it
+subscribes the graph's topics there and records them by the names they have
+(``/rig2/joint_states``; ``/clock`` as remapped, ``/rig2/clock`` with ``cartpole
+run``); the bag's custom_data holds ``namespace`` (:mod:`cartpole_bringup.namespaces`),
+and the ``topics`` parameter keeps the root names.
 """
 from __future__ import annotations
 
@@ -40,6 +46,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from cartpole_sim.node_runner import run_node
 
 from ..bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from ..namespaces import NAMESPACE_KEY, ROOT, relative
 from .progress import LockstepProgress
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
@@ -82,7 +89,8 @@ class RecorderNode(Node):
                         'recording_<UTC timestamp> in the working directory.', read_only=True))
         self.declare_parameter('topics', list(TOPICS), ParameterDescriptor(
             description='Topics to record; each must be one of the graph topics of '
-                        'docs/architecture.md (an unknown name is refused).', read_only=True))
+                        'docs/architecture.md (an unknown name is refused), by its name in '
+                        'the root namespace (recorded in the node\'s).', read_only=True))
         self.declare_parameter('custom_data', [''], ParameterDescriptor(
             description="'key=value' strings stored in the bag's custom_data "
                         '(x_ref, controllers, scenario).', read_only=True))
@@ -107,19 +115,24 @@ class RecorderNode(Node):
         if unknown:
             raise ValueError(f'cannot record {unknown}: known topics are {sorted(TOPICS)}')
         custom = parse_custom_data(c for c in self.get_parameter('custom_data').value if c)
+        if self.get_namespace() != ROOT:
+            custom[NAMESPACE_KEY] = self.get_namespace()
         output = self.get_parameter('output').value or default_output()
         flush_period = float(self.get_parameter('flush_period').value)
-        self._bag = BagWriter(Path(output), {t: TOPICS[t] for t in topics}, custom,
-                              log_time=str(self.get_parameter('log_time').value),
-                              flush_period=flush_period)
         qos = QoSProfile(depth=int(self.get_parameter('queue_depth').value),
                          reliability=ReliabilityPolicy.RELIABLE)
         lockstep = bool(self.get_parameter('lockstep').value)
         self.ledger = RecordLedger(topics, skip_repeats=lockstep)
         self._progress = LockstepProgress(self, self.ledger) if lockstep else None
+        self._recorded: dict[str, str] = {}
+        """Topic (root name) -> the name it is recorded by (as subscribed, remapped)."""
         for topic in topics:
-            self.create_subscription(_import_type(TOPICS[topic]), topic,
-                                     self._writer_for(topic), qos, raw=True)
+            sub = self.create_subscription(_import_type(TOPICS[topic]), relative(topic),
+                                           self._writer_for(topic), qos, raw=True)
+            self._recorded[topic] = sub.topic_name
+        self._bag = BagWriter(Path(output), {self._recorded[t]: TOPICS[t] for t in topics},
+                              custom, log_time=str(self.get_parameter('log_time').value),
+                              flush_period=flush_period)
         # The callbacks only queue what arrives; a thread writes it into the bag and
         # finishes the chunks on time (also while nothing arrives). The signal that stops
         # the recorder (a KeyboardInterrupt, cartpole_sim.node_runner) can land anywhere in
@@ -135,13 +148,14 @@ class RecorderNode(Node):
     def _writer_for(self, topic: str):
         if topic not in self.ledger.topics:
             def queue(data: bytes) -> None:
-                self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+                self._queue.append((self._recorded[topic], data,
+                                    self.get_clock().now().nanoseconds))
             return queue
 
         def book_and_queue(data: bytes) -> None:
             if not self.ledger.take(topic, cdr_stamp_ns(data)):
                 return  # a sample re-published while the graph started: written once
-            self._queue.append((topic, data, self.get_clock().now().nanoseconds))
+            self._queue.append((self._recorded[topic], data, self.get_clock().now().nanoseconds))
             if self._progress is not None:
                 self._progress.update()
         return book_and_queue
@@ -165,8 +179,10 @@ class RecorderNode(Node):
 
     @property
     def counts(self) -> dict[str, int]:
-        """Messages written so far, per topic (the queue is written every 10 ms)."""
-        return dict(self._bag.counts)
+        """Messages written so far, per topic by its root name (the queue is written every
+        10 ms)."""
+        written = self._bag.counts
+        return {topic: written[name] for topic, name in self._recorded.items() if name in written}
 
     def close(self) -> None:
         """Write what was queued, close the bag (``metadata.yaml``); later messages are dropped."""

@@ -28,6 +28,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from ..analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
+from ..namespaces import relative
 from .progress import LockstepProgress
 from .record_ledger import RecordLedger
 
@@ -76,13 +77,18 @@ class RunMonitor(Node):
         """Stamp of the last sample-stamped zero this node published (lockstep fault stop:
         from the first, every later sample is answered with zero too)."""
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(JointState, state_topic, self._state_cb(state_topic), qos)
-        self.create_subscription(JointState, FORCE, self._on_force, qos)
-        self._force_pub = self.create_publisher(JointState, FORCE, 10)
+        # Relative names: the topics of the graph in this node's namespace; the series
+        # keep the root names (as the analysis of a bag reads them).
+        self.create_subscription(JointState, relative(state_topic), self._state_cb(state_topic),
+                                 qos)
+        self.create_subscription(JointState, relative(FORCE), self._on_force, qos)
+        self._force_pub = self.create_publisher(JointState, relative(FORCE), 10)
         if collect:
-            self.create_subscription(DiagnosticArray, STATUS, self._diag_cb(STATUS), qos)
+            self.create_subscription(DiagnosticArray, relative(STATUS), self._diag_cb(STATUS),
+                                     qos)
             if state_topic == STATE:
-                self.create_subscription(DiagnosticArray, HW_HEALTH, self._diag_cb(HW_HEALTH), qos)
+                self.create_subscription(DiagnosticArray, relative(HW_HEALTH),
+                                         self._diag_cb(HW_HEALTH), qos)
 
     def _state_cb(self, topic: str) -> Callable[[JointState], None]:
         def callback(msg: JointState) -> None:
@@ -156,11 +162,3 @@ class RunMonitor(Node):
             msg.header.stamp = self.get_clock().now().to_msg()
         self._force_pub.publish(msg)
         self.own_zero_forces += 1
-
-    def duplicated_names(self, names) -> list[str]:
-        """Names of ``names`` that the graph shows more than once in the root namespace."""
-        counts: dict[str, int] = {}
-        for name, ns in self.get_node_names_and_namespaces():
-            if name in names and (ns or '/') == '/':
-                counts[name] = counts.get(name, 0) + 1
-        return sorted(n for n, c in counts.items() if c > 1)

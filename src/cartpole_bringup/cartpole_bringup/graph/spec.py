@@ -11,6 +11,8 @@ from typing import Any
 
 from rclpy.executors import SingleThreadedExecutor
 
+from .. import namespaces
+
 RECORDER_WINDOW = 10
 """Lockstep with a recorder: how many samples the simulator may be ahead of it (the
 publishers keep 100, cartpole_sim.node_runner.PUBLISH_DEPTH)."""
@@ -56,7 +58,9 @@ class GraphSpec:
         One-process executor: ``'single'`` (rclpy's SingleThreadedExecutor) or
         ``'events'`` (rclpy.experimental's EventsExecutor, C++).
     allow_duplicates
-        Start even when the graph's node names are taken on the domain.
+        Start even when the graph's roles are taken in its namespace.
+    namespace
+        ROS namespace of every node (``/`` or ``/rig2``; :mod:`cartpole_bringup.namespaces`).
     hw_arm
         The rig: activate (arm) the bridge once the loop answers; else it stays
         inactive (streaming, disarmed).
@@ -72,9 +76,11 @@ class GraphSpec:
     log_level: str = 'warn'
     executor: str = 'events'
     allow_duplicates: bool = False
+    namespace: str = namespaces.ROOT
     hw_arm: bool = False
 
     def __post_init__(self) -> None:
+        self.namespace = namespaces.normalize(self.namespace)
         if self.plant not in ('sim', 'hw_bridge'):
             raise ValueError(f"plant must be 'sim' or 'hw_bridge', got {self.plant!r}")
         if self.lockstep and self.plant != 'sim':
@@ -86,6 +92,16 @@ class GraphSpec:
     def nodes(self) -> list[str]:
         """Start order: recorder, ekf, controller manager, then the plant."""
         return (['recorder'] if self.record else []) + ['ekf', 'controller_manager', self.plant]
+
+    @property
+    def ros_arguments(self) -> list[str]:
+        """The ROS arguments of every node of the graph (its namespace, its ``/clock``)."""
+        return namespaces.ros_arguments(self.namespace)
+
+    def node_options(self) -> dict[str, Any]:
+        """Keyword arguments of an ``rclpy.node.Node`` of the graph's process (its
+        ``cli_args``: the namespace); none in the root namespace."""
+        return {'cli_args': ['--ros-args', *self.ros_arguments]} if self.ros_arguments else {}
 
     def node_parameters(self, name: str) -> dict[str, Any]:
         """The explicit parameters of one node (incl. ``use_sim_time``, recorder output)."""

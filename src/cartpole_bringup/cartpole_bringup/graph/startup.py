@@ -19,7 +19,8 @@ from std_srvs.srv import Trigger
 from cartpole_sim import realtime
 from cartpole_sim.domain_guard import ALLOW_PARAMETER
 
-from ..analysis.analyze import FORCE, STATE
+from ..analysis.analyze import FORCE, JOINTS, STATE
+from ..namespaces import relative
 from .processes import NODES, NodeStartError, describe_exit, node_command, start_node_process
 from .spec import GraphSpec
 
@@ -45,7 +46,7 @@ def command_line(spec: GraphSpec, name: str) -> list[str]:
         parameters[ALLOW_PARAMETER] = True
     try:
         return node_command(name, parameters, log_level=spec.log_level,
-                            params_file=spec.params_file)
+                            params_file=spec.params_file, ros_arguments=spec.ros_arguments)
     except NodeStartError as error:
         raise GraphError(str(error)) from error
 
@@ -134,7 +135,8 @@ class GraphStartup:
                 raise GraphError(f'node {name} ({module}.{cls}) is not available: {error}') from error
             overrides = [Parameter(k, value=v) for k, v in self.spec.node_parameters(name).items()]
             try:
-                node = node_class(context=self.context, parameter_overrides=overrides)
+                node = node_class(context=self.context, parameter_overrides=overrides,
+                                  **self.spec.node_options())
             except Exception as error:
                 raise GraphError(f'node {name} did not start: {error}') from error
             self.nodes[name] = node
@@ -153,9 +155,9 @@ class GraphStartup:
 
         def ready() -> bool:
             # The monitor itself publishes on FORCE too (its zero force in a fault).
-            return (m.count_subscribers('/joint_states') >= 1 + rec
-                    and m.count_subscribers(STATE) >= 1 + rec
-                    and m.count_publishers(FORCE) >= 2)
+            return (m.count_subscribers(relative(JOINTS)) >= 1 + rec
+                    and m.count_subscribers(relative(STATE)) >= 1 + rec
+                    and m.count_publishers(relative(FORCE)) >= 2)
         if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
             raise GraphError(self.fault or f'the nodes did not come up within '
                                            f'{STARTUP_TIMEOUT:g} s; {self._process_report()}')

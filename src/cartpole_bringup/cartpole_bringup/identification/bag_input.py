@@ -102,7 +102,8 @@ def load_recording(path: str | Path, *, t_start: float | None = None,
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from ..analysis.analyze import parse_joint_state
+    from ..analysis.analyze import parse_joint_state, root_topics
+    from ..bags.writer import bag_custom_data
 
     path = Path(path)
     label = path.name if path.name != 'bag' else path.parent.name
@@ -114,13 +115,14 @@ def load_recording(path: str | Path, *, t_start: float | None = None,
     commands: list[tuple[int, float]] = []
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-            connections = [c for c in reader.connections if c.topic in (JOINTS, FORCE)
+            root = root_topics(reader, bag_custom_data(path))  # a bag of a namespace too
+            connections = [c for c in reader.connections if root[c.topic] in (JOINTS, FORCE)
                            and c.msgtype == 'sensor_msgs/msg/JointState']
             messages = reader.messages(connections=connections) if connections else ()
             for connection, log_ns, raw in messages:  # (an empty list would mean all topics)
                 stamp, names, position, _, effort = parse_joint_state(raw)
                 when = _stamp_ns(stamp, log_ns)
-                if connection.topic == JOINTS:
+                if root[connection.topic] == JOINTS:
                     try:
                         i_x, i_t = names.index('cart'), names.index('pendulum')
                     except ValueError:

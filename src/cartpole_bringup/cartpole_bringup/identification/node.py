@@ -16,6 +16,9 @@ plan ends, or on any error or Ctrl-C, the node publishes zero force once and
 stops publishing, and a bridge it activated is deactivated (``U,0``, ``E,0``,
 still streaming); should that fail, the bridge's watchdog disarms it 50 ms
 later.
+
+Its names are relative (``joint_states``, ``hw_bridge/change_state``): in a namespace
+(``cartpole identify --namespace rig2``) it plays on that graph.
 """
 from __future__ import annotations
 
@@ -56,8 +59,8 @@ class PulsePlayerNode(Node):
         self.first_sample: tuple[float, float, float] | None = None
         """(t, x, theta) of the first sample seen."""
         self.answered = 0
-        self._pub = self.create_publisher(JointState, '/cartpole/force_command', 10)
-        self.create_subscription(JointState, '/joint_states', self._on_sample, 10)
+        self._pub = self.create_publisher(JointState, 'cartpole/force_command', 10)
+        self.create_subscription(JointState, 'joint_states', self._on_sample, 10)
 
     def _on_sample(self, msg: JointState) -> None:
         try:
@@ -164,7 +167,7 @@ def _activate_bridge(node: PulsePlayerNode, spin_until: Callable[[Callable[[], b
     the loop is not warm yet); its lifecycle client, or RuntimeError with the reason."""
     from cartpole_hw.lifecycle_client import LifecycleClient
 
-    bridge = LifecycleClient(node, '/hw_bridge', spin_until)
+    bridge = LifecycleClient(node, 'hw_bridge', spin_until)   # in the node's namespace
     state = bridge.state(BRIDGE_TIMEOUT)
     if state != 'inactive':
         raise RuntimeError(f'the hw bridge is {state or "not answering"}, not inactive: '
@@ -181,9 +184,12 @@ def _activate_bridge(node: PulsePlayerNode, spin_until: Callable[[Callable[[], b
     raise RuntimeError(f'the hw bridge refused to arm: {reason}')
 
 
-def run_pulse_plan(player: PulsePlayer, **kwargs) -> dict:
-    """:func:`play_pulse_plan` in its own rclpy context (the command line)."""
-    rclpy.init()
+def run_pulse_plan(player: PulsePlayer, *, ros_arguments: Sequence[str] = (),
+                   **kwargs) -> dict:
+    """:func:`play_pulse_plan` in its own rclpy context (the command line); ``ros_arguments``
+    apply to its nodes (the graph's namespace:
+    :func:`cartpole_bringup.namespaces.ros_arguments`)."""
+    rclpy.init(args=['cartpole', '--ros-args', *ros_arguments] if ros_arguments else None)
     try:
         return play_pulse_plan(player, **kwargs)
     finally:

@@ -24,7 +24,9 @@ per message, so the viewer takes only these: the force command is the
 status's ``force``, the value the manager publishes on
 ``/cartpole/force_command`` with the same stamp, and only one of the
 measurement and the truth is subscribed at a time (chosen every
-:data:`PLANT_TOPIC_CHECK_PERIOD`).
+:data:`PLANT_TOPIC_CHECK_PERIOD`). The names are relative: a viewer started in a
+graph's namespace (``-r __ns:=/rig2``) shows that graph (``/rig2/cartpole/state``,
+the manager ``/rig2/controller_manager``).
 
 With ``feed:=PATH`` it subscribes none of these 200 Hz topics but takes the
 samples from a local Unix socket instead, sent by the ``viewer_tap``
@@ -58,6 +60,7 @@ from cartpole_sim.node_runner import run_node
 
 from ..analysis.analyze import JOINTS, STATE, STATUS, TRUE_STATE, parse_joint_state
 from ..bags.writer import cdr_stamp_ns
+from ..namespaces import relative
 from .diagnostics_cdr import parse_diagnostic_array
 from .server import DEFAULT_HOST, DEFAULT_PORT, MAX_RATE_HZ, ControlSample, LiveView, ViewerServer
 from .feed import ESTIMATE, MEASUREMENT, STATUS as STATUS_KIND, TRUTH, FeedReceiver
@@ -96,8 +99,9 @@ class ViewerNode(Node):
         self.declare_parameter('x_ref', math.nan, ParameterDescriptor(
             description='x* marked on the rail [m]; NaN = the controller manager\'s x_ref, else '
                         'the middle of the travel. Follows the controller manager\'s x_ref.'))
-        self.declare_parameter('controller_manager', '/controller_manager', ParameterDescriptor(
-            description='The node whose x_ref parameter x* follows', read_only=True))
+        self.declare_parameter('controller_manager', 'controller_manager', ParameterDescriptor(
+            description='The node whose x_ref parameter x* follows (relative: in the '
+                        'viewer\'s namespace)', read_only=True))
         self.declare_parameter('feed', '', ParameterDescriptor(
             description="'' = subscribe the graph's topics; else the path of a Unix "
                         'socket to take the samples from instead (the viewer_tap node of '
@@ -129,14 +133,19 @@ class ViewerNode(Node):
             self._start_feed(feed)
         else:
             self._fast = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
-            self.create_subscription(JointState, STATE, self._on_estimate, self._fast, raw=True)
+            self.create_subscription(JointState, relative(STATE), self._on_estimate, self._fast,
+                                     raw=True)
             self._choose_plant_topic()
             self.create_timer(PLANT_TOPIC_CHECK_PERIOD, self._choose_plant_topic)
-            self.create_subscription(DiagnosticArray, STATUS, self._on_status,
+            self.create_subscription(DiagnosticArray, relative(STATUS), self._on_status,
                                      QoSProfile(depth=100,
                                                 reliability=ReliabilityPolicy.BEST_EFFORT),
                                      raw=True)
-        self._manager = self.get_parameter('controller_manager').value.rstrip('/') or '/'
+        manager = self.get_parameter('controller_manager').value.rstrip('/') or '/'
+        if not manager.startswith('/'):
+            manager = self.get_namespace().rstrip('/') + '/' + manager
+        self._manager = manager
+        """The manager's full name, as parameter events name their node."""
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
                                  QoSProfile(depth=100))
         self._x_ref_client = self.create_client(GetParameters, f'{self._manager}/get_parameters')
@@ -167,14 +176,14 @@ class ViewerNode(Node):
     # -- topics ----------------------------------------------------------------------------
     def _choose_plant_topic(self) -> None:
         """The truth while the simulator publishes it, else the measurement."""
-        topic = TRUE_STATE if self.count_publishers(TRUE_STATE) > 0 else JOINTS
+        topic = TRUE_STATE if self.count_publishers(relative(TRUE_STATE)) > 0 else JOINTS
         if topic == self.plant_topic:
             return
         if self._plant_subscription is not None:
             self.destroy_subscription(self._plant_subscription)
         callback = self._on_truth if topic == TRUE_STATE else self._on_measurement
-        self._plant_subscription = self.create_subscription(JointState, topic, callback,
-                                                            self._fast, raw=True)
+        self._plant_subscription = self.create_subscription(JointState, relative(topic),
+                                                            callback, self._fast, raw=True)
         self.plant_topic = topic
 
     # The measurement and truth of a sample that is not drawn are not decoded (the stamp

@@ -50,12 +50,14 @@ class ViewerProcess:
         ``max_rate``).
     log_level
         ROS log level of the node.
+    ros_arguments
+        Further ROS arguments (the graph's namespace: ``-r __ns:=/rig2``).
     """
 
     def __init__(self, host: str, port: int, parameters: dict | None = None,
-                 log_level: str = 'warn') -> None:
+                 log_level: str = 'warn', ros_arguments: list[str] | None = None) -> None:
         self.command = [str(viewer_executable()), '--ros-args', '--log-level', log_level,
-                        '-p', f'host:={host}', '-p', f'port:={int(port)}']
+                        *(ros_arguments or []), '-p', f'host:={host}', '-p', f'port:={int(port)}']
         for key, value in (parameters or {}).items():
             text = ('true' if value else 'false') if isinstance(value, bool) else str(value)
             self.command += ['-p', f'{key}:={text}']
@@ -130,7 +132,7 @@ class GraphViewer:
     """
 
     def __init__(self, address: str | None, *, plant_params: Path | None = None,
-                 log_level: str = 'warn') -> None:
+                 log_level: str = 'warn', ros_arguments: list[str] | None = None) -> None:
         import tempfile
 
         from .server import parse_address
@@ -141,7 +143,8 @@ class GraphViewer:
         parameters: dict = {'feed': self.feed}
         if plant_params is not None:
             parameters['plant_params_file'] = str(Path(plant_params).resolve())
-        self.process = ViewerProcess(host, port, parameters, log_level=log_level)
+        self.process = ViewerProcess(host, port, parameters, log_level=log_level,
+                                     ros_arguments=ros_arguments)
         self.tap = None
         self._executor = None
 
@@ -152,10 +155,12 @@ class GraphViewer:
     def start(self) -> str:
         return self.process.start()
 
-    def attach(self, executor, context, plant_topic: str) -> None:
-        """Tap the graph: the ``viewer_tap`` node on the graph's executor."""
+    def attach(self, executor, context, plant_topic: str, **node_options) -> None:
+        """Tap the graph: the ``viewer_tap`` node on the graph's executor (``node_options``:
+        its ``cli_args``, the graph's namespace)."""
         from .tap import ViewerTapNode
-        self.tap = ViewerTapNode(self.feed, plant_topic=plant_topic, context=context)
+        self.tap = ViewerTapNode(self.feed, plant_topic=plant_topic, context=context,
+                                 **node_options)
         self._executor = executor
         executor.add_node(self.tap)
 
@@ -177,10 +182,11 @@ class GraphViewer:
 
 
 def start_viewer(address: str | None, *, plant_params: Path | None = None,
-                 log_level: str = 'warn') -> GraphViewer:
-    """The view of ``cartpole run --view [HOST:PORT]``, its viewer process started;
-    RuntimeError if it cannot start."""
-    viewer = GraphViewer(address, plant_params=plant_params, log_level=log_level)
+                 log_level: str = 'warn', ros_arguments: list[str] | None = None) -> GraphViewer:
+    """The view of ``cartpole run --view [HOST:PORT]``, its viewer process started (in the
+    graph's namespace with ``ros_arguments``); RuntimeError if it cannot start."""
+    viewer = GraphViewer(address, plant_params=plant_params, log_level=log_level,
+                         ros_arguments=ros_arguments)
     try:
         viewer.start()
     except RuntimeError:

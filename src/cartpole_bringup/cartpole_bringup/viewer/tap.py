@@ -6,7 +6,8 @@ more on the loop's critical path than a stamp read per message), and it
 forwards the samples to draw to the viewer process through the feed socket
 (:mod:`cartpole_bringup.viewer.feed`). It subscribes ``/cartpole/state``,
 ``/cartpole/controller_status`` and the plant's state: ``/cartpole/true_state``
-on the simulator, ``/joint_states`` on the rig.
+on the simulator, ``/joint_states`` on the rig (relative names: those of the
+graph's namespace).
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from ..analysis.analyze import JOINTS, STATE, STATUS, TRUE_STATE
+from ..namespaces import relative
 from .server import MAX_RATE_HZ
 from .feed import MEASUREMENT, TRUTH, FeedSender, FeedTap
 
@@ -44,10 +46,10 @@ class ViewerTapNode(Node):
         self.tap = FeedTap(self.sender, max_rate)
         kind = TRUTH if plant_topic == TRUE_STATE else MEASUREMENT
         qos = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.create_subscription(JointState, plant_topic,
+        self.create_subscription(JointState, relative(plant_topic),
                                  lambda data: self.tap.plant(kind, data), qos, raw=True)
-        self.create_subscription(JointState, STATE, self.tap.estimate, qos, raw=True)
-        self.create_subscription(DiagnosticArray, STATUS, self.tap.status,
+        self.create_subscription(JointState, relative(STATE), self.tap.estimate, qos, raw=True)
+        self.create_subscription(DiagnosticArray, relative(STATUS), self.tap.status,
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
                                  raw=True)
 
