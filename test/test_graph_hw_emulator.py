@@ -23,6 +23,13 @@ from cartpole_sim.child_process import child_running, interrupt, reap
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
+def firmware_or_skip() -> None:
+    from cartpole_hw.qemu_board import missing_message, missing_packages
+    missing = missing_packages()
+    if missing:
+        pytest.skip(missing_message(missing))
+
+
 @pytest.mark.parametrize('firmware', ['python', 'qemu'])
 def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_context,
                                                         spin_until):
