@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -30,32 +31,61 @@ def firmware_or_skip() -> None:
 
 
 @pytest.mark.parametrize('firmware', ['python', 'qemu'])
-def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware):
+def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_context,
+                                                        spin_until):
     """python: the firmware's Python mirror; qemu: the firmware compiled for the Cortex-M3 in
     qemu-system-arm (hardware in the loop, 15 s). The qemu run also records (the recorder in
     the graph's process; with --processes the extra processes made the loaded 2-core
-    development machine stall the graph more often), and its bag reads back."""
+    development machine stall the graph more often), and its bag reads back. The run drives
+    the bridge's lifecycle through its services, as ros2cli sees it: active during the run
+    (get_state), deactivate and cleanup at the stop (/hw_bridge/transition_event)."""
+    from lifecycle_msgs.msg import TransitionEvent
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from cartpole_hw.lifecycle_client import LifecycleClient
+
     record, duration = [], '17'
     if firmware == 'qemu':
         firmware_or_skip()
         record, duration = ['--record', str(tmp_path / 'runs')], '15'
+    probe = Node('_lifecycle_probe', context=ros_context)
+    states: list[str] = []
+    probe.create_subscription(TransitionEvent, '/hw_bridge/transition_event',
+                              lambda m: states.append(m.goal_state.label), 50)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(probe)
     link = tmp_path / 'cartpole-emu'
     log = open(tmp_path / 'emulator.log', 'w')
     emulator = subprocess.Popen(
         [sys.executable, '-m', 'cartpole_bringup.cli', 'emulate', '--firmware', firmware,
          '--link', str(link)],
         stdout=subprocess.PIPE, stderr=log, text=True, start_new_session=True)
+    run = None
     try:
         first = emulator.stdout.readline()  # "port: /dev/pts/N  link: ..." once the pty exists
         assert 'port:' in first, (tmp_path / 'emulator.log').read_text()
-        run = subprocess.run(
+        run = subprocess.Popen(
             [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--hw', '--port', str(link),
              '--hw-arm', '--duration', duration, '--json', *record],
-            capture_output=True, text=True, timeout=240)
-        assert run.returncode == 0, run.stderr[-3000:]
-        lines = [line for line in run.stdout.splitlines() if line.startswith('{')]
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        output = []
+        reader = threading.Thread(target=lambda: output.extend(run.communicate(timeout=240)))
+        reader.start()
+        bridge = LifecycleClient(probe, '/hw_bridge', lambda p, t: spin_until(executor, p, t))
+        seen = set()    # the state as `ros2 lifecycle get /hw_bridge` shows it during the run
+        spin_until(executor, lambda: seen.add(bridge.state(2.0)) or 'active' in seen
+                   or not reader.is_alive(), 120.0)
+        spin_until(executor, lambda: not reader.is_alive(), 250.0)
+        reader.join()
+        stdout, stderr = output
+        assert run.returncode == 0, stderr[-3000:]
+        assert 'active' in seen, seen                       # armed through activate
+        spin_until(executor, lambda: states[-1:] == ['unconfigured'], 5.0)
+        assert states[-4:] == ['deactivating', 'inactive', 'cleaningup', 'unconfigured'], states
+        lines = [line for line in stdout.splitlines() if line.startswith('{')]
         summary = json.loads(lines[-1])
-        why = (summary, run.stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
+        why = (summary, stderr[-2000:])  # e.g. a 'fault: stale state' of a stalled graph
         assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, why
         assert summary['theta_amp_deg'] < 2.0, why
         assert summary['x_err_max_m'] <= 0.10, summary
@@ -66,6 +96,9 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware):
         if record:
             assert_bag_reads_back(tmp_path / 'runs')
     finally:
+        if run is not None:
+            reap(run)
+        probe.destroy_node()
         if emulator.poll() is None:
             os.killpg(emulator.pid, signal.SIGINT)
             try:
@@ -122,8 +155,9 @@ def test_sigkill_of_the_controller_manager_on_the_rig_disarms_the_device(tmp_pat
              '--hw-arm', '--processes', '--duration', '60', '--json'],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         # 2 s of non-zero force commands: the bridge is armed and the cart is being driven.
-        assert spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0), \
-            'the rig was never driven'
+        if not spin_until(executor, lambda: sum(1 for f in commands if f != 0.0) >= 400, 120.0):
+            run.send_signal(signal.SIGINT)
+            pytest.fail(f'the rig was never driven: {run.communicate(timeout=60)[1][-3000:]}')
         os.kill(child_running(run.pid, 'controller_manager'), signal.SIGKILL)
         killed_at = time.monotonic()  # the emulator logs the same clock
         out, err = run.communicate(timeout=120)

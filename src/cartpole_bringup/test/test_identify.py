@@ -477,3 +477,58 @@ def test_pulse_player_refuses_without_samples_or_with_an_unsafe_plan(tmp_path, r
         assert sim._runner.index == 0 and not player.done
     finally:
         sim.destroy_node()
+
+
+@pytest.mark.ros
+def test_pulse_plan_on_the_emulated_rig_activates_the_bridge_and_deactivates_it(tmp_path,
+                                                                                ros_context,
+                                                                                spin_until):
+    """``cartpole identify --pulse-plan --arm`` on the rig: the bridge (configured,
+    streaming, disarmed) is armed through its lifecycle (activate after zero-force
+    answers), the pulse reaches the device's DAC, and the bridge ends inactive: zero,
+    disabled, still streaming. Without --arm nothing reaches the device."""
+    import threading
+
+    from rclpy.lifecycle import TransitionCallbackReturn
+    from rclpy.parameter import Parameter
+
+    from cartpole_bringup.identification.node import play_pulse_plan
+    from cartpole_bringup.identification.pulse_plan import parse_pulse_plan
+    from cartpole_bringup.identification.pulse_player import PulsePlayer
+    from cartpole_hw.emulator import Emulator
+    from cartpole_hw.hw_node import HwBridgeNode
+
+    em = Emulator(link=str(tmp_path / 'emu'))
+    em.device.watchdog_us = 300_000     # one process (and GIL) with the executor, under load
+    em.start()
+    bridge = HwBridgeNode(context=ros_context, parameter_overrides=[
+        Parameter('port', value=em.link), Parameter('home_on_start', value=True),
+        Parameter('command_timeout', value=0.3), Parameter('sample_timeout', value=0.3)])
+    setpoints, disabled = [], threading.Event()
+
+    def sample_period():   # the emulator's thread: the output in force each period
+        setpoints.append((em.device.enabled, em.device.output_setpoint()))
+        if setpoints[-1] == (False, 0) and (True, round(6 * 56.744)) in setpoints:
+            disabled.set()
+        step()
+
+    step, em.sample_period = em.sample_period, sample_period
+    try:
+        assert bridge.trigger_configure() == TransitionCallbackReturn.SUCCESS   # streaming
+        unarmed = PulsePlayer(parse_pulse_plan('6:0.1'), THESIS, lead_in=0.1, settle=0.1)
+        play_pulse_plan(unarmed, context=ros_context, extra_nodes=[bridge], timeout=30.0,
+                        log=lambda line: None)
+        assert unarmed.done and {out for _, out in setpoints} == {0}   # never armed
+        player = PulsePlayer(parse_pulse_plan('6:0.1'), THESIS, lead_in=0.1, settle=0.1)
+        lines = []
+        played = play_pulse_plan(player, context=ros_context, extra_nodes=[bridge], arm=True,
+                                 timeout=30.0, log=lines.append)
+        assert played['guard'] is None and player.done
+        assert (True, round(6 * 56.744)) in setpoints                  # the pulse acted
+        assert 'hw bridge armed (lifecycle state active)' in lines
+        assert 'hw bridge disarmed (inactive)' in lines
+        assert bridge._state_machine.current_state[1] == 'inactive'
+        assert disabled.wait(5.0), setpoints[-5:]                    # zero and disabled after
+    finally:
+        bridge.destroy_node()
+        em.stop()

@@ -30,9 +30,9 @@ def test_options_become_node_parameters():
     assert p['controller_manager'] == {'swingup': 'full_energy', 'stabilizer': 'smc'}
     assert 'hw_bridge' not in p
     hw = run_cmd.node_parameters(parse('--hw', '--port', '/dev/ttyACM1'))
-    assert hw['hw_bridge'] == {'port': '/dev/ttyACM1', 'armed': False}  # never armed by default
+    assert hw['hw_bridge'] == {'port': '/dev/ttyACM1'}  # armed is no parameter: the lifecycle's
     armed = run_cmd.node_parameters(parse('--hw', '--port', 'X', '--hw-arm'))['hw_bridge']
-    assert armed == {'port': 'X', 'armed': True, 'home_on_start': True}
+    assert armed == {'port': 'X', 'home_on_start': True}
 
 
 def test_disturbance_options_become_sim_parameters():
@@ -70,6 +70,8 @@ def test_graph_spec_and_process_command_lines(tmp_path):
     assert ros_value_text("it's") == "'it''s'"
     with pytest.raises(ValueError, match='lockstep needs the simulator'):
         GraphSpec(plant='hw_bridge', lockstep=True)
+    with pytest.raises(ValueError, match='hw_arm needs the rig'):
+        GraphSpec(plant='sim', hw_arm=True)
 
 
 def test_run_directory_is_named_by_time_and_controllers(tmp_path):

@@ -6,7 +6,7 @@ time into lines to send and samples to publish. The serial link
 only move bytes and messages; every safety rule lives here and is tested
 without a port. Time ``now`` is ``time.monotonic()`` seconds.
 
-Safety rules (docs/rig.md, "Starting the bridge"; any fault commands zero force):
+Safety rules (docs/rig.md, "The lifecycle"; any fault commands zero force):
 
 - Disarmed (the default): the device is kept disabled (``E,0``, re-sent if a
   sample shows it enabled) and no ``U`` other than ``U,0`` is ever sent.
@@ -14,13 +14,13 @@ Safety rules (docs/rig.md, "Starting the bridge"; any fault commands zero force)
   encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
   ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
   the device ``U,0`` every sample (zero force, device watchdog quiet).
-- An arming requested ahead (``arm_requested``, the ``armed`` parameter at
-  start) waits, besides, for a warm loop: ``warm_commands`` consecutive
-  commands received while disarmed, each fresh within half the
-  ``command_timeout``. A loop still starting up (a backlog of samples being
-  worked off, commands older than the watchdog) would otherwise be armed and
-  at once disarmed by the watchdogs. An explicit :meth:`BridgeCore.arm` arms
-  at once.
+- The node's arming (:meth:`BridgeCore.activate`, the lifecycle's activate)
+  needs, besides, a warm loop: ``warm_commands`` consecutive commands
+  received while disarmed, each fresh within half the ``command_timeout``, the
+  latest within ``command_timeout``. A loop still starting up (a backlog of
+  samples being worked off, commands older than the watchdog), or no
+  controller at all, would otherwise be armed and at once disarmed by the
+  watchdogs. :meth:`BridgeCore.arm` itself arms at once (tests, tools).
 - Host watchdog: once commands flow, no fresh command for ``command_timeout``
   -> ``U,0``, ``E,0``, disarmed (a *trip*). Non-finite or stale commands
   (stamp older than ``command_timeout``) are not fresh. The watchdogs run at
@@ -40,7 +40,7 @@ Safety rules (docs/rig.md, "Starting the bridge"; any fault commands zero force)
   ``sample_timeout``, the device's watchdog flag, a limit switch closing
   while armed, a device ``!`` line with a fault code (>= 16), a serial
   error/disconnect, a device restart (sequence jumping back), shutdown.
-  Re-arming is always an explicit request.
+  Re-arming is always an explicit request (nothing arms by itself).
 - Limit switches: force towards a closed switch is never sent (directional
   inhibit), so the cart homed at the left stop (left switch closed) can be
   driven right; a switch *closing* while armed is a crash: fault.
@@ -230,7 +230,6 @@ class BridgeCore:
         self.link_ready = False
         self.device_name = ''
         self.armed = False
-        self.arm_requested = False
         self.homed = False
         self.homing = False
         self.commands_live = False
@@ -283,10 +282,13 @@ class BridgeCore:
         self._applied_seq = None
         return [U_ZERO, E_OFF, PING, STREAM_ON]
 
-    def on_disconnect(self, now: float, reason: str) -> None:
-        """The port failed or vanished: disarm (nothing can be sent any more)."""
-        if self.connected:
+    def on_disconnect(self, now: float, reason: str, orderly: bool = False) -> None:
+        """The port failed or vanished: disarm (nothing can be sent any more); ``orderly``:
+        closed on purpose after :meth:`shutdown` (no fault)."""
+        if self.connected and not orderly:
             self._fault(f'link lost: {reason}')
+        elif orderly:
+            self.disarm()
         self.connected = False
         self.link_ready = False
         self.homing = False
@@ -300,12 +302,25 @@ class BridgeCore:
         if self.armed:
             return True, 'already armed', []
         self.armed = True
-        self.arm_requested = True
         self.commands_live = False
         self.warm_run = 0
         self.armed_at = now
         self._since_resync = 0
         return True, 'armed', [E_ON, U_ZERO]
+
+    def activate(self, now: float) -> tuple[bool, str, list[bytes]]:
+        """Arm if the control loop is warm (see the module docstring): the node's
+        lifecycle activate; refused with the reason otherwise."""
+        if not self.armed and not self.arm_refusal() and not self.loop_warm(now):
+            return False, (f'the control loop does not answer the samples in time: '
+                           f'{self.warm_run} of {self.config.warm_commands} fresh force '
+                           f'commands in a row, the latest '
+                           f'{self._warm_age(now)}; start the controller first'), []
+        return self.arm(now)
+
+    def _warm_age(self, now: float) -> str:
+        age = now - self._last_warm_command
+        return 'never' if not math.isfinite(age) else f'{1e3 * age:.0f} ms ago'
 
     def arm_refusal(self) -> str:
         """Why arming is refused now ('' if it is allowed)."""
@@ -322,7 +337,6 @@ class BridgeCore:
     def disarm(self) -> list[bytes]:
         """Zero force and disable: ``U,0``, ``E,0`` (also when already disarmed)."""
         self.armed = False
-        self.arm_requested = False
         self.commands_live = False
         self.last_setpoint = 0
         return [U_ZERO, E_OFF] if self.connected else []
@@ -345,7 +359,6 @@ class BridgeCore:
     def _fault(self, reason: str) -> list[bytes]:
         self.counts.faults += 1
         self.last_error = reason
-        self.arm_requested = False
         if self.armed:
             return self.disarm()
         return []
@@ -404,9 +417,6 @@ class BridgeCore:
                 self.last_error = 'homing failed: no V answer after R'
             self.ping_sent = now
             out += [PING, STREAM_ON]
-        if self.arm_requested and not self.armed and not self.arm_refusal() \
-                and self.loop_warm(now):
-            out += self.arm(now)[2]
         return out
 
     def loop_warm(self, now: float) -> bool:
@@ -561,7 +571,6 @@ class BridgeCore:
             'armed': str(self.armed).lower(),
             'homed': str(self.homed).lower(),
             'homing': str(self.homing).lower(),
-            'arm_requested': str(self.arm_requested).lower(),
             'warm_commands': str(self.warm_run),
             'samples': str(counts.samples),
             'lost_samples': str(self.tracker.lost),

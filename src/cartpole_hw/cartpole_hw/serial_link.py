@@ -1,13 +1,17 @@
 """The serial port around :class:`~cartpole_hw.bridge.BridgeCore`: a reader thread.
 
-One thread owns the reading side of the port: it opens the port (and re-opens
-it every ``reconnect_period`` while it is gone), reads with a timeout of the
-core's ``tick_period`` (2 ms), splits lines, hands each to the core and calls
-``on_sample`` right away (the sample -> publish path never waits for an
-executor), and runs the core's watchdogs after every read that leaves nothing
-waiting in the port: after a stall of this process (a read that returns empty
+The port is opened by :meth:`SerialLink.open` (the caller's thread: the node's
+configure, which reports a port that cannot be opened) or by the thread (which
+re-opens it every ``reconnect_period`` while it is gone). One thread owns the
+reading side of the port: it reads with a timeout of the core's
+``tick_period`` (2 ms), splits lines, hands each to the core, and runs the
+core's watchdogs after every read that leaves nothing waiting in the port: after a stall of this process (a read that returns empty
 long after it was due, while the device's lines piled up) the lines are taken
-first, so the watchdogs judge the device, not this process's own scheduling. Writes come from this thread and from the
+first, so the watchdogs judge the device, not this process's own scheduling.
+After a read that gave samples, or that changed whether the core is armed or
+connected (a fault, a lost port), it calls ``notify(samples)``: the node only
+hands them over to its executor there (a queue and a wake-up), so that
+nothing is published from this thread. Writes come from this thread and from the
 caller's (ROS executor) thread; both hold ``lock``, the same lock that
 guards the core, so the order of the lines on the wire is the order of the
 core's decisions. A write fails only when the port stays unwritable for
@@ -35,6 +39,16 @@ MAX_DEFERRED_TICKS = 16
 """Reads in a row that may put the watchdogs off because more bytes are waiting."""
 
 
+def _scheduling() -> tuple[int, int] | None:
+    """(policy, priority) of the calling thread if it is a real-time one (Linux), else None."""
+    if not hasattr(os, 'sched_getscheduler'):
+        return None
+    policy = os.sched_getscheduler(0)
+    if policy & ~getattr(os, 'SCHED_RESET_ON_FORK', 0) == os.SCHED_OTHER:
+        return None
+    return policy, os.sched_getparam(0).sched_priority
+
+
 def write_all(fd: int, data: bytes, timeout: float) -> None:
     """Write every byte to the non-blocking ``fd``; TimeoutError only if it stays
     unwritable until ``timeout`` s after the call (a late thread is not a dead port)."""
@@ -56,14 +70,14 @@ class SerialLink:
     """Owns the port and the reader thread of one bridge."""
 
     def __init__(self, core: BridgeCore, port: str, baud: int = 115200,
-                 on_sample: Callable[[JointSample], None] | None = None,
+                 notify: Callable[[list[JointSample]], None] | None = None,
                  reconnect_period: float = 0.5, lock: threading.Lock | None = None,
                  clock: Callable[[], float] = time.monotonic,
                  logger: Callable[[str], None] | None = None) -> None:
         self.core = core
         self.port = port
         self.baud = int(baud)
-        self.on_sample = on_sample
+        self.notify = notify
         self.reconnect_period = float(reconnect_period)
         self.lock = lock or threading.RLock()
         self.clock = clock
@@ -74,12 +88,36 @@ class SerialLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._deferred = 0
+        self._polled = threading.Condition()
         self.open_error = ''
 
     # -- public ------------------------------------------------------------------------------
+    def open(self) -> str:
+        """Open the port now, in the caller's thread: '' on success, else the reason."""
+        return '' if self._open() else self.open_error
+
+    def wait_for(self, predicate: Callable[[BridgeCore], bool], timeout: float) -> bool:
+        """Wait (in the caller's thread) until ``predicate(core)`` holds after a read of the
+        reader thread, at most ``timeout`` s; the reader must be running."""
+        deadline = self.clock() + timeout
+        with self._polled:
+            while True:
+                with self.lock:
+                    if predicate(self.core):
+                        return True
+                remaining = deadline - self.clock()
+                if remaining <= 0 or self._thread is None:
+                    return False
+                self._polled.wait(min(remaining, 0.1))
+
     def start(self) -> None:
+        """Start the reader thread, at the scheduling of the calling thread (a thread
+        created after the process took its real-time priority would run at normal
+        priority: ``SCHED_RESET_ON_FORK`` resets it for new threads too)."""
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name='cartpole-hw-link', daemon=True)
+        scheduling = _scheduling()
+        self._thread = threading.Thread(target=self._run, args=(scheduling,),
+                                        name='cartpole-hw-link', daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -139,7 +177,9 @@ class SerialLink:
         with self.lock:
             port, self._serial = self._serial, None
             if port is not None:
-                self.core.on_disconnect(self.clock(), reason)
+                self.core.on_disconnect(self.clock(), reason, orderly=reason == 'shutdown')
+        if port is not None and reason != 'shutdown' and self.notify is not None:
+            self.notify([])
         if port is not None:
             try:
                 port.close()
@@ -155,7 +195,12 @@ class SerialLink:
         except (serial.SerialException, OSError, TypeError, AttributeError):
             return 0  # the next read reports the failure
 
-    def _run(self) -> None:
+    def _run(self, scheduling: tuple[int, int] | None = None) -> None:
+        if scheduling is not None:
+            try:
+                os.sched_setscheduler(0, scheduling[0], os.sched_param(scheduling[1]))
+            except OSError as exc:   # not permitted: the thread runs at normal priority
+                self.log(f'reader thread at normal priority: {exc}')
         next_attempt = 0.0
         while not self._stop.is_set():
             if self._serial is None:
@@ -174,7 +219,7 @@ class SerialLink:
             self._poll(self._serial)
 
     def _poll(self, port: serial.Serial) -> None:
-        """One read of the port: lines to the core, watchdogs, samples to ``on_sample``."""
+        """One read of the port: lines to the core, watchdogs, samples to ``notify``."""
         try:
             data = port.read(max(1, port.in_waiting))
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
@@ -183,6 +228,7 @@ class SerialLink:
         now = self.clock()
         samples: list[JointSample] = []
         with self.lock:
+            armed = self.core.armed
             for item in self._splitter.feed(data) if data else ():
                 out = self.core.on_line(item, now)
                 self.write(out.write)
@@ -197,6 +243,8 @@ class SerialLink:
             else:
                 self._deferred = 0
                 self.write(self.core.on_tick(tick_time))
-        if self.on_sample is not None:
-            for sample in samples:
-                self.on_sample(sample)
+            changed = self.core.armed != armed
+        if self.notify is not None and (samples or changed):
+            self.notify(samples)
+        with self._polled:
+            self._polled.notify_all()

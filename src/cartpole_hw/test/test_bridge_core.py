@@ -150,24 +150,34 @@ def test_absurd_sequence_jump_is_a_bad_sample_not_lost_samples():
     assert (h['lost_samples'], h['bad_samples'], h['sequence_resyncs']) == ('30', '3', '1')
 
 
-def test_an_arming_requested_ahead_waits_for_a_warm_loop():
-    """armed:=true at start: no E,1 while the loop still works off a backlog (stale
-    commands), only after 20 fresh commands in a row; an explicit arm is immediate."""
+def test_activate_waits_for_a_warm_loop():
+    """The lifecycle's activate: refused (with the count) while the loop still works off a
+    backlog (stale commands) or nobody answers, granted after 20 fresh commands in a row;
+    ``arm`` itself is immediate."""
     core = ready_core()
-    core.arm_requested = True
+    ok, reason, lines = core.activate(0.0)
+    assert not ok and not lines and '0 of 20' in reason and 'never' in reason
     t = 0.0
     for k in range(1, 60):
         t = k * 0.005
         core.on_line(sample(k), t)
         core.on_command(1.0, t + 0.001, latency=0.08 if k < 30 else 0.002)   # backlog, then live
-        lines = core.on_tick(t + 0.002)
-        if core.armed:
+        assert E_ON not in core.on_tick(t + 0.002)          # nothing arms by itself
+        ok, reason, lines = core.activate(t + 0.002)
+        if ok:
             break
-        assert E_ON not in lines
+        assert E_ON not in lines and not core.armed
     assert core.armed and k == 29 + core.config.warm_commands
     assert lines == [E_ON, U_ZERO]
+    # a warm run gone cold (no command for longer than command_timeout): refused again
+    cold = ready_core()
+    for k in range(1, 25):
+        cold.on_line(sample(k), k * 0.005)
+        cold.on_command(1.0, k * 0.005 + 0.001, latency=0.002)
+    ok, reason, _ = cold.activate(24 * 0.005 + 0.2)
+    assert not ok and '24 of 20' in reason and 'ms ago' in reason
     other = ready_core()
-    assert other.arm(0.0)[0]                                     # the ~/arm service: at once
+    assert other.arm(0.0)[0]                                     # arm itself: at once
 
 
 def test_stale_and_nonfinite_commands_are_not_fresh():
@@ -202,7 +212,7 @@ def test_every_fault_zeroes_force_and_disarms(event):
         lines = core.on_line(sample(0, flags=1), 0.004).write
         assert not core.homed and 're-home' in core.last_error
     assert lines[:2] == [U_ZERO, E_OFF]
-    assert not core.armed and not core.arm_requested and core.last_error
+    assert not core.armed and core.last_error
 
 
 def test_limit_switch_inhibits_force_towards_it_only():

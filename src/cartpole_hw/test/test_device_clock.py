@@ -134,15 +134,15 @@ def test_emulator_usb_jitter_does_not_reach_the_stamps(tmp_path):
     scenario = Scenario(drop=0.03, seed=4)
     got, enough = [], threading.Event()
 
-    def on_sample(sample):
-        got.append(sample)
+    def on_samples(samples):
+        got.extend(samples)
         if len(got) >= 500:
             enough.set()
 
     with Emulator(scenario, link=str(tmp_path / 'emu'),
                   faults=FaultConfig(usb_jitter=0.004), seed=2) as em:
         core = BridgeCore()
-        link = SerialLink(core, em.link, on_sample=on_sample)
+        link = SerialLink(core, em.link, notify=on_samples)
         link.start()
         try:
             assert enough.wait(30.0), f'only {len(got)} samples'

@@ -122,3 +122,27 @@ def test_a_late_writer_is_not_a_dead_port_but_a_full_one_is():
     finally:
         os.close(r)
         os.close(w)
+
+
+def test_the_reader_thread_takes_the_real_time_priority_of_the_thread_that_starts_it(tmp_path):
+    """Configured after the process took SCHED_FIFO (cartpole_sim.realtime), the reader
+    thread runs at it too (a new thread would otherwise start at normal priority)."""
+    import threading
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(5))
+    except OSError:
+        pytest.skip('SCHED_FIFO not permitted here')
+    tried = threading.Event()
+    try:
+        link = SerialLink(BridgeCore(), str(tmp_path / 'no-port'), reconnect_period=10.0,
+                          logger=lambda text: tried.set())
+        link.start()
+        assert tried.wait(5.0)          # it tried to open the port: its priority is set
+        tid = link._thread.native_id
+        policy = os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK
+        priority = os.sched_getparam(tid).sched_priority
+        link.stop()
+    finally:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    assert (policy, priority) == (os.SCHED_FIFO, 5)

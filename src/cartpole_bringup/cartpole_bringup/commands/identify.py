@@ -79,7 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pulse.add_argument('--record', type=Path, default=None, metavar='DIR',
                        help='record the test into this bag (in-process recorder)')
     pulse.add_argument('--arm', action='store_true',
-                       help='arm the hw bridge (/hw_bridge/arm) after the rehearsal')
+                       help='arm the hw bridge after the rehearsal (its lifecycle activate, '
+                            'after zero-force answers; deactivated at the end); the bridge '
+                            'must be configured (ros2 lifecycle set /hw_bridge configure)')
     pulse.add_argument('--namespace', default='', metavar='NS',
                        help='ROS namespace of the graph to play on (that of its cartpole run '
                             '--namespace); default: the root')

@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          '`cartpole emulate` pseudo-terminal')
     hw.add_argument('--hw-arm', action='store_true',
                     help='home the encoders at start (cart at the left stop, pendulum hanging '
-                         'still) and arm the bridge (enable the amplifier); never armed by default')
+                         'still) and arm the bridge (lifecycle activate: the amplifier enabled) '
+                         'once the controller answers; never armed by default')
     g = parser.add_argument_group('graph')
     g.add_argument('--lockstep', action='store_true',
                    help='simulator in lockstep: one Ts per force command, /clock, all nodes on '
@@ -119,10 +120,10 @@ def node_parameters(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
             sim['pushes'] = ' '.join(str(push) for push in args.push)
         out['sim'] = sim
     else:
-        out['hw_bridge'] = {'port': args.port, 'armed': bool(args.hw_arm)}
+        out['hw_bridge'] = {'port': args.port}
         if args.hw_arm:
-            # The bridge arms only with homed encoders: home them at start (the thesis's start:
-            # cart at the left stop, pendulum hanging still).
+            # The bridge arms (activate, GraphSpec.hw_arm) only with homed encoders: home
+            # them at its configure (the thesis's start: cart at the left stop, pendulum hanging still).
             out['hw_bridge']['home_on_start'] = True
     if args.plant_params is not None:
         # The nominal parameters of the plant model, the EKF and the controllers alike.
@@ -254,7 +255,8 @@ def main(args: argparse.Namespace) -> int:
                      params_file=_params_file(args, Path(scratch.name)),
                      lockstep=args.lockstep, processes=args.processes, record=bag,
                      custom_data=custom, log_level=args.log_level, executor=args.executor,
-                     allow_duplicates=args.allow_duplicates, namespace=args.namespace)
+                     allow_duplicates=args.allow_duplicates, namespace=args.namespace,
+                     hw_arm=bool(args.hw_arm))
 
     viewer = None
     if args.view is not None:

@@ -30,7 +30,9 @@ records the fault (``controller_manager died (SIGKILL)``) and stops
 first, through whoever is still alive: after a fault the monitor's own zero
 force command at once, then the controller manager's ``enabled:=false``
 (and the zero force it then publishes); on the rig also the bridge's
-``armed:=false`` (``U,0``, ``E,0``); on the simulator until a sample shows
+lifecycle ``deactivate`` (``U,0``, ``E,0``), and its ``cleanup`` (port closed) before it
+stops (:mod:`cartpole_bringup.graph.bridge_lifecycle`, which also configures and,
+with ``--hw-arm``, activates it at the start); on the simulator until a sample shows
 the zero force applied. Then the
 nodes stop one by one, the controller manager first (so that nothing it
 watches goes stale while it still runs: no ``stale state`` fault for an
@@ -61,6 +63,7 @@ from cartpole_sim.child_process import reap
 from cartpole_sim.domain_guard import DuplicateNodeError
 
 from ..analysis.analyze import STATE, TRUE_STATE
+from .bridge_lifecycle import BridgeLifecycle
 from .faults import CHECK_PERIOD, DUPLICATE_CHECK_PERIOD, FaultWatch
 from .parameters import NodeParameters
 from .processes import NODES, executable, ros_value_text
@@ -74,12 +77,13 @@ def _report(text: str) -> None:
     print(f'cartpole run: {text}', file=sys.stderr, flush=True)
 
 
-class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters):
+class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters, BridgeLifecycle):
     """A running node graph; use as a context manager (``close`` stops everything).
 
     Its concerns are rooms of their own: the start (:class:`GraphStartup`), the
     domain claim and faults (:class:`FaultWatch`), the stop sequence
-    (:class:`StopSequence`) and the nodes' parameters (:class:`NodeParameters`);
+    (:class:`StopSequence`), the nodes' parameters (:class:`NodeParameters`) and the
+    rig bridge's lifecycle (:class:`BridgeLifecycle`);
     this class holds the state they share, the spin and the close.
 
     Parameters
@@ -106,6 +110,7 @@ class Graph(GraphStartup, FaultWatch, StopSequence, NodeParameters):
         self.report = report
         self.nodes: dict[str, Node] = {}
         self._clients: dict = {}
+        self._bridge = None
         self.processes: dict[str, subprocess.Popen] = {}
         self.wall_start: float | None = None
         self.stopped = False

@@ -61,6 +61,9 @@ class GraphSpec:
         Start even when the graph's roles are taken in its namespace.
     namespace
         ROS namespace of every node (``/`` or ``/rig2``; :mod:`cartpole_bringup.namespaces`).
+    hw_arm
+        The rig: activate (arm) the bridge once the loop answers; else it stays
+        inactive (streaming, disarmed).
     """
 
     plant: str
@@ -74,6 +77,7 @@ class GraphSpec:
     executor: str = 'events'
     allow_duplicates: bool = False
     namespace: str = namespaces.ROOT
+    hw_arm: bool = False
 
     def __post_init__(self) -> None:
         self.namespace = namespaces.normalize(self.namespace)
@@ -81,6 +85,8 @@ class GraphSpec:
             raise ValueError(f"plant must be 'sim' or 'hw_bridge', got {self.plant!r}")
         if self.lockstep and self.plant != 'sim':
             raise ValueError('lockstep needs the simulator')
+        if self.hw_arm and self.plant != 'hw_bridge':
+            raise ValueError('hw_arm needs the rig (plant hw_bridge)')
 
     @property
     def nodes(self) -> list[str]:

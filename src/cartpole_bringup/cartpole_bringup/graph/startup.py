@@ -1,8 +1,11 @@
 """Starting a graph: its nodes in one process or one process a node, until the loop is wired.
 
 The plant starts last (with processes: once the EKF, the controller manager
-and the recorder subscribe), then the start waits for the first state and,
-in lockstep, for the loop to answer its first sample (:data:`LOOP_START_TIMEOUT`).
+and the recorder subscribe); the rig's bridge, a managed node, is then
+configured (and, with ``hw_arm``, activated once the loop answers:
+:mod:`cartpole_bringup.graph.bridge_lifecycle`). The start waits for the first
+state and, in lockstep, for the loop to answer its first sample
+(:data:`LOOP_START_TIMEOUT`).
 """
 from __future__ import annotations
 
@@ -59,10 +62,11 @@ class GraphStartup:
     # -- start -----------------------------------------------------------------------------------
     def start(self) -> None:
         """Start every node (plant last) and wait until the loop is wired."""
+        rig = self.spec.plant == 'hw_bridge'
+        if rig:
+            self._bridge_client()
         if self.spec.processes:
             self._client(SetParameters, 'controller_manager', 'set_parameters')
-            if self.spec.plant == 'hw_bridge':
-                self._client(SetParameters, 'hw_bridge', 'set_parameters')
             self._start_processes()
         else:
             self._start_in_process()
@@ -75,6 +79,10 @@ class GraphStartup:
                     log=self.monitor.get_logger().info, warn=self.monitor.get_logger().warning)
             except ValueError as error:
                 raise GraphError(str(error)) from None
+        if rig:   # a managed node: samples flow once it is configured
+            reason = self._configure_bridge()
+            if reason and not self.should_stop() and self.fault is None:
+                raise GraphError(f'{reason}; {self._process_report()}')
         self.wall_start = time.monotonic()
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
             # Ctrl-C, or a node died once the plant had started (under load the monitor's
@@ -86,6 +94,10 @@ class GraphStartup:
                              f'{self._process_report()}')
         if self.spec.lockstep:
             self._ensure_loop_started()
+        if rig and self.spec.hw_arm:   # arm once the loop answers (cartpole run --hw-arm)
+            reason = self._activate_bridge()
+            if reason and not self.should_stop() and self.fault is None:
+                raise GraphError(reason)
         self.wall_start = time.monotonic()
 
     def _ensure_loop_started(self) -> None:

@@ -3,8 +3,9 @@
 Zero force through whoever is still alive: after a fault the run monitor's
 own zero force command at once, then the controller manager's
 ``enabled:=false`` (and the zero force it then publishes); on the rig also the
-bridge's ``armed:=false`` (``U,0``, ``E,0``); on the simulator until a sample
-shows the zero force applied. Then the nodes stop one by one
+bridge's lifecycle ``deactivate`` (``U,0``, ``E,0``); on the simulator until a
+sample shows the zero force applied. Then the nodes stop one by one (the
+bridge after its ``cleanup``: streaming off, port closed)
 (:data:`STOP_ORDER`, :data:`IN_PROCESS_STOP_ORDER`), the recorder last, so
 that the bag holds the zero force and is closed. A process gets SIGINT and
 time to shut down (:data:`EXIT_TIMEOUT`, the recorder
@@ -36,7 +37,8 @@ class StopSequence:
     """The stop sequence of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
 
     Uses the graph's ``spec``, ``monitor``, ``nodes``, ``processes``,
-    ``executor``, ``fault``, ``set_parameters``, ``_alive`` and ``_spin_once``.
+    ``executor``, ``fault``, ``set_parameters``, ``_bridge_to``, ``_alive`` and
+    ``_spin_once``.
     """
 
     def stop(self) -> list[str]:
@@ -55,8 +57,11 @@ class StopSequence:
         if self.processes:
             for name in STOP_ORDER:
                 if name in self.processes:
+                    if name == 'hw_bridge':
+                        warnings += self._bridge_to('cleanup', 'inactive')
                     warnings += self._stop_process(name)
         else:
+            warnings += self._bridge_to('cleanup', 'inactive')
             self._destroy_in_order([n for n in IN_PROCESS_STOP_ORDER if n in self.nodes])
         return warnings
 
@@ -77,10 +82,8 @@ class StopSequence:
             for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
                 if not ok:
                     warnings.append(f'controller_manager enabled:=false refused: {reason}')
-        if self.spec.plant == 'hw_bridge' and plant_alive:
-            for ok, reason in self.set_parameters('hw_bridge', {'armed': False}, 6.0):
-                if not ok:
-                    warnings.append(f'hw_bridge armed:=false refused: {reason}')
+        if plant_alive:
+            warnings += self._bridge_to('deactivate', 'active')
         if not plant_alive:
             return warnings
         if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):

@@ -8,11 +8,16 @@ hw bridge's stale-command check applies). :func:`play_pulse_plan` runs it
 (with a recorder, optionally arming the hw bridge) for
 ``cartpole identify --pulse-plan``.
 
-When the plan ends, or on any error or Ctrl-C, the node publishes zero
-force once and stops publishing; the hw bridge's watchdog then disarms
-(zero current) 50 ms later.
+Arming the bridge is its lifecycle ``activate``
+(:class:`cartpole_hw.lifecycle_client.LifecycleClient`, as ``ros2 lifecycle set
+/hw_bridge activate``), which needs a warm loop (20 timely force commands):
+the node first answers every sample with zero force, then asks. When the
+plan ends, or on any error or Ctrl-C, the node publishes zero force once and
+stops publishing, and a bridge it activated is deactivated (``U,0``, ``E,0``,
+still streaming); should that fail, the bridge's watchdog disarms it 50 ms
+later.
 
-Its names are relative (``joint_states``, ``hw_bridge/arm``): in a namespace
+Its names are relative (``joint_states``, ``hw_bridge/change_state``): in a namespace
 (``cartpole identify --namespace rig2``) it plays on that graph.
 """
 from __future__ import annotations
@@ -33,6 +38,11 @@ from .pulse_player import PulsePlayer
 
 CART = 'cart'
 PENDULUM = 'pendulum'
+WARM_ANSWERS = 30
+"""Zero-force answers before the bridge is asked to activate (its rule: 20 timely ones)."""
+ACTIVATE_ATTEMPTS = 10
+BRIDGE_TIMEOUT = 5.0
+"""Wall seconds for the bridge's lifecycle services to answer."""
 
 
 class PulsePlayerNode(Node):
@@ -43,6 +53,9 @@ class PulsePlayerNode(Node):
         self.player = player
         self.playing = False
         """Set to start answering samples (before, samples are only watched)."""
+        self.warming = False
+        """Set to answer samples with zero force before :attr:`playing` (the bridge's
+        warm-loop rule for its activation)."""
         self.first_sample: tuple[float, float, float] | None = None
         """(t, x, theta) of the first sample seen."""
         self.answered = 0
@@ -59,6 +72,9 @@ class PulsePlayerNode(Node):
         if self.first_sample is None:
             self.first_sample = (t, x, theta)
         if not self.playing:
+            if self.warming:
+                self.publish_force(0.0, msg.header.stamp)
+                self.answered += 1
             return
         force = self.player.update(t, x) if math.isfinite(x) else 0.0
         self.publish_force(force, msg.header.stamp)
@@ -82,7 +98,8 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
 
     Steps: wait up to ``sample_wait`` s for the first sample; ``check(x,
     theta)`` (e.g. a rehearsal on the model from that state) may refuse with
-    reasons; arm the bridge (``/hw_bridge/arm``) if asked; answer samples
+    reasons; arm the bridge (its lifecycle ``activate``, after
+    :data:`WARM_ANSWERS` zero-force answers) if asked; answer samples
     until the plan is done or ``timeout`` wall seconds passed. ``record``
     adds a :class:`~cartpole_bringup.graph.recorder.RecorderNode` writing that bag.
     ``extra_nodes`` (e.g. a simulator) are spun in the same executor.
@@ -95,6 +112,7 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
     node = PulsePlayerNode(player, context=context)
     nodes.append(node)
     recorder = None
+    bridge = None
     try:
         if record is not None:
             from ..graph.recorder import RecorderNode
@@ -117,16 +135,8 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
                 raise RuntimeError('refused, the rehearsal on the model says: '
                                    + '; '.join(problems))
         if arm:
-            from std_srvs.srv import SetBool
-            client = node.create_client(SetBool, 'hw_bridge/arm')
-            if not spin_until(client.service_is_ready, 2.0):
-                raise RuntimeError(f'{client.service_name} is not available: is the hw bridge '
-                                   'running?')
-            future = client.call_async(SetBool.Request(data=True))
-            if not spin_until(future.done, 2.0) or not future.result().success:
-                reason = future.result().message if future.done() else 'no answer'
-                raise RuntimeError(f'the hw bridge refused to arm: {reason}')
-            log('hw bridge armed')
+            bridge = _activate_bridge(node, spin_until)
+            log('hw bridge armed (lifecycle state active)')
         node.playing = True
         log(f'playing {len(player.pulses)} pulse(s) from x = {x0:.3f} m')
         if not spin_until(lambda: player.done, timeout):
@@ -136,9 +146,13 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
                 'bag': str(recorder.bag_path) if recorder is not None else None,
                 'x0': x0, 'theta0': theta0}
     finally:
-        node.playing = False
+        node.playing = node.warming = False
         try:
             node.publish_force(0.0)
+            if bridge is not None:
+                ok, reason = bridge.change('deactivate', BRIDGE_TIMEOUT)
+                log('hw bridge disarmed (inactive)' if ok else
+                    f'hw bridge not deactivated ({reason}); its watchdog disarms it')
         except Exception:  # the context may already be shut down (Ctrl-C)
             pass
         for n in (*nodes, *extra_nodes):
@@ -146,6 +160,28 @@ def play_pulse_plan(player: PulsePlayer, *, context=None, record: Path | None = 
         for n in reversed(nodes):
             n.destroy_node()
         executor.shutdown()
+
+
+def _activate_bridge(node: PulsePlayerNode, spin_until: Callable[[Callable[[], bool], float], bool]):
+    """Answer samples with zero force, then activate the bridge (retrying while it says
+    the loop is not warm yet); its lifecycle client, or RuntimeError with the reason."""
+    from cartpole_hw.lifecycle_client import LifecycleClient
+
+    bridge = LifecycleClient(node, 'hw_bridge', spin_until)   # in the node's namespace
+    state = bridge.state(BRIDGE_TIMEOUT)
+    if state != 'inactive':
+        raise RuntimeError(f'the hw bridge is {state or "not answering"}, not inactive: '
+                           f'configure it first (ros2 lifecycle set /hw_bridge configure)')
+    node.warming = True
+    start = node.answered
+    spin_until(lambda: node.answered >= start + WARM_ANSWERS, BRIDGE_TIMEOUT)
+    reason = ''
+    for _ in range(ACTIVATE_ATTEMPTS):
+        ok, reason = bridge.change('activate', BRIDGE_TIMEOUT)
+        if ok:
+            return bridge
+        spin_until(lambda: False, 0.2)
+    raise RuntimeError(f'the hw bridge refused to arm: {reason}')
 
 
 def run_pulse_plan(player: PulsePlayer, *, ros_arguments: Sequence[str] = (),

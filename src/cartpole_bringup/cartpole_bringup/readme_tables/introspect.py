@@ -2,8 +2,9 @@
 
 Each node is built in-process in its own rclpy context (never spun: nothing is
 published or opened beyond what its constructor does) and destroyed after.
-The hardware bridge gets a port that does not exist (its link thread only
-retries it); the recorder an output directory inside a temporary directory.
+The hardware bridge gets a port that does not exist (a managed node, it stays
+unconfigured and opens nothing); the recorder an output directory inside a
+temporary directory.
 """
 from __future__ import annotations
 
@@ -21,8 +22,10 @@ INTERNAL_TOPICS = frozenset({'/rosout', '/parameter_events'})
 
 INTERNAL_SERVICE_SUFFIXES = ('/describe_parameters', '/get_parameter_types', '/get_parameters',
                              '/get_type_description', '/list_parameters', '/set_parameters',
-                             '/set_parameters_atomically')
-"""rclpy's own parameter and type-description services of every node."""
+                             '/set_parameters_atomically', '/get_available_states',
+                             '/get_available_transitions', '/get_transition_graph')
+"""rclpy's own parameter and type-description services of every node, and the descriptive
+lifecycle services of a managed node (its ``change_state`` and ``get_state`` are documented)."""
 
 
 @dataclass(frozen=True)

@@ -126,8 +126,9 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'carried it, mapped to the host clock like the samples\' (protocol version 2); '
         '`source` = `hw_bridge`',
     ('hw_bridge', '/cartpole/hw/health'):
-        'one status `hw_bridge` every `health_period`, levels as on `/diagnostics` (OK armed or '
-        'disarmed, ERROR disconnected or disarmed by a fault); every key: '
+        'one status `hw_bridge` every `health_period`, levels as on `/diagnostics` (OK armed, '
+        'disarmed or unconfigured, ERROR disconnected, disarmed or unconfigured by a fault); '
+        'every key: '
         '[docs/rig.md](docs/rig.md#cartpolehwhealth)',
     ('hw_bridge', '/diagnostics'):
         'status `hw_bridge: serial link` once a second (see "Diagnostics and logs")',
@@ -135,8 +136,14 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'after a homing: stamp = the first sample counted from the new zero',
     ('hw_bridge', '/cartpole/force_command'):
         'effort of `cart` [N]; forwarded as `U` setpoints only while armed',
-    ('hw_bridge', '/hw_bridge/arm'): 'arm (true) or disarm (false) at once; refused with the reason',
-    ('hw_bridge', '/hw_bridge/home'): 'send `R` (zero both encoders); refused while armed',
+    ('hw_bridge', '/hw_bridge/home'):
+        'send `R` (zero both encoders); refused unless configured and disarmed (inactive)',
+    ('hw_bridge', '/hw_bridge/change_state'):
+        'the lifecycle, as `ros2 lifecycle set /hw_bridge configure|activate|deactivate|cleanup`: '
+        'opens the port and streams disarmed, arms, zeroes and disarms, closes (docs/rig.md); '
+        '`success` false when refused (the reason is logged); events on `~/transition_event`',
+    ('hw_bridge', '/hw_bridge/get_state'): 'the lifecycle state (`ros2 lifecycle get /hw_bridge`); '
+                                           'active = armed',
     ('viewer', '*'): 'drawn in the live view (decimated to at most `max_rate`); with `feed` set '
                      'the samples come from `viewer_tap` instead and only the parameter events '
                      'are subscribed',
