@@ -366,13 +366,9 @@ class _RecoveryNLP:
         from .rail_guard import RailGuard
         p = problem.params
         guard = RailGuard(p, margin=problem.rail_margin, limit_reserve=GUARD_RESERVE)
-        mass = p.m_c + p.m_p
         x, v, w = X[0, 1:], X[2, 1:], X[3, 1:]
-        pull = p.m_p * (p.l * w * w + p.g)
-        friction = 0.5 * min(p.c_c_right, p.c_c_left)
-        floor = 0.05 * mass
-        a_left = ca.fmax(guard.brake_force(-1.0) + friction - pull, floor) / mass
-        a_right = ca.fmax(guard.brake_force(1.0) + friction - pull, floor) / mass
+        a_left = guard.deceleration(-1.0, w, ca.fmax)
+        a_right = guard.deceleration(1.0, w, ca.fmax)
         ahead = x + v * guard.dead_time
         left = ahead - ca.fmin(v, 0.0) ** 2 / (2.0 * a_left)
         right = ahead + ca.fmax(v, 0.0) ** 2 / (2.0 * a_right)

@@ -175,12 +175,16 @@ class RailGuard:
         actuator = -p.force_min if direction > 0.0 else p.force_max
         return min(self.max_brake_force, actuator)
 
-    def deceleration(self, direction: float, theta_dot: float) -> float:
-        """a_b, a conservative braking deceleration [m/s^2] (module docstring)."""
+    def deceleration(self, direction: float, theta_dot, fmax=max):
+        """a_b, a conservative braking deceleration [m/s^2] (module docstring).
+
+        ``fmax`` is the maximum of two numbers: ``max`` for floats, ``casadi.fmax``
+        for a symbolic ``theta_dot`` (the push bound's envelope,
+        :mod:`cartpole_control.push_recovery`)."""
         p = self.params
         pendulum_pull = p.m_p * (p.l * theta_dot * theta_dot + p.g)
         brake = self._brake_pos if direction > 0.0 else self._brake_neg  # brake_force(direction)
-        return max(brake + self._friction - pendulum_pull, self._min_deceleration) / self._mass
+        return fmax(brake + self._friction - pendulum_pull, self._min_deceleration) / self._mass
 
     def stopping_position(self, x: float, x_dot: float, theta_dot: float,
                           force: float) -> float:
