@@ -45,17 +45,12 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_c
     development machine stall the graph more often), and its bag reads back. The run drives
     the bridge's lifecycle through its services, as ros2cli sees it: active during the run
     (get_state), deactivate and cleanup at the stop (/hw_bridge/transition_event)."""
-    _run_against_the_emulator(tmp_path / 'run', firmware, ros_context, spin_until)
-
-
-def _run_against_the_emulator(tmp_path, firmware, ros_context, spin_until):
     from lifecycle_msgs.msg import TransitionEvent
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
     from cartpole_hw.lifecycle_client import LifecycleClient
 
-    tmp_path.mkdir()
     record, duration = [], '17'
     if firmware == 'qemu':
         firmware_or_skip()
