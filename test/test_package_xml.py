@@ -63,13 +63,6 @@ IMPLIED = {
 """Imports that use another package's interfaces at run time (rclpy's lifecycle node
 serves and calls lifecycle_msgs services)."""
 
-DECLARED_WITHOUT_IMPORT = {
-    ('cartpole_hw', 'lifecycle_msgs'): 'hw_bridge is a lifecycle node',
-    ('cartpole_bringup', 'lifecycle_msgs'): 'cartpole run drives the bridge through its '
-                                            'lifecycle services',
-}
-"""(package, key) declared before the code that imports it lands; the reason."""
-
 _MESSAGE_TYPE = re.compile(r'^([a-z][a-z0-9_]*)/(?:msg|srv|action)/[A-Z]\w*$')
 _PIP_COMMENT = re.compile(r'no rosdep key.*?:(.*?)-->', re.S)
 
@@ -193,9 +186,8 @@ def problems(package: Path, ament: set[str], workspace: dict[str, dict[str, set[
         more = f' and {len(files) - 2} more' if len(files) > 2 else ''
         found.append(f'{name}/package.xml lacks {want}: used by {", ".join(files[:2])}{more}')
     for key in sorted(have['run'] - used['run']):
-        if (name, key) not in DECLARED_WITHOUT_IMPORT:
-            found.append(f'{name}/package.xml: <exec_depend>{key}</exec_depend> but no module '
-                         'of the package outside test/ uses it')
+        found.append(f'{name}/package.xml: <exec_depend>{key}</exec_depend> but no module '
+                     'of the package outside test/ uses it')
     for key in sorted(have['test'] - used['test']):
         found.append(f'{name}/package.xml: <test_depend>{key}</test_depend> but no test uses it')
     for key in sorted(have['pip'] - used['run'] - used['test']):
