@@ -137,15 +137,14 @@ SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m'
                 'mse_theta', 'end_stop_contact', 'success', 'fault', 'controllers')
 
 
-@pytest.mark.xfail(strict=False, reason='issue 20 open: since the loop\'s latency and actuator '
-                   'reports (/cartpole/command_applied) feed the controller manager, two such runs '
-                   'differ in the third digit about one pair in three (suspected: those reports '
-                   'come on a topic of their own, unordered with the samples across processes)')
 def test_processes_lockstep_is_deterministic():
     """Two identical runs, one process a node: the same summary to the last bit.
 
     (Before the EKF waited for the previous command in lockstep, a sample that
-    overtook that command made two such runs differ: 0.29 vs 0.46 deg.)
+    overtook that command made two such runs differ: 0.29 vs 0.46 deg. Before the
+    controller manager waited for the state's own sample, a state handed over before
+    the previous sample made the pendulum's natural-frequency estimate differ about one
+    pair in three: omega0^2 29.33399 vs 29.33439 1/s^2.)
     """
     summaries = []
     for _ in range(2):

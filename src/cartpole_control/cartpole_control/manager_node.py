@@ -10,7 +10,11 @@ Wiring only; every decision is the manager's.
   (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``).
   A state with the stamp of the previous one (the lockstep simulator re-publishes
   its first sample until it is answered) is answered with the same command
-  again, not with a second control cycle;
+  again, not with a second control cycle. With ``lockstep:=true`` (``cartpole
+  run --lockstep`` sets it) a state's cycle waits until the encoders' sample it
+  was estimated from has arrived on ``joint_states`` (at most ``lockstep_wait``
+  wall seconds, then it runs and ``lockstep_timeouts`` counts it), so the cycle
+  takes the same reports and samples whatever the delivery order;
 - parameters: every entry of :meth:`ControllerManager.parameter_specs` (the
   manager's and every plugin's as ``<plugin>.<param>``) with a descriptor;
   validated in the on-set callback (a refused value keeps the old one and says
@@ -64,6 +68,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -177,6 +182,15 @@ class ControllerManagerNode(Node):
         self.declare_parameter('plant_params_file', '', ParameterDescriptor(
             description="YAML of the controllers' plant model (CartPoleParameters); '' = the "
                         'thesis values', read_only=True))
+        self.declare_parameter('lockstep', False, ParameterDescriptor(
+            description='Lockstep simulation: run the control cycle of a state only once the '
+                        "encoders' sample it was estimated from has arrived on joint_states, so "
+                        "the plant's reports and samples before it are taken first "
+                        '(deterministic whatever the delivery order).', read_only=True))
+        self.declare_parameter('lockstep_wait', 0.5, ParameterDescriptor(
+            description='Lockstep: longest wait for that sample [wall s]; then the cycle runs '
+                        'without it.', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0, step=0.0)]))
         self.declare_parameter('sample_time', 0.005, ParameterDescriptor(
             description='Control period Ts [s] the plugins are designed for', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=1e-4, to_value=0.1, step=0.0)]))
@@ -200,17 +214,30 @@ class ControllerManagerNode(Node):
                                                 PUBLISH_DEPTH)
         self._pub_status = self.create_publisher(DiagnosticArray, 'cartpole/controller_status',
                                                  PUBLISH_DEPTH)
-        # Created before the state subscription: when both are ready at once, the
-        # executor hands over the reset first.
+        # Created before the state subscription: when several are ready at once, the
+        # executor hands over the reset, then what the plant reported (when each command
+        # took effect: the loop's latency; the encoders' samples: the pendulum's natural
+        # frequency and the actuator), then the state.
         self.create_subscription(Header, 'cartpole/plant_reset', self._on_plant_reset,
                                  PLANT_RESET_QOS)
-        self.create_subscription(JointState, 'cartpole/state', self._on_state, 10)
-        # What the plant reports: when each command took effect (the loop's latency), and
-        # the encoders' samples (the pendulum's natural frequency).
         self.create_subscription(TimeReference, 'cartpole/command_applied',
                                  self._on_command_applied, PUBLISH_DEPTH)
         self.create_subscription(JointState, 'joint_states', self._on_joint_states,
                                  PUBLISH_DEPTH)
+        self.create_subscription(JointState, 'cartpole/state', self._on_state, 10)
+        self._lockstep = bool(self.get_parameter('lockstep').value)
+        self._newest_sample_ns: int | None = None
+        """Stamp of the newest encoders' sample received on joint_states [ns]."""
+        self._held_state: JointState | None = None
+        """Lockstep: a state whose sample has not arrived yet (see _on_state)."""
+        self.lockstep_timeouts = 0
+        """Lockstep: states run without their sample after lockstep_wait."""
+        self._hold_timer = None
+        if self._lockstep:
+            self._hold_timer = self.create_timer(
+                float(self.get_parameter('lockstep_wait').value), self._on_hold_timeout,
+                clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._hold_timer.cancel()
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
         self._reset_from: float | None = None
         """Stamp [s] of a plant reset not yet handed over (see _on_plant_reset)."""
@@ -230,7 +257,8 @@ class ControllerManagerNode(Node):
         """State messages without the cart/pendulum positions and velocities (ignored)."""
         self.create_timer(STALE_CHECK_PERIOD, self._check_stale)
         self.diagnostics = NodeDiagnostics(self, 'control', 'cartpole', self.health,
-                                           inputs=('states',), degraded=('bad_states',))
+                                           inputs=('states',),
+                                           degraded=('bad_states', 'lockstep_timeouts'))
         values = self.manager.get_parameters()
         self.get_logger().info(
             f"controller_manager: swing-up {values['swingup']}, stabiliser "
@@ -260,6 +288,45 @@ class ControllerManagerNode(Node):
 
     # -- the control cycle (latency path) ------------------------------------------------------
     def _on_state(self, msg: JointState) -> None:
+        """One control cycle; in lockstep, once the state's own sample has arrived.
+
+        The EKF estimates the state at t from the sample stamped t, published
+        by the plant after its reports and samples before t; so once that sample
+        is here, everything the cycle at t takes (:meth:`ControllerManager._take_reports`)
+        has been handed over (the subscriptions are created in that order), and
+        two lockstep runs are the same run however the processes are scheduled.
+        In real time the cycle runs at once: the latency path does not wait.
+        """
+        if self._lockstep:
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if self._newest_sample_ns is None or self._newest_sample_ns < stamp_ns:
+                if self._held_state is not None:  # a newer state: the old one runs now
+                    self._release_held_state()
+                self._held_state = msg
+                self._hold_timer.reset()
+                self._last_state_ns = self.get_clock().now().nanoseconds  # the EKF is not silent
+                self._silent_ns = 0
+                return
+        self._control_cycle(msg)
+
+    def _release_held_state(self) -> None:
+        msg, self._held_state = self._held_state, None
+        self._hold_timer.cancel()
+        self._control_cycle(msg)
+
+    def _on_hold_timeout(self) -> None:
+        if self._held_state is None:
+            self._hold_timer.cancel()
+            return
+        self.lockstep_timeouts += 1
+        self.get_logger().warning(
+            f'lockstep: the sample of the state at t = '
+            f'{_stamp_seconds(self._held_state.header.stamp):.3f} s did not arrive on '
+            f'joint_states within lockstep_wait; the cycle runs without it',
+            throttle_duration_sec=5.0)
+        self._release_held_state()
+
+    def _control_cycle(self, msg: JointState) -> None:
         last = self._last_stamp
         if last is not None and self._last_command is not None and \
                 msg.header.stamp.sec == last.sec and msg.header.stamp.nanosec == last.nanosec:
@@ -305,6 +372,18 @@ class ControllerManagerNode(Node):
         self.manager.command_applied(_stamp_seconds(msg.time_ref), _stamp_seconds(msg.header.stamp))
 
     def _on_joint_states(self, msg: JointState) -> None:
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self._newest_sample_ns is None or stamp_ns > self._newest_sample_ns:
+            self._newest_sample_ns = stamp_ns
+        try:
+            self._measured(msg)
+        finally:
+            held = self._held_state
+            if held is not None and self._newest_sample_ns >= \
+                    held.header.stamp.sec * 1_000_000_000 + held.header.stamp.nanosec:
+                self._release_held_state()
+
+    def _measured(self, msg: JointState) -> None:
         try:
             c = msg.name.index(CART_JOINT)
             p = msg.name.index(PENDULUM_JOINT)
@@ -361,6 +440,7 @@ class ControllerManagerNode(Node):
             **{kind: plugin.name for kind, plugin in sorted(plugins.items())},
             'catch_count': m.catch_count, 'fall_count': m.fall_count,
             'states': self.cycle_gaps.cycles, 'bad_states': self.bad_states,
+            'lockstep_timeouts': self.lockstep_timeouts,
             'state_stamp': 0.0 if self._last_stamp is None else _stamp_seconds(self._last_stamp),
             'longest_cycle_gap_s': self.cycle_gaps.longest,
             'cycle_compute_s': self.cycle_compute, 'max_cycle_compute_s': self.max_cycle_compute,

@@ -51,3 +51,53 @@ def test_the_same_stamp_twice_gets_the_same_command_once_computed(ros_context, s
     first = [c.effort[0] for c in commands[:3]]
     assert first[0] != 0.0 and first == [first[0]] * 3  # one cycle, answered three times
     assert [c.header.stamp.nanosec for c in commands] == [0, 0, 0, 5_000_000]
+
+
+def _sample(t):
+    from sensor_msgs.msg import JointState
+    msg = JointState(name=['cart', 'pendulum'], position=[0.0, math.pi])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t * 1e9)), 10**9)
+    return msg
+
+
+def test_in_lockstep_a_state_waits_for_its_own_sample(ros_context, spin_until):
+    """``lockstep:=true``: the cycle of the state at t runs once the encoders' sample at t
+    has arrived on joint_states (so the samples and reports before it are taken first,
+    whatever the delivery order); a sample that never comes holds it ``lockstep_wait``."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+
+    from cartpole_control.manager_node import ControllerManagerNode
+
+    manager = ControllerManagerNode(context=ros_context, parameter_overrides=[
+        Parameter('lockstep', value=True), Parameter('lockstep_wait', value=0.5),
+        Parameter('state_timeout', value=1.0)])  # on the wall clock here: longer than the wait
+    node = Node('hold_test', context=ros_context)
+    commands = []
+    node.create_subscription(JointState, '/cartpole/force_command', commands.append, 100)
+    states = node.create_publisher(JointState, '/cartpole/state', 10)
+    samples = node.create_publisher(JointState, '/joint_states', 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for n in (manager, node):
+        executor.add_node(n)
+    try:
+        assert spin_until(executor, lambda: states.get_subscription_count() == 1
+                          and samples.get_subscription_count() == 1
+                          and node.count_publishers('/cartpole/force_command') == 1, 10.0)
+        states.publish(_state(0.0))
+        assert spin_until(executor, lambda: manager._held_state is not None, 5.0)
+        assert commands == [] and manager.manager.catch_count == 0
+        samples.publish(_sample(0.0))
+        assert spin_until(executor, lambda: len(commands) == 1, 5.0)
+        assert manager._held_state is None and manager.lockstep_timeouts == 0
+        # The sample of 5 ms never comes: the state runs after lockstep_wait, counted.
+        states.publish(_state(0.005))
+        assert spin_until(executor, lambda: len(commands) == 2, 5.0)
+        assert manager.lockstep_timeouts == 1
+    finally:
+        executor.shutdown()
+        manager.destroy_node()
+        node.destroy_node()
+    assert [c.header.stamp.nanosec for c in commands] == [0, 5_000_000]

@@ -108,7 +108,7 @@ class GraphSpec:
         out = dict(self.parameters.get(name, {}))
         if name == 'sim':
             out['lockstep'] = self.lockstep
-        if name == 'ekf' and self.lockstep:
+        if name in ('ekf', 'controller_manager') and self.lockstep:
             out['lockstep'] = True
         if self.lockstep and name == 'sim':
             # The recorder, or without one the run monitor, paces the loop (complete series).
