@@ -148,12 +148,14 @@ def test_processes_lockstep_is_deterministic():
     """
     summaries = []
     for _ in range(2):
-        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '16',
+        # 8 s: the swing-up, the catch at 2.8 s and 5 s of balancing, every estimator at
+        # work; too short for the verdict (a 10 s window), which is not the point here.
+        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '8',
                               '--json'], timeout=150)
-        assert code == 0, err
+        assert code in (0, 1), err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})
-    assert summaries[0]['catch_time_s'] is not None
+    assert summaries[0]['catch_time_s'] is not None and summaries[0]['fault'] is None
     assert summaries[0] == summaries[1]
 
 

@@ -28,6 +28,9 @@ from .server import SUBPROTOCOL
 MESSAGE_DATA = 0x01
 """Opcode of a server's binary message-data frame."""
 _HEADER = struct.Struct('<BIQ')
+ADVERTISE_QUIET = 0.5
+"""[s] Subscribing to every channel: the advertisements are complete when no new channel
+came for this long."""
 
 
 @dataclass(frozen=True)
@@ -74,13 +77,20 @@ class ViewerClient:
         self.channels: dict[str, dict] = {}
         """Topic -> the channel as advertised (id, encoding, schemaName, schema, ...)."""
         wanted = None if topics is None else set(topics)
+        last_new = time.monotonic()
+        """When the last new channel was advertised: with ``topics`` None, ADVERTISE_QUIET
+        after it the advertisements are taken as complete (other frames, such as the
+        server's time, may keep coming)."""
         while True:
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            remaining = deadline - now
             if wanted is not None and wanted <= set(self.channels):
+                break
+            if wanted is None and self.channels and now - last_new >= ADVERTISE_QUIET:
                 break
             try:
                 frame = self._ws.recv(timeout=max(remaining, 0.0) if wanted is not None
-                                      else min(max(remaining, 0.0), 0.5))
+                                      else min(max(remaining, 0.0), ADVERTISE_QUIET))
             except TimeoutError:
                 if wanted is None and self.channels:
                     break
@@ -88,7 +98,10 @@ class ViewerClient:
                 raise ValueError(f'channels not advertised within {timeout:g} s: '
                                  f'{sorted((wanted or set()) - set(self.channels))}') from None
             if isinstance(frame, str):
+                known = len(self.channels)
                 self._on_text(json.loads(frame))
+                if len(self.channels) > known:
+                    last_new = time.monotonic()
         chosen = sorted(self.channels) if wanted is None else sorted(wanted)
         self._topic_of = {i + 1: topic for i, topic in enumerate(chosen)}
         self._ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
