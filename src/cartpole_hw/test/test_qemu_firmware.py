@@ -157,7 +157,7 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
     line is in flight at nearly every deadline. QEMU's clock is the host's, which runs on
     while the host runs something else: a line the loop took before a deadline may
     complete, by micros(), after it. The firmware used to stamp it so: the deadline's S
-    line then reported the command as written after the sample (one sample in six here),
+    line then reported the command as written after the sample (one sample in five here),
     and its watchdog took the U as 2^32 us old (device fault 16 while U lines arrived
     every 5 ms; the real-time graph run failed so). Every report now says the command in
     force was written before its sample. (Whether the watchdog trips here depends on how
@@ -167,7 +167,7 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
     port.write(jp.encode(jp.Stream(True)) + jp.encode(jp.Enable(True)))
     samples, pending = [], b''
     deadline = time.monotonic() + 30.0
-    while len(samples) < 400 and time.monotonic() < deadline:
+    while len(samples) < 200 and time.monotonic() < deadline:
         if not pending:   # tagged with the last sample's seq; the pty takes what it can
             pending = b''.join(jp.encode(jp.Setpoint(0, samples[-1].seq if samples else 0))
                                for _ in range(20))
@@ -178,9 +178,10 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
                 samples.append(message)
     port.close()
     reports = [s for s in samples if s.age_us is not None]
-    assert len(samples) >= 400 and len(reports) >= 390, (len(samples), len(reports))
+    assert len(samples) >= 200 and len(reports) >= 190, (len(samples), len(reports))
     after = [s for s in reports if s.age_us >= 2 ** 31]   # age_us = t_us - written, mod 2^32
     assert after == [], (len(after), after[:3])
+
 
 HOST = r'''
 import sys, serial
