@@ -30,13 +30,7 @@ def firmware_or_skip() -> None:
         pytest.skip(missing_message(missing))
 
 
-@pytest.mark.parametrize('firmware', [
-    'python',
-    pytest.param('qemu', marks=pytest.mark.xfail(
-        strict=False, reason='issue 22 open: real-time runs against the QEMU firmware end in the '
-        'firmware\'s own watchdog trip (device fault 16) while the bridge\'s commands leave every '
-        '5 ms: about 1 run in 4 alone on a quiet 2-core host, 3 of 3 inside the full suite '
-        '(docs/rig.md, "Firmware in QEMU")'))])
+@pytest.mark.parametrize('firmware', ['python', 'qemu'])
 def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_context,
                                                         spin_until):
     """python: the firmware's Python mirror; qemu: the firmware compiled for the Cortex-M3 in

@@ -25,6 +25,11 @@
 #include "joint_protocol.h"
 
 // What the board does for the core. ctx is passed back to every hook.
+// Times follow the loop's order: the now_us of a sample (bridge_sample, bridge_tick) is never
+// earlier than micros() was for a line handled before it. The watchdog and the latency report
+// take now_us minus that stamp on the wrapping clock, so a stamp newer than the sample reads
+// as 2^32 us old: the watchdog trips. The Due reads micros() for each; a board that samples at
+// its deadline's time (QEMU's) stamps what it does meanwhile accordingly.
 struct BridgeBoard {
   void *ctx;
   uint32_t (*micros)(void *ctx);                 // device time [us], wrapping uint32

@@ -171,8 +171,28 @@ uint32_t micros_now() {   // from the main loop only (it runs at least every 5 m
 
 bool sample_due_now() { return (int32_t)(micros_now() - core.next_sample_us) >= 0; }
 
+// The device time of what the loop does now, in the loop's order (bridge_core.h). QEMU runs
+// the emulated CPU on the host's clock, which runs on while the host runs QEMU's other
+// threads or other processes: a host line the loop took before a deadline can complete, by
+// micros(), after it (the graph's runs saw 10-20 such U lines in 15 s, by up to 0.4 ms).
+// Stamped so, it would be newer than the deadline taken next: that deadline's watchdog would
+// take it as 2^32 us old (device fault 16 with U lines arriving every 5 ms) and its S line
+// would report the command as written after the sample. So everything done at a deadline is
+// stamped with the deadline's time, and anything else with micros(), but before the first
+// deadline the loop has not taken yet.
+bool sampling;            // the clock runs: the deadlines are on
+bool at_deadline;         // sample() runs: its events are at deadline_us
+uint32_t deadline_us;
+
+uint32_t event_us() {
+  if (at_deadline) return deadline_us;
+  uint32_t now = micros_now();
+  if (sampling && (int32_t)(now - core.next_sample_us) >= 0) return core.next_sample_us - 1;
+  return now;
+}
+
 // ---- the board hooks of the core ------------------------------------------------------
-uint32_t board_micros(void *) { return micros_now(); }
+uint32_t board_micros(void *) { return event_us(); }
 size_t board_tx_room(void *) { return host_tx.room(); }
 
 void board_tx(void *, const char *buf, size_t n) {
@@ -186,11 +206,11 @@ void board_write_output(void *, int dac, bool enable, char cause) {
   if (cause == 0 && dac == last_dac && (int)enable == last_enable) return;
   last_dac = dac;
   last_enable = enable;
-  plant_printf("O,%lu,%d,%d,%c\n", (unsigned long)micros_now(), dac, enable ? 1 : 0,
+  plant_printf("O,%lu,%d,%d,%c\n", (unsigned long)event_us(), dac, enable ? 1 : 0,
                cause ? cause : 'A');
 }
 
-void board_reset_counters(void *) { plant_printf("R,%lu\n", (unsigned long)micros_now()); }
+void board_reset_counters(void *) { plant_printf("R,%lu\n", (unsigned long)event_us()); }
 
 const BridgeBoard board = {0, board_micros, board_tx_room, board_tx, board_write_output,
                            board_reset_counters};
@@ -302,8 +322,11 @@ void sample(uint32_t t_us) {
   ++pending_count;
   if (pending_count > stats.pending_max) stats.pending_max = pending_count;
   p.t_us = t_us;
+  at_deadline = true;
+  deadline_us = t_us;
   bridge_tick(&core, &board, t_us, limit_left, limit_right, &p.at);
   bridge_apply_output(&core, &board, 0);
+  at_deadline = false;
   plant_printf("T,%lu\n", (unsigned long)t_us);
   uint32_t work = clocks_since(start);
   if (work > stats.tick_max) stats.tick_max = work;
@@ -369,6 +392,7 @@ int main() {
   kTimer0->value = kTickClocks - 1;
   kTimer0->ctrl = 1 | 8;    // enabled, interrupt
   core.next_sample_us = JP_SAMPLE_US;   // samples at t_us = k x 5000
+  sampling = true;
   // QEMU is a process on a shared host: it may not run the CPU for tens of ms (the Due's
   // loop never lags so). Catch up every deadline within 200 ms, as many samples as may wait
   // for the plant, as the Python emulator does; resynchronise beyond.
