@@ -45,7 +45,7 @@ def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_c
 
     from cartpole_hw.lifecycle_client import LifecycleClient
 
-    record, duration = [], '17'
+    record, duration = [], '15'
     if firmware == 'qemu':
         firmware_or_skip()
         record, duration = ['--record', str(tmp_path / 'runs')], '15'
