@@ -160,6 +160,10 @@ def manager_value(value: Any) -> Any:
     return value
 
 
+def _stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
 def _stamp_seconds(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
@@ -298,8 +302,8 @@ class ControllerManagerNode(Node):
         In real time the cycle runs at once: the latency path does not wait.
         """
         if self._lockstep:
-            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            if self._newest_sample_ns is None or self._newest_sample_ns < stamp_ns:
+            newest = self._newest_sample_ns
+            if newest is None or newest < _stamp_ns(msg.header.stamp):
                 if self._held_state is not None:  # a newer state: the old one runs now
                     self._release_held_state()
                 self._held_state = msg
@@ -372,15 +376,14 @@ class ControllerManagerNode(Node):
         self.manager.command_applied(_stamp_seconds(msg.time_ref), _stamp_seconds(msg.header.stamp))
 
     def _on_joint_states(self, msg: JointState) -> None:
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = _stamp_ns(msg.header.stamp)
         if self._newest_sample_ns is None or stamp_ns > self._newest_sample_ns:
             self._newest_sample_ns = stamp_ns
         try:
             self._measured(msg)
         finally:
             held = self._held_state
-            if held is not None and self._newest_sample_ns >= \
-                    held.header.stamp.sec * 1_000_000_000 + held.header.stamp.nanosec:
+            if held is not None and self._newest_sample_ns >= _stamp_ns(held.header.stamp):
                 self._release_held_state()
 
     def _measured(self, msg: JointState) -> None:
