@@ -87,6 +87,19 @@ class LifecycleClient:
                 return False, f'{self.target} did not answer {label}; now {state}'
         return False, f'{self.target}/change_state gave no answer within {timeout:g} s'
 
+    def change_retrying(self, label: str, attempts: int, retry: float, timeout: float,
+                        give_up: Callable[[], bool] = lambda: False) -> tuple[bool, str]:
+        """:meth:`change` ``label``, asked again ``retry`` s after each refusal, at most
+        ``attempts`` times (a bridge refusing to activate while the loop is not warm yet);
+        stops asking early once ``give_up()`` holds. (done, the last reason)."""
+        reason = ''
+        for _ in range(attempts):
+            ok, reason = self.change(label, timeout)
+            if ok or give_up():
+                return ok, reason
+            self.spin_until(lambda: False, retry)
+        return False, reason
+
     def destroy(self, node: Node) -> None:
         for client in (self._get_state, self._transitions, self._change):
             node.destroy_client(client)

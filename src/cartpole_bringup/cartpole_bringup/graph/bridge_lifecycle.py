@@ -73,15 +73,14 @@ class BridgeLifecycle:
         # twice the bridge's count: the monitor sees a command before the bridge does
         if not self.spin_until(lambda: m.forces >= first + 2 * WARM_COMMANDS, ACTIVATE_TIMEOUT):
             return f'{BRIDGE} activate: the controller manager does not answer the samples'
-        client = self._bridge_client()
-        attempts = int(ACTIVATE_TIMEOUT / ACTIVATE_RETRY)
-        reason = ''
-        for _ in range(attempts):
-            ok, reason = client.change('activate', TRANSITION_TIMEOUT)
-            if ok or self.should_stop() or self.fault is not None:
-                return '' if ok else f'{BRIDGE} activate: {reason}'
-            self.spin_until(lambda: False, ACTIVATE_RETRY)
-        return f'{BRIDGE} activate: {reason} for {ACTIVATE_TIMEOUT:g} s'
+        stopping = lambda: self.should_stop() or self.fault is not None  # noqa: E731
+        ok, reason = self._bridge_client().change_retrying(
+            'activate', int(ACTIVATE_TIMEOUT / ACTIVATE_RETRY), ACTIVATE_RETRY,
+            TRANSITION_TIMEOUT, give_up=stopping)
+        if ok:
+            return ''
+        return f'{BRIDGE} activate: {reason}' if stopping() else \
+            f'{BRIDGE} activate: {reason} for {ACTIVATE_TIMEOUT:g} s'
 
     def _bridge_to(self, transition: str, state: str) -> list[str]:
         """At the stop: ``transition`` if the bridge is in ``state``; warnings."""

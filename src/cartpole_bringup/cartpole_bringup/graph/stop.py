@@ -82,10 +82,9 @@ class StopSequence:
             for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
                 if not ok:
                     warnings.append(f'controller_manager enabled:=false refused: {reason}')
-        if plant_alive:
-            warnings += self._bridge_to('deactivate', 'active')
         if not plant_alive:
             return warnings
+        warnings += self._bridge_to('deactivate', 'active')
         if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
             warnings.append('no zero force command seen after disabling the controller '
                             '(the plant watchdog zeroes the force)')

@@ -41,6 +41,8 @@ PENDULUM = 'pendulum'
 WARM_ANSWERS = 30
 """Zero-force answers before the bridge is asked to activate (its rule: 20 timely ones)."""
 ACTIVATE_ATTEMPTS = 10
+ACTIVATE_RETRY = 0.2
+"""Wall seconds between two activation requests the bridge refused."""
 BRIDGE_TIMEOUT = 5.0
 """Wall seconds for the bridge's lifecycle services to answer."""
 
@@ -175,13 +177,11 @@ def _activate_bridge(node: PulsePlayerNode, spin_until: Callable[[Callable[[], b
     node.warming = True
     start = node.answered
     spin_until(lambda: node.answered >= start + WARM_ANSWERS, BRIDGE_TIMEOUT)
-    reason = ''
-    for _ in range(ACTIVATE_ATTEMPTS):
-        ok, reason = bridge.change('activate', BRIDGE_TIMEOUT)
-        if ok:
-            return bridge
-        spin_until(lambda: False, 0.2)
-    raise RuntimeError(f'the hw bridge refused to arm: {reason}')
+    ok, reason = bridge.change_retrying('activate', ACTIVATE_ATTEMPTS, ACTIVATE_RETRY,
+                                        BRIDGE_TIMEOUT)
+    if not ok:
+        raise RuntimeError(f'the hw bridge refused to arm: {reason}')
+    return bridge
 
 
 def run_pulse_plan(player: PulsePlayer, *, ros_arguments: Sequence[str] = (),
