@@ -148,11 +148,13 @@ def test_processes_lockstep_is_deterministic():
     """
     summaries = []
     for _ in range(2):
-        # 8 s: the swing-up, the catch at 2.8 s and 5 s of balancing, every estimator at
-        # work; too short for the verdict (a 10 s window), which is not the point here.
-        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '8',
+        # 16 s: the summary's 10 s window starts well after the catch (2.8 s) and after the
+        # first samples, which the run monitor of a graph of processes may miss (README,
+        # "Recording"): with 8 s the window took them in, and two such runs differed in
+        # mse_x (0.016449 vs 0.016415).
+        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '16',
                               '--json'], timeout=150)
-        assert code in (0, 1), err
+        assert code == 0, err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})
     assert summaries[0]['catch_time_s'] is not None and summaries[0]['fault'] is None
