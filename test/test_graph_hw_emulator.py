@@ -30,14 +30,7 @@ def firmware_or_skip() -> None:
         pytest.skip(missing_message(missing))
 
 
-@pytest.mark.parametrize('firmware', [
-    'python',
-    pytest.param('qemu', marks=pytest.mark.xfail(
-        strict=False, reason='issue 22 open: QEMU hands the firmware\'s UART one byte at a time '
-        '(two thread wake-ups a byte), so its loop latency follows the host: 4-7 ms on a quiet '
-        'host (15 of 16 runs pass), 15-33 ms while the hypervisor steals about 20 % of the CPUs, '
-        'and then the device\'s watchdog or the bridge\'s trips (0 of 12 passed so, 1 of 3 full '
-        'suites; docs/rig.md, "What the QEMU runs prove")'))])
+@pytest.mark.parametrize('firmware', ['python', 'qemu'])
 def test_cartpole_run_hw_against_the_emulator_succeeds(tmp_path, firmware, ros_context,
                                                         spin_until):
     """python: the firmware's Python mirror; qemu: the firmware compiled for the Cortex-M3 in

@@ -1,6 +1,6 @@
 // The I/O bridge's board-independent loop: everything the firmware decides,
 // with no Arduino or board header, so the same code runs in the Arduino Due
-// sketch (cartpole_bridge.ino) and on QEMU's Cortex-M3 (firmware/qemu_mps2/).
+// sketch (cartpole_bridge.ino) and on QEMU's Cortex-M3 (firmware/qemu_lm3s6965/).
 //
 //   - host bytes -> lines -> the Joint protocol's device state machine
 //     (joint_protocol.cpp), replies and refusals sent back;

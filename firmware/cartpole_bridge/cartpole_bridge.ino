@@ -3,7 +3,7 @@
 //
 // The control runs on the host. The firmware's logic is board-independent
 // (bridge_core.cpp and joint_protocol.cpp, also built for QEMU's Cortex-M3 in
-// firmware/qemu_mps2/); this sketch is the Due's board layer. Together they
+// firmware/qemu_lm3s6965/); this sketch is the Due's board layer. Together they
 //   - reads both HCTL-2021 quadrature decoders over the shared 8-bit bus
 //     (thesis section 2.1) every 5 ms (micros() deadlines, no drift),
 //   - streams S lines, answers P, obeys E, R, L, U (joint_protocol.cpp),

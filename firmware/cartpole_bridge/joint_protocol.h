@@ -3,7 +3,7 @@
 // Plain C++ (no Arduino headers): the checksum, the line parser, the line
 // formatters and the device's command state machine with its watchdog as a
 // pure function of time. The board layers (the sketch cartpole_bridge.ino and
-// firmware/qemu_mps2/board.cpp) only move bytes and pins, through the loop in
+// firmware/qemu_lm3s6965/board.cpp) only move bytes and pins, through the loop in
 // bridge_core.cpp; firmware/test/test_joint_protocol.cpp tests this file on the
 // host with g++ against the shared vectors (firmware/test_vectors/protocol_vectors.txt),
 // which the Python codec (src/cartpole_hw/cartpole_hw/protocol.py) also passes.

@@ -1,7 +1,9 @@
 """The bridge firmware compiled for the Cortex-M3, running in ``qemu-system-arm``.
 
-``firmware/qemu_mps2/`` is the firmware's board layer for QEMU's
-``mps2-an385`` machine (a Cortex-M3 with CMSDK UARTs and timers). This
+``firmware/qemu_lm3s6965/`` is the firmware's board layer for QEMU's
+``lm3s6965evb`` machine (a Stellaris Cortex-M3 with PL011 UARTs, whose
+16-byte receive FIFOs take a line in a few hand-overs between QEMU's
+threads, and general-purpose timers). This
 module starts QEMU with that image and hands out its two serial channels as
 connected Unix sockets:
 
@@ -15,7 +17,7 @@ connected Unix sockets:
   ``M,...`` (its statistics, :class:`FirmwareStatistics`) once a second or
   when asked with ``Q``; the plant answers every ``T`` with
   ``C,<HHLLHHLLm>``, the HCTL-2021 bus bytes and the limit switches in hex
-  (:func:`format_counts`; short: QEMU hands the UART one byte at a time).
+  (:func:`format_counts`; short, for the host's pace).
 
 QEMU runs with ``-icount shift=N,sleep=on``: the guest's clock advances by
 2**N ns per instruction while it computes and with the host's clock while
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import shutil
 import signal
 import socket
@@ -41,6 +44,8 @@ from pathlib import Path
 PACKAGES = ('gcc-arm-none-eabi', 'libnewlib-arm-none-eabi', 'qemu-system-arm')
 """The Debian packages the ARM build and the QEMU device need."""
 TOOLS = {'arm-none-eabi-g++': 'gcc-arm-none-eabi', 'qemu-system-arm': 'qemu-system-arm'}
+MACHINE = 'lm3s6965evb'
+"""QEMU's machine for the firmware's board layer (``firmware/qemu_lm3s6965/``)."""
 ICOUNT_SHIFT = 3
 """-icount shift: one instruction is 2**3 = 8 ns of device time (125 MIPS, the Due runs 84 MHz)."""
 SAMPLE_PERIOD_US = 5000
@@ -111,7 +116,7 @@ class FirmwareStatistics:
     """Worst completion of a sample: the plant's counts taken, the ``S`` line sent."""
     period_max: int
     """Busiest 5 ms period: all the loop's work in it (its sample, the host lines handled,
-    and one pass of the loop per byte the 1-byte UART delivers)."""
+    and one pass of the loop per handful of bytes the UART's FIFO delivers)."""
     line_max: int
     """Worst single host byte (the one completing a line: decode, act, reply)."""
     stack_bytes: int
@@ -147,7 +152,7 @@ def format_counts(cart: int, pend: int, left: bool, right: bool) -> bytes:
 
 
 class QemuBoard:
-    """``qemu-system-arm -M mps2-an385`` running ``image``; :meth:`start`, then use
+    """``qemu-system-arm -M lm3s6965evb`` running ``image``; :meth:`start`, then use
     :attr:`host` and :attr:`plant` (blocking sockets), :meth:`stop` at the end."""
 
     def __init__(self, image: str | os.PathLike, qemu: str = 'qemu-system-arm',
@@ -162,7 +167,7 @@ class QemuBoard:
         self._dir: tempfile.TemporaryDirectory | None = None
 
     def command(self, host_path: str, plant_path: str) -> list[str]:
-        return [self.qemu, '-M', 'mps2-an385', '-display', 'none', '-monitor', 'none',
+        return [self.qemu, '-M', MACHINE, '-display', 'none', '-monitor', 'none', '-nic', 'none',
                 *self.icount_args(),
                 '-chardev', f'socket,id=host,path={host_path}',
                 '-chardev', f'socket,id=plant,path={plant_path}',
@@ -207,6 +212,27 @@ class QemuBoard:
         finally:
             for s, _ in listeners.values():
                 s.close()
+
+    def boot(self, timeout: float = 10.0) -> bytes:
+        """Wait for the firmware's power-up lines on the plant channel (its output written,
+        its decoders' counters reset: ``R,<t_us>``) and return the bytes that came. Its UARTs
+        are set up then: a byte sent before may be lost, as setting up a PL011's FIFOs
+        empties them (and on a real board a byte before the UART is enabled is lost too)."""
+        plant = self.plant
+        received = b''
+        plant.settimeout(timeout)
+        try:
+            while not re.search(rb'(^|\n)R,\d+\n', received):
+                data = plant.recv(4096)
+                if not data:
+                    raise ConnectionError('the firmware board stopped while booting')
+                received += data
+        except TimeoutError:
+            raise RuntimeError('the firmware did not boot (no counter reset on its plant '
+                               f'channel): {self._stderr()}') from None
+        finally:
+            plant.settimeout(None)
+        return received
 
     def _stderr(self) -> str:
         if self.process is None:

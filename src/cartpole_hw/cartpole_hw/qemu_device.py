@@ -2,7 +2,7 @@
 
 ``cartpole emulate --firmware qemu``: the firmware itself
 (``firmware/cartpole_bridge/`` compiled for the Cortex-M3 with the
-``firmware/qemu_mps2/`` board layer) runs in ``qemu-system-arm``
+``firmware/qemu_lm3s6965/`` board layer) runs in ``qemu-system-arm``
 (:mod:`cartpole_hw.qemu_board`) instead of its Python mirror
 (:class:`cartpole_hw.device.DeviceLogic`). :class:`QemuDevice` is the
 :class:`~cartpole_hw.emulator.Emulator` with the firmware swapped in:
@@ -200,22 +200,10 @@ class QemuDevice(Emulator):
             self._boot()
             self.board.host.setblocking(False)
 
-    def _boot(self, timeout: float = 10.0) -> None:
+    def _boot(self) -> None:
         """Take the firmware's power-up lines (its output written, its counters reset)
         before anything else happens to the plant."""
-        plant = self.board.plant
-        plant.settimeout(timeout)
-        try:
-            while not re.search(rb'(^|\n)R,\d+\n', self._from_plant):
-                data = plant.recv(4096)
-                if not data:
-                    raise ConnectionError('the firmware board stopped while booting')
-                self._from_plant += data
-        except TimeoutError:
-            raise RuntimeError('the firmware did not boot (no counter reset on its plant '
-                               'channel)') from None
-        finally:
-            plant.settimeout(None)
+        self._from_plant += self.board.boot()
         *lines, self._from_plant = self._from_plant.split(b'\n')
         for line in lines:
             if line:

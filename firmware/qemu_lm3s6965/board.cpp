@@ -1,7 +1,7 @@
-// The bridge firmware's board layer for QEMU's mps2-an385 (an ARM Cortex-M3 at
-// 25 MHz with CMSDK UARTs and timers): what the Arduino Due sketch does with
-// pins, done with the emulated peripherals, around the same core
-// (bridge_core.cpp, joint_protocol.cpp).
+// The bridge firmware's board layer for QEMU's lm3s6965evb (a Stellaris LM3S6965,
+// ARM Cortex-M3, here clocked at 25 MHz, with PL011 UARTs and general-purpose timers):
+// what the Arduino Due sketch does with pins, done with the emulated peripherals, around
+// the same core (bridge_core.cpp, joint_protocol.cpp).
 //
 //   UART0  the host link (the Due's USB serial): Joint protocol lines.
 //   UART1  the plant channel, standing in for the pins: the "DAC" and the
@@ -16,17 +16,21 @@
 //            plant -> firmware   C,<HHLLHHLLm>              the answer to T, in hex: the cart's
 //                                                          bus bytes (high, low), the
 //                                                          pendulum's, the limits (bit 0
-//                                                          left, bit 1 right); short, as
-//                                                          QEMU hands a UART a byte at a time
+//                                                          left, bit 1 right)
 //                                Q                         asks for an M line
 //                                G,<limits>                go: the plant is served (the
 //                                                          firmware starts its clock then)
-//   TIMER1 free-running at the 25 MHz CPU clock: micros() (extended past the
-//          counter's 172 s wrap in software). QEMU computes its value from the
-//          guest clock, so no count is lost when the host is slow to run QEMU.
-//   TIMER0 a 5 ms interrupt that wakes the loop for the sample deadlines.
-//   SysTick free-running at the CPU clock: the work of each pass is measured
-//          in its clocks (under QEMU's -icount, a fixed number of instructions).
+//          Both UARTs run with their 16-byte receive FIFOs: QEMU's I/O thread fills a
+//          FIFO while the CPU works and the CPU empties it in one interrupt, where a
+//          1-byte UART (the mps2-an385's CMSDK UART, this layer's first machine) needed a
+//          hand-over between QEMU's threads for every byte, which a host whose CPUs are
+//          taken makes slow (docs/rig.md).
+//   SysTick free-running at the 25 MHz CPU clock: micros() (its 24 bits wrap every 0.67 s;
+//          the loop reads it at least every 5 ms and extends it in software) and the work
+//          of each pass in clocks (under QEMU's -icount, a fixed number of instructions).
+//          QEMU computes its value from the guest clock, so no count is lost when the host
+//          is slow to run QEMU.
+//   Timer 0A one-shot, armed before the loop sleeps for the next sample deadline.
 //
 // The sample is taken at its deadline: its time is the deadline's (k x 5000 us).
 // The watchdog and the limits run then and the output follows at once; the
@@ -45,33 +49,36 @@
 #include "bridge_core.h"
 
 extern "C" uint32_t stack_high_water(void);
-extern "C" void Timer0_Handler(void);
-extern "C" void Uart0Rx_Handler(void);
-extern "C" void Uart0Tx_Handler(void);
-extern "C" void Uart1Rx_Handler(void);
-extern "C" void Uart1Tx_Handler(void);
+extern "C" void Uart0_Handler(void);
+extern "C" void Uart1_Handler(void);
+extern "C" void Timer0A_Handler(void);
 
 namespace {
 
-struct CmsdkUart {
-  volatile uint32_t data, state, ctrl, intstatus, bauddiv;
+struct Pl011 {   // the Stellaris UART (an ARM PL011)
+  volatile uint32_t dr, rsr, reserved0[4], fr, reserved1, ilpr, ibrd, fbrd, lcrh, cr, ifls,
+      imsc, ris, mis, icr;
 };
-struct CmsdkTimer {
-  volatile uint32_t ctrl, value, reload, intstatus;
+struct Gptm {    // a Stellaris general-purpose timer
+  volatile uint32_t cfg, tamr, tbmr, ctl, reserved0[2], imr, ris, mis, icr, tailr;
 };
-CmsdkUart *const kUart0 = reinterpret_cast<CmsdkUart *>(0x40004000);
-CmsdkUart *const kUart1 = reinterpret_cast<CmsdkUart *>(0x40005000);
-CmsdkTimer *const kTimer0 = reinterpret_cast<CmsdkTimer *>(0x40000000);
-CmsdkTimer *const kTimer1 = reinterpret_cast<CmsdkTimer *>(0x40001000);
+Pl011 *const kUart0 = reinterpret_cast<Pl011 *>(0x4000C000);
+Pl011 *const kUart1 = reinterpret_cast<Pl011 *>(0x4000D000);
+Gptm *const kTimer0 = reinterpret_cast<Gptm *>(0x40030000);
+volatile uint32_t *const kRcc = reinterpret_cast<volatile uint32_t *>(0x400FE060);
+volatile uint32_t *const kRcgc1 = reinterpret_cast<volatile uint32_t *>(0x400FE104);
 volatile uint32_t *const kNvicIser = reinterpret_cast<volatile uint32_t *>(0xE000E100);
 volatile uint32_t *const kSysTick = reinterpret_cast<volatile uint32_t *>(0xE000E010);
 
-const uint32_t kSysClock = 25000000;                          // Hz
-const uint32_t kTickClocks = kSysClock / 1000000 * JP_SAMPLE_US;
-const uint32_t kUartTxFull = 1, kUartRxFull = 2;              // STATE
-const uint32_t kUartTxEn = 1, kUartRxEn = 2, kUartTxInt = 4, kUartRxInt = 8;  // CTRL
-const uint32_t kUartIntTx = 1, kUartIntRx = 2;                // INTSTATUS / INTCLEAR
-const uint32_t kPlantTimeoutUs = 100000;                      // answer to T overdue
+const uint32_t kSysClock = 25000000;                          // Hz: 200 MHz PLL / (SYSDIV 7 + 1)
+const uint32_t kClocksPerUs = kSysClock / 1000000;
+const uint32_t kRccSysdiv = 0xFu << 23;
+const uint32_t kUartRxEmpty = 1u << 4, kUartTxFull = 1u << 5;                // FR
+const uint32_t kUartRx = 1u << 4, kUartTx = 1u << 5, kUartRxTimeout = 1u << 6;  // IMSC/MIS/ICR
+const uint32_t kUartEnable = 1u << 0, kUartTxEnable = 1u << 8, kUartRxEnable = 1u << 9;  // CR
+const uint32_t kUart8Bits = 3u << 5, kUartFifos = 1u << 4;                   // LCRH
+const uint32_t kTimerOneShot = 1, kTimerEnable = 1, kTimerTimeout = 1;       // TAMR, CTL, IMR/ICR
+const uint32_t kIrqUart0 = 5, kIrqUart1 = 6, kIrqTimer0A = 19;
 
 inline void irq_off() { __asm volatile("cpsid i" ::: "memory"); }
 inline void irq_on() { __asm volatile("cpsie i" ::: "memory"); }
@@ -95,11 +102,13 @@ Ring<512> host_rx;
 Ring<1024> host_tx;
 Ring<256> plant_rx;
 Ring<1024> plant_tx;
-volatile bool host_rx_paused;     // ring full: the byte waits in the UART (flow control)
-volatile bool tick;               // TIMER0 fired: check the sample deadline
+volatile bool host_rx_paused;     // ring full: the bytes wait in the UART's FIFO (flow control)
+volatile bool tick;               // Timer 0A fired: check the sample deadline
 uint32_t micros_total;            // microseconds since the clock started (wrapping)
-uint32_t clock_rest;              // TIMER1 clocks since then not yet in micros_total
+uint32_t clock_rest;              // SysTick clocks since then not yet in micros_total
 uint32_t clock_last;
+bool clock_running;               // G received: micros() counts (0 before)
+uint32_t wakeup_for;              // the deadline Timer 0A is armed for
 
 BridgeCore core;
 
@@ -118,17 +127,34 @@ int last_dac = -1;
 int last_enable = -1;
 
 // ---- UARTs ----------------------------------------------------------------------------
-void uart_init(CmsdkUart *u, uint32_t ctrl) {
-  u->bauddiv = kSysClock / 115200;
-  u->ctrl = ctrl;
+void uart_init(Pl011 *u) {
+  u->cr = 0;
+  u->ibrd = kSysClock / (16 * 115200);                                   // 115 200 Bd
+  u->fbrd = (kSysClock % (16 * 115200) * 64 + 8 * 115200) / (16 * 115200);
+  u->lcrh = kUart8Bits | kUartFifos;
+  u->imsc = kUartRx | kUartRxTimeout | kUartTx;
+  u->cr = kUartEnable | kUartTxEnable | kUartRxEnable;
 }
 
-void host_tx_kick() {   // with interrupts off, or in the TX interrupt
-  while (!host_tx.empty() && !(kUart0->state & kUartTxFull)) kUart0->data = host_tx.get();
+void host_tx_kick() {   // with interrupts off, or in the UART's interrupt
+  while (!host_tx.empty() && !(kUart0->fr & kUartTxFull)) kUart0->dr = host_tx.get();
 }
 
-void plant_tx_kick() {   // with interrupts off, or in the TX interrupt
-  while (!plant_tx.empty() && !(kUart1->state & kUartTxFull)) kUart1->data = plant_tx.get();
+void plant_tx_kick() {   // with interrupts off, or in the UART's interrupt
+  while (!plant_tx.empty() && !(kUart1->fr & kUartTxFull)) kUart1->dr = plant_tx.get();
+}
+
+// The host's bytes from UART0's FIFO into the ring; with the ring full they stay in the FIFO
+// (and QEMU stops reading the host's socket: flow control) until take_paused_bytes().
+void host_rx_take() {   // with interrupts off, or in the UART's interrupt
+  while (!(kUart0->fr & kUartRxEmpty)) {
+    if (host_rx.room() == 0) {
+      host_rx_paused = true;
+      kUart0->imsc = kUart0->imsc & ~(kUartRx | kUartRxTimeout);
+      return;
+    }
+    host_rx.put((uint8_t)kUart0->dr);
+  }
 }
 
 // The plant channel loses nothing: with its buffer full (never, in practice) this waits.
@@ -160,13 +186,27 @@ void plant_printf(const char *fmt, ...) {
 
 // ---- time ----------------------------------------------------------------------------
 uint32_t micros_now() {   // from the main loop only (it runs at least every 5 ms)
-  uint32_t value = kTimer1->value;   // counts down
-  clock_rest += clock_last - value;  // clocks not yet counted as whole microseconds
+  if (!clock_running) return 0;
+  uint32_t value = clocks();                      // counts down, 24 bits
+  clock_rest += (clock_last - value) & 0xFFFFFF;  // clocks not yet counted as whole microseconds
   clock_last = value;
-  const uint32_t per_us = kSysClock / 1000000;
-  micros_total += clock_rest / per_us;   // 32-bit: wraps like the Due's micros()
-  clock_rest %= per_us;
+  micros_total += clock_rest / kClocksPerUs;      // 32-bit: wraps like the Due's micros()
+  clock_rest %= kClocksPerUs;
   return micros_total;
+}
+
+// Timer 0A wakes the loop at the next deadline (re-armed when the deadline moves on or the
+// one-shot has run out), so the wake-up never falls just before a deadline, whatever the two
+// clocks' phase.
+void arm_wakeup() {   // with interrupts off
+  if (wakeup_for == core.next_sample_us && (kTimer0->ctl & kTimerEnable)) return;
+  int32_t ahead_us = (int32_t)(core.next_sample_us - micros_now());
+  if (ahead_us <= 0) return;
+  wakeup_for = core.next_sample_us;
+  kTimer0->ctl = 0;
+  kTimer0->icr = kTimerTimeout;
+  kTimer0->tailr = ((uint32_t)ahead_us + 1) * kClocksPerUs;
+  kTimer0->ctl = kTimerEnable;
 }
 
 bool sample_due_now() { return (int32_t)(micros_now() - core.next_sample_us) >= 0; }
@@ -304,12 +344,12 @@ void send_statistics() {
                (unsigned long)kSysClock);
 }
 
-void take_paused_byte() {   // flow control: the byte the full ring left in the UART
+void take_paused_bytes() {   // flow control: the bytes the full ring left in the FIFO
   if (!host_rx_paused || host_rx.room() == 0) return;
   irq_off();
-  if (kUart0->state & kUartRxFull) host_rx.put((uint8_t)kUart0->data);
   host_rx_paused = false;
-  kUart0->ctrl = kUart0->ctrl | kUartRxInt;
+  kUart0->imsc = kUart0->imsc | kUartRx | kUartRxTimeout;
+  host_rx_take();
   irq_on();
 }
 
@@ -335,49 +375,45 @@ void sample(uint32_t t_us) {
 
 }  // namespace
 
-extern "C" void Timer0_Handler(void) {
-  kTimer0->intstatus = 1;   // INTCLEAR
+extern "C" void Timer0A_Handler(void) {
+  kTimer0->icr = kTimerTimeout;
   tick = true;
 }
 
-extern "C" void Uart0Rx_Handler(void) {
-  kUart0->intstatus = kUartIntRx;
-  if (host_rx.room() == 0) {          // full: leave the byte in the UART, stop taking more
-    host_rx_paused = true;
-    kUart0->ctrl = kUart0->ctrl & ~kUartRxInt;
-    return;
+// Clearing first: a byte QEMU puts in the FIFO while the handler empties it raises the
+// interrupt again rather than being left behind.
+extern "C" void Uart0_Handler(void) {
+  uint32_t cause = kUart0->mis;
+  kUart0->icr = cause;
+  if (cause & (kUartRx | kUartRxTimeout)) host_rx_take();
+  if (cause & kUartTx) host_tx_kick();
+}
+
+extern "C" void Uart1_Handler(void) {
+  uint32_t cause = kUart1->mis;
+  kUart1->icr = cause;
+  if (cause & (kUartRx | kUartRxTimeout)) {
+    while (!(kUart1->fr & kUartRxEmpty)) {
+      uint8_t c = (uint8_t)kUart1->dr;
+      if (plant_rx.room() > 0) plant_rx.put(c);
+    }
   }
-  if (kUart0->state & kUartRxFull) host_rx.put((uint8_t)kUart0->data);
-}
-
-extern "C" void Uart0Tx_Handler(void) {
-  kUart0->intstatus = kUartIntTx;
-  host_tx_kick();
-}
-
-extern "C" void Uart1Tx_Handler(void) {
-  kUart1->intstatus = kUartIntTx;
-  plant_tx_kick();
-}
-
-extern "C" void Uart1Rx_Handler(void) {
-  kUart1->intstatus = kUartIntRx;
-  if (kUart1->state & kUartRxFull) {
-    uint8_t c = (uint8_t)kUart1->data;
-    if (plant_rx.room() > 0) plant_rx.put(c);
-  }
+  if (cause & kUartTx) plant_tx_kick();
 }
 
 int main() {
   kSysTick[1] = 0xFFFFFF;   // RVR
   kSysTick[2] = 0;          // CVR
   kSysTick[0] = 5;          // CSR: processor clock, enabled, no interrupt
-  uart_init(kUart0, kUartTxEn | kUartRxEn | kUartTxInt | kUartRxInt);
-  uart_init(kUart1, kUartTxEn | kUartRxEn | kUartTxInt | kUartRxInt);
-  kNvicIser[0] = (1u << 0) | (1u << 1) | (1u << 2) | (1u << 3) | (1u << 8);
-  kTimer1->reload = 0xFFFFFFFF;
-  kTimer1->value = 0xFFFFFFFF;
-  clock_last = 0xFFFFFFFF;   // micros() = 0 until the clock starts
+  *kRcc = (*kRcc & ~kRccSysdiv) | (7u << 23);   // 25 MHz
+  *kRcgc1 = *kRcgc1 | (1u << 16) | (1u << 1) | (1u << 0);   // clocks of Timer 0, UART1, UART0
+  uart_init(kUart0);
+  uart_init(kUart1);
+  kTimer0->ctl = 0;
+  kTimer0->cfg = 0;               // 32-bit
+  kTimer0->tamr = kTimerOneShot;
+  kTimer0->imr = kTimerTimeout;
+  kNvicIser[0] = (1u << kIrqUart0) | (1u << kIrqUart1) | (1u << kIrqTimer0A);
   bridge_init(&core, &board, "cartpole_bridge", true);
   // the plant must answer from the first sample on: wait for its G
   for (;;) {
@@ -387,10 +423,8 @@ int main() {
     if (plant_rx.empty()) wait_for_interrupt();
     irq_on();
   }
-  kTimer1->ctrl = 1;        // enabled, free-running (it reloads at 0), no interrupt
-  kTimer0->reload = kTickClocks - 1;
-  kTimer0->value = kTickClocks - 1;
-  kTimer0->ctrl = 1 | 8;    // enabled, interrupt
+  clock_last = clocks();    // micros() counts from here
+  clock_running = true;
   core.next_sample_us = JP_SAMPLE_US;   // samples at t_us = k x 5000
   sampling = true;
   // QEMU is a process on a shared host: it may not run the CPU for tens of ms (the Due's
@@ -399,7 +433,10 @@ int main() {
   core.resync_us = kPendingMax * JP_SAMPLE_US;
   for (;;) {
     irq_off();
-    if (host_rx.empty() && !tick && plant_rx.empty() && !stats.requested) wait_for_interrupt();
+    if (host_rx.empty() && !tick && plant_rx.empty() && !stats.requested && !sample_due_now()) {
+      arm_wakeup();
+      wait_for_interrupt();
+    }
     tick = false;
     irq_on();
     uint32_t start = clocks();
@@ -415,7 +452,7 @@ int main() {
       uint32_t work = clocks_since(t);
       if (work > stats.line_max) stats.line_max = work;
     }
-    take_paused_byte();
+    take_paused_bytes();
     plant_poll();
     bridge_apply_output(&core, &board, 0);
     stats.period_work += clocks_since(start);

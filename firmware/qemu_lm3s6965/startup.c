@@ -1,4 +1,4 @@
-/* Start-up of the bridge firmware on QEMU's mps2-an385 (Cortex-M3): the vector
+/* Start-up of the bridge firmware on QEMU's lm3s6965evb (Cortex-M3): the vector
  * table, the reset handler (stack painted for the high-water mark, .data
  * copied, .bss zeroed, C++ constructors run, then main) and the newlib stubs. */
 #include <errno.h>
@@ -14,20 +14,17 @@ extern void (*__init_array_end[])(void);
 
 void Reset_Handler(void);
 void Default_Handler(void);
-void Timer0_Handler(void);
-void Uart0Rx_Handler(void);
-void Uart0Tx_Handler(void);
-void Uart1Rx_Handler(void);
-void Uart1Tx_Handler(void);
+void Uart0_Handler(void);
+void Uart1_Handler(void);
+void Timer0A_Handler(void);
 
 void Default_Handler(void) {
   for (;;) {
   }
 }
 
-/* 16 system exceptions, then the AN385's interrupts: UART0 RX/TX 0/1, UART1
- * RX/TX 2/3, ..., TIMER0 8. */
-__attribute__((section(".vectors"), used)) static void (*const vectors[16 + 32])(void) = {
+/* 16 system exceptions, then the LM3S6965's 48 interrupts: UART0 5, UART1 6, Timer 0A 19. */
+__attribute__((section(".vectors"), used)) static void (*const vectors[16 + 48])(void) = {
     (void (*)(void))(&_stack_top),
     Reset_Handler,
     Default_Handler, /* NMI */
@@ -41,9 +38,13 @@ __attribute__((section(".vectors"), used)) static void (*const vectors[16 + 32])
     0,
     Default_Handler, /* PendSV */
     Default_Handler, /* SysTick */
-    Uart0Rx_Handler, Uart0Tx_Handler, Uart1Rx_Handler, Uart1Tx_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
-    Timer0_Handler,  Default_Handler, Default_Handler, Default_Handler,
+    Default_Handler, Uart0_Handler, Uart1_Handler, Default_Handler,
+    Default_Handler, Default_Handler, Default_Handler, Default_Handler,
+    Default_Handler, Default_Handler, Default_Handler, Default_Handler,
+    Default_Handler, Default_Handler, Default_Handler, Timer0A_Handler,
+    Default_Handler, Default_Handler, Default_Handler, Default_Handler,
+    Default_Handler, Default_Handler, Default_Handler, Default_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
     Default_Handler, Default_Handler, Default_Handler, Default_Handler,
