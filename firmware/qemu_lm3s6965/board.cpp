@@ -29,7 +29,7 @@
 //          the loop reads it at least every 5 ms and extends it in software) and the work
 //          of each pass in clocks (under QEMU's -icount, a fixed number of instructions).
 //          QEMU computes its value from the guest clock, so no count is lost when the host
-//          is slow to run QEMU.
+//          is slow to run QEMU, unless it does not run it for a whole wrap (0.67 s).
 //   Timer 0A one-shot, armed before the loop sleeps for the next sample deadline.
 //
 // The sample is taken at its deadline: its time is the deadline's (k x 5000 us).
@@ -103,11 +103,10 @@ Ring<1024> host_tx;
 Ring<256> plant_rx;
 Ring<1024> plant_tx;
 volatile bool host_rx_paused;     // ring full: the bytes wait in the UART's FIFO (flow control)
-volatile bool tick;               // Timer 0A fired: check the sample deadline
 uint32_t micros_total;            // microseconds since the clock started (wrapping)
 uint32_t clock_rest;              // SysTick clocks since then not yet in micros_total
 uint32_t clock_last;
-bool clock_running;               // G received: micros() counts (0 before)
+bool sampling;                    // G received: micros() counts (0 before), the deadlines are on
 uint32_t wakeup_for;              // the deadline Timer 0A is armed for
 
 BridgeCore core;
@@ -186,7 +185,7 @@ void plant_printf(const char *fmt, ...) {
 
 // ---- time ----------------------------------------------------------------------------
 uint32_t micros_now() {   // from the main loop only (it runs at least every 5 ms)
-  if (!clock_running) return 0;
+  if (!sampling) return 0;
   uint32_t value = clocks();                      // counts down, 24 bits
   clock_rest += (clock_last - value) & 0xFFFFFF;  // clocks not yet counted as whole microseconds
   clock_last = value;
@@ -209,7 +208,8 @@ void arm_wakeup() {   // with interrupts off
   kTimer0->ctl = kTimerEnable;
 }
 
-bool sample_due_now() { return (int32_t)(micros_now() - core.next_sample_us) >= 0; }
+bool deadline_passed(uint32_t now_us) { return (int32_t)(now_us - core.next_sample_us) >= 0; }
+bool sample_due_now() { return deadline_passed(micros_now()); }
 
 // The device time of what the loop does now, in the loop's order (bridge_core.h). QEMU runs
 // the emulated CPU on the host's clock, which runs on while the host runs QEMU's other
@@ -220,14 +220,13 @@ bool sample_due_now() { return (int32_t)(micros_now() - core.next_sample_us) >= 
 // would report the command as written after the sample. So everything done at a deadline is
 // stamped with the deadline's time, and anything else with micros(), but before the first
 // deadline the loop has not taken yet.
-bool sampling;            // the clock runs: the deadlines are on
 bool at_deadline;         // sample() runs: its events are at deadline_us
 uint32_t deadline_us;
 
 uint32_t event_us() {
   if (at_deadline) return deadline_us;
   uint32_t now = micros_now();
-  if (sampling && (int32_t)(now - core.next_sample_us) >= 0) return core.next_sample_us - 1;
+  if (sampling && deadline_passed(now)) return core.next_sample_us - 1;
   return now;
 }
 
@@ -376,8 +375,7 @@ void sample(uint32_t t_us) {
 }  // namespace
 
 extern "C" void Timer0A_Handler(void) {
-  kTimer0->icr = kTimerTimeout;
-  tick = true;
+  kTimer0->icr = kTimerTimeout;   // the loop wakes: the deadline it was armed for is due
 }
 
 // Clearing first: a byte QEMU puts in the FIFO while the handler empties it raises the
@@ -424,7 +422,6 @@ int main() {
     irq_on();
   }
   clock_last = clocks();    // micros() counts from here
-  clock_running = true;
   core.next_sample_us = JP_SAMPLE_US;   // samples at t_us = k x 5000
   sampling = true;
   // QEMU is a process on a shared host: it may not run the CPU for tens of ms (the Due's
@@ -433,11 +430,10 @@ int main() {
   core.resync_us = kPendingMax * JP_SAMPLE_US;
   for (;;) {
     irq_off();
-    if (host_rx.empty() && !tick && plant_rx.empty() && !stats.requested && !sample_due_now()) {
+    if (host_rx.empty() && plant_rx.empty() && !stats.requested && !sample_due_now()) {
       arm_wakeup();
       wait_for_interrupt();
     }
-    tick = false;
     irq_on();
     uint32_t start = clocks();
     // every deadline passed (more than one if QEMU was not run for a while), each at its time
