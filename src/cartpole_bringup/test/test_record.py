@@ -41,8 +41,17 @@ class Publisher:
             DiagnosticArray, '/cartpole/controller_status', depth)
         self.pubs['/clock'] = self.node.create_publisher(Clock, '/clock', depth)
 
-    def matched(self, recording: int = 1) -> bool:
-        return all(p.get_subscription_count() >= recording for p in self.pubs.values())
+    def matched(self, recorders: int) -> bool:
+        """Every writer has matched every reader the graph shows on its topic, ``recorders``
+        of them a node named recorder's (another reader on the domain must not stand in for
+        a recorder that has not subscribed yet)."""
+        for topic, pub in self.pubs.items():
+            readers = self.node.get_subscriptions_info_by_topic(topic)
+            if sum(r.node_name == 'recorder' for r in readers) < recorders:
+                return False
+            if pub.get_subscription_count() < len(readers):
+                return False
+        return True
 
     def publish(self, k: int) -> None:
         from builtin_interfaces.msg import Time
@@ -88,7 +97,7 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
     executor.add_node(recorder)
     executor.add_node(source.node)
     try:
-        assert spin_until(executor, source.matched, 10.0)
+        assert spin_until(executor, lambda: source.matched(1), 10.0)
         n = 100
         for k in range(n):
             source.publish(k)
@@ -128,10 +137,15 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
 
 
 def test_recorder_refuses_an_existing_bag_and_unknown_topics(ros_context, tmp_path):
+    """Refused, and the refused recorder leaves nothing on the graph: a half-built one once
+    kept its subscriptions in the test process, and acknowledged the next test's messages
+    in place of a recorder that had not subscribed yet."""
+    from rclpy.node import Node
     from rclpy.parameter import Parameter
 
     from cartpole_bringup.graph.recorder import RecorderNode
 
+    probe = Node('_refusal_probe', context=ros_context)
     (tmp_path / 'exists').mkdir()
     with pytest.raises(FileExistsError, match='already exists'):
         RecorderNode(context=ros_context,
@@ -141,6 +155,12 @@ def test_recorder_refuses_an_existing_bag_and_unknown_topics(ros_context, tmp_pa
             Parameter('output', value=str(tmp_path / 'new')),
             Parameter('topics', value=['/joint_states', '/tf'])])
     assert not (tmp_path / 'new').exists()
+    try:
+        # one participant a context: this process's own nodes are in its graph at once
+        assert 'recorder' not in probe.get_node_names()
+        assert probe.get_subscriptions_info_by_topic('/joint_states') == []
+    finally:
+        probe.destroy_node()
 
 
 def installed(package, exe):

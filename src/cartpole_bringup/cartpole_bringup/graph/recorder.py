@@ -109,7 +109,16 @@ class RecorderNode(Node):
         self.declare_parameter('queue_depth', 200, ParameterDescriptor(
             description='Subscription queue depth (reliable QoS).', read_only=True,
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
+        try:
+            self._start()
+        except BaseException:
+            # refused (an unknown topic, an existing bag): no half-built recorder, with its
+            # subscriptions and services, stays on the graph of the process that asked
+            super().destroy_node()
+            raise
 
+    def _start(self) -> None:
+        """Subscribe to the topics and open the bag, or refuse."""
         topics = [str(t) for t in self.get_parameter('topics').value]
         unknown = sorted(set(topics) - set(TOPICS))
         if unknown:
