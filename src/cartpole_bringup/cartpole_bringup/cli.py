@@ -18,6 +18,8 @@ import importlib
 import signal
 import sys
 
+from cartpole_sim.middleware import use_profiles
+
 from .boundary import InputError
 
 
@@ -63,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    use_profiles()  # a service's reply never holds the loop (cartpole_sim.middleware)
     if argv[:1] == ['emulate']:
         from cartpole_hw.emulator import main as emulate
         return emulate(argv[1:]) or 0

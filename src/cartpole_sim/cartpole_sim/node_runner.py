@@ -40,7 +40,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from . import realtime
+from . import middleware, realtime
 from .domain_guard import refuse_duplicate_node
 from .roles import role_of_executable
 
@@ -67,6 +67,7 @@ def run_node(make_node: Callable[[], Node], args=None, *, name: str = '',
     the signal while the context is still valid (e.g. the recorder drains its
     queues into the bag).
     """
+    middleware.use_profiles()  # before the first participant: Fast DDS reads it then
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
     previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
