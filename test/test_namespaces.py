@@ -185,10 +185,12 @@ def _run(namespace: str, stabilizer: str, record: Path, duration: float,
 
 
 def _claimed(namespace: str, proc: subprocess.Popen) -> bool:
-    """Whether ``proc`` holds its graph's locks in ``namespace`` (cartpole_sim.domain_guard)."""
-    from cartpole_sim.domain_guard import domain_id, lock_directory
-    return any(f'(PID {proc.pid}:' in path.read_text(errors='replace')
-               for path in lock_directory(domain_id()).glob(f'{namespace}.*.lock'))
+    """Whether ``proc`` holds its graph's lock in ``namespace``: the ``cartpole_run`` role's
+    lock file (cartpole_sim.domain_guard) names its PID."""
+    from cartpole_bringup.graph.run_monitor import NODE_NAME
+    from cartpole_sim.domain_guard import _lock_path, domain_id
+    path = _lock_path(domain_id(), normalize(namespace), NODE_NAME)
+    return path.is_file() and f'(PID {proc.pid}:' in path.read_text(errors='replace')
 
 
 def test_two_graphs_in_two_namespaces_share_a_domain(ros_context, spin_until, tmp_path):

@@ -51,18 +51,14 @@ def profiles_file() -> Path | None:
     return None
 
 
-def use_profiles(environ: MutableMapping[str, str] | None = None) -> str:
+def use_profiles(environ: MutableMapping[str, str] | None = None) -> Path | None:
     """Set ``FASTRTPS_DEFAULT_PROFILES_FILE`` to ours in ``environ`` (default ``os.environ``)
-    unless the user chose a file or another RMW; returns what it did, one line."""
+    unless the user chose a file or another RMW; returns the file it set, else None."""
     environ = os.environ if environ is None else environ
     rmw = environ.get('RMW_IMPLEMENTATION', '')
-    if rmw and not rmw.startswith('rmw_fastrtps'):
-        return f'{rmw}: no Fast DDS profiles needed'
-    for variable in USER_VARIABLES:
-        if environ.get(variable):
-            return f'Fast DDS profiles from {variable}={environ[variable]} (yours, kept)'
+    if (rmw and not rmw.startswith('rmw_fastrtps')) or any(environ.get(v) for v in USER_VARIABLES):
+        return None
     path = profiles_file()
-    if path is None:
-        return f'{PROFILES_NAME} not found: service replies wait up to 100 ms (Fast DDS default)'
-    environ[PROFILES_VARIABLE] = str(path)
-    return f'Fast DDS profiles from {path}'
+    if path is not None:
+        environ[PROFILES_VARIABLE] = str(path)
+    return path

@@ -35,14 +35,14 @@ def test_the_service_profile_bounds_a_reply_to_one_sample_period():
 
 def test_use_profiles_sets_ours_and_keeps_a_users_file_or_another_rmw():
     environ = {}
-    assert 'Fast DDS profiles from' in use_profiles(environ)
+    assert use_profiles(environ) == profiles_file()
     assert environ == {PROFILES_VARIABLE: str(profiles_file())}
     for variable in USER_VARIABLES:
         theirs = {variable: '/etc/lab/fastdds.xml'}
-        assert '(yours, kept)' in use_profiles(theirs)
+        assert use_profiles(theirs) is None                 # yours, kept
         assert theirs == {variable: '/etc/lab/fastdds.xml'}
     cyclone = {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}
-    use_profiles(cyclone)
+    assert use_profiles(cyclone) is None
     assert PROFILES_VARIABLE not in cyclone
     fastrtps = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'}
     use_profiles(fastrtps)
