@@ -41,7 +41,7 @@ def spin_until():
     Waits on the executor (work arrives as events), never on a bare sleep; the
     timeout only bounds a failing test.
     """
-    from cartpole_sim.spin import spin_until as _spin
+    from cartpole_core.spin import spin_until as _spin
 
     def _spin_until(executor, predicate, timeout=30.0):
         return _spin(executor, predicate, timeout)
@@ -74,8 +74,8 @@ def truth_stamps(ros_context):
 def three_ways():
     """three_ways(run, cases) -> (serial, pool, dask): a sweep runner's results on every executor.
 
-    ``run(cases, workers=..., dask_address=...)`` is :func:`cartpole_bringup.bench.control.run_sweep`
-    or :func:`cartpole_bringup.bench.robustness.run_grid`: serially, on a pool of two
+    ``run(cases, workers=..., dask_address=...)`` is :func:`cartpole_tools.bench.control.run_sweep`
+    or :func:`cartpole_tools.bench.robustness.run_grid`: serially, on a pool of two
     processes and on a local Dask cluster of two worker processes.
     """
     def _three_ways(run, cases):

@@ -22,14 +22,13 @@ fi
 if [ "${1:-}" != "--no-overlay" ] && [ -f "$_cp_root/install/setup.bash" ]; then
     # shellcheck disable=SC1091
     source "$_cp_root/install/setup.bash"
-    # ament_python puts executables in lib/<package>/ (for `ros2 run`); put them on
-    # PATH too, so `cartpole`, `sim_node`, `ekf_node`, ... work as plain commands.
-    for _cp_lib in "$_cp_root"/install/cartpole_*/lib/cartpole_*; do
-        case ":$PATH:" in
-            *":$_cp_lib:"*) ;;
-            *) [ -d "$_cp_lib" ] && PATH="$_cp_lib:$PATH" ;;
-        esac
-    done
+    # ament_python puts executables in lib/<package>/, where `ros2 run` finds them; only
+    # the `cartpole` command (and its recorder) goes on PATH, no node's generic name.
+    _cp_lib="$_cp_root/install/cartpole_bringup/lib/cartpole_bringup"
+    case ":$PATH:" in
+        *":$_cp_lib:"*) ;;
+        *) [ -d "$_cp_lib" ] && PATH="$_cp_lib:$PATH" ;;
+    esac
     export PATH
     unset _cp_lib
 fi

@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 
-from cartpole_hw.emulator import Emulator
+from cartpole_emulator.emulator import Emulator
 from cartpole_sim.plant import Scenario
 
 

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from cartpole_bringup.bench import control as bc
+from cartpole_tools.bench import control as bc
 def cartpole(*argv, timeout=600):
     out = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', *argv],
                          capture_output=True, text=True, timeout=timeout)

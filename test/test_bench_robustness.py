@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from cartpole_bringup.bench import robustness as br
-from cartpole_bringup.bench import robustness_report as rr
+from cartpole_tools.bench import robustness as br
+from cartpole_tools.bench import robustness_report as rr
 from cartpole_sim.plant import Push, Scenario
 
 

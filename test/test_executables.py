@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from ament_index_python.packages import get_package_prefix
 
-from cartpole_sim.child_process import reap
+from cartpole_core.child_process import reap
 
 pytestmark = pytest.mark.ros
 
@@ -21,8 +21,8 @@ NODES = [
     ('cartpole_estimation', 'ekf_node', [], 'ekf'),
     ('cartpole_control', 'controller_manager', [], 'controller_manager'),
     ('cartpole_hw', 'hw_bridge', ['-p', 'port:=/dev/null/no-such-port'], 'hw_bridge'),
-    ('cartpole_bringup', 'recorder', ['-p', 'output:={tmp}/bag'], 'recorder'),
-    ('cartpole_bringup', 'viewer', ['-p', 'port:=0'], 'viewer'),
+    ('cartpole_bringup', 'cartpole_recorder', ['-p', 'output:={tmp}/bag'], 'recorder'),
+    ('cartpole_analysis', 'cartpole_viewer', ['-p', 'port:=0'], 'viewer'),
 ]
 
 

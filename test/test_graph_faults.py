@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import child_running, reap
+from cartpole_core.child_process import child_running, reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -46,7 +46,7 @@ def _read(bag: Path) -> dict[str, list[tuple[int, float]]]:
     """(stamp, effort[0]) of the JointState topics of a bag, in stamp order."""
     from rosbags.highlevel import AnyReader
 
-    from cartpole_bringup.bags.cdr_parse import parse_joint_state
+    from cartpole_analysis.bags.cdr_parse import parse_joint_state
     out: dict[str, list[tuple[int, float]]] = {}
     with AnyReader([bag]) as reader:
         conns = [c for c in reader.connections if c.msgtype == 'sensor_msgs/msg/JointState']

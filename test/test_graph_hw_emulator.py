@@ -18,13 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import child_running, interrupt, reap
+from cartpole_core.child_process import child_running, interrupt, reap
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def firmware_or_skip() -> None:
-    from cartpole_hw.qemu_board import missing_message, missing_packages
+    from cartpole_emulator.qemu_board import missing_message, missing_packages
     missing = missing_packages()
     if missing:
         pytest.skip(missing_message(missing))

@@ -45,7 +45,7 @@ def _cartpole(*args, timeout=120):
 
 
 def test_lockstep_bag_agrees_with_offline(tmp_path):
-    from cartpole_bringup.analysis.analyze import TRUE_STATE, read_bag
+    from cartpole_analysis.analysis.analyze import TRUE_STATE, read_bag
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Scenario
 

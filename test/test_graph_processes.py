@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import child_running, interrupt
+from cartpole_core.child_process import child_running, interrupt
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -86,8 +86,8 @@ def test_switch_stabilizer_while_balancing(graph):
     # Still the first catch only: no fall happened.
     assert graph.monitor.builder.catch_ns == b.catch_ns
     # The summary names every stabiliser that ran, each from its switch on.
-    from cartpole_bringup.analysis.plots import run_title
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_analysis.analysis.plots import run_title
+    from cartpole_core.model import CartPoleParameters
     _, summary = b.summarize(params=CartPoleParameters(), x_ref=0.3845, lockstep=True)
     spans = summary['controllers']
     assert [(c['kind'], c['name']) for c in spans] == [

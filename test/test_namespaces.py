@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cartpole_bringup.namespaces import (bag_namespace, graph_topic, in_namespace, normalize,
+from cartpole_core.namespaces import (bag_namespace, graph_topic, in_namespace, normalize,
                                          parameters_in_namespace, ros_arguments)
 
 pytestmark = pytest.mark.ros
@@ -49,7 +49,7 @@ NODES = {
                  {'/joint_states', '/cartpole/state', '/cartpole/force_command',
                   '/cartpole/true_state', '/cartpole/controller_status', '/cartpole/ekf/health',
                   '/cartpole/hw/health', '/cartpole/recorder/progress'}, set()),
-    'viewer': ('cartpole_bringup.viewer.node', 'ViewerNode', {'port': 0},
+    'viewer': ('cartpole_analysis.viewer.node', 'ViewerNode', {'port': 0},
                {'/cartpole/state', '/cartpole/controller_status', '/joint_states'}, set()),
     # The bridge: only that everything it has moves (its endpoints depend on its state).
     'hw_bridge': ('cartpole_hw.hw_node', 'HwBridgeNode', {}, None, None),
@@ -186,9 +186,9 @@ def _run(namespace: str, stabilizer: str, record: Path, duration: float,
 
 def _claimed(namespace: str, proc: subprocess.Popen) -> bool:
     """Whether ``proc`` holds its graph's lock in ``namespace``: the ``cartpole_run`` role's
-    lock file (cartpole_sim.domain_guard) names its PID."""
+    lock file (cartpole_core.domain_guard) names its PID."""
     from cartpole_bringup.graph.run_monitor import NODE_NAME
-    from cartpole_sim.domain_guard import _lock_path, domain_id
+    from cartpole_core.domain_guard import _lock_path, domain_id
     path = _lock_path(domain_id(), normalize(namespace), NODE_NAME)
     return path.is_file() and f'(PID {proc.pid}:' in path.read_text(errors='replace')
 
@@ -200,9 +200,9 @@ def test_two_graphs_in_two_namespaces_share_a_domain(ros_context, spin_until, tm
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    from cartpole_bringup.analysis.analyze import analyze_bag
+    from cartpole_analysis.analysis.analyze import analyze_bag
     from cartpole_bringup.graph.graph import DuplicateNodeError, Graph, GraphSpec
-    from cartpole_sim.child_process import interrupt
+    from cartpole_core.child_process import interrupt
 
     params = tmp_path / 'params.yaml'
     params.write_text(yaml.safe_dump({'controller_manager': {'ros__parameters': {'x_ref': 0.3}}}))

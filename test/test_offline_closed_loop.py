@@ -15,7 +15,7 @@ import pytest
 
 from cartpole_bringup.offline.closed_loop import run_closed_loop
 from cartpole_estimation.ekf import EkfConfig
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
 
 NOMINAL = CartPoleParameters()

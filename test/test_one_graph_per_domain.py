@@ -1,6 +1,6 @@
 """One graph per namespace of a ROS domain: a second node of the same role is refused.
 
-A node executable (through cartpole_sim.node_runner.run_node) and `cartpole run`
+A node executable (through cartpole_core.node_runner.run_node) and `cartpole run`
 refuse to start when a node of their role runs in their namespace already
 (whatever it is called), with a message naming the namespace, ROS_DOMAIN_ID,
 the node found and the fixes; `-p allow_duplicates:=true` (or
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import interrupt
-from cartpole_sim.domain_guard import DuplicateNodeError, claim_roles, domain_id, graph_duplicates
+from cartpole_core.child_process import interrupt
+from cartpole_core.domain_guard import DuplicateNodeError, claim_roles, domain_id, graph_duplicates
 
 pytestmark = pytest.mark.ros
 

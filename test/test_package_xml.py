@@ -224,8 +224,8 @@ def test_a_removed_dependency_is_named(tmp_path):
     """The check notices an import the package.xml lost, a test-only import declared as
     nothing, and a declaration nothing uses."""
     import shutil
-    package = tmp_path / 'cartpole_sim'
-    shutil.copytree(SRC / 'cartpole_sim', package,
+    package = tmp_path / 'cartpole_core'
+    shutil.copytree(SRC / 'cartpole_core', package,
                     ignore=shutil.ignore_patterns('__pycache__', '*.urdf'))
     xml = package / 'package.xml'
     text = xml.read_text()
@@ -234,14 +234,14 @@ def test_a_removed_dependency_is_named(tmp_path):
                         '  <test_depend>python3-pytest</test_depend>\n'
                         '  <test_depend>python3-hypothesis</test_depend>\n')
     xml.write_text(text)
-    (package / 'cartpole_sim' / 'uses_pandas.py').write_text('import pandas\n')
+    (package / 'cartpole_core' / 'uses_pandas.py').write_text('import pandas\n')
     workspace = _workspace()
-    workspace['cartpole_sim'] = declared(package)
+    workspace['cartpole_core'] = declared(package)
     found = problems(package, _ament_packages(), workspace)
     assert sorted(found) == [
-        'cartpole_sim/cartpole_sim/uses_pandas.py: imports pandas, neither a ROS package nor in '
+        'cartpole_core/cartpole_core/uses_pandas.py: imports pandas, neither a ROS package nor in '
         'ROSDEP_KEYS or PIP_ONLY of test/test_package_xml.py: find its rosdep key',
-        'cartpole_sim/package.xml lacks <exec_depend>python3-yaml</exec_depend>: used by '
-        'cartpole_sim/model.py',
-        'cartpole_sim/package.xml: <test_depend>python3-hypothesis</test_depend> but no test '
+        'cartpole_core/package.xml lacks <exec_depend>python3-yaml</exec_depend>: used by '
+        'cartpole_core/model.py',
+        'cartpole_core/package.xml: <test_depend>python3-hypothesis</test_depend> but no test '
         'uses it'], found

@@ -28,7 +28,7 @@ USE = textwrap.dedent('''
     from cartpole_control.controller import STABILIZER, ControllerState
     from cartpole_control.manager import ControllerManager
     from cartpole_control.registry import load_controllers
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
 
     p = CartPoleParameters()
     found = load_controllers(STABILIZER)

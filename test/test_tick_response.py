@@ -1,7 +1,7 @@
 """One pendulum encoder tick's effect on the force command (docs/controllers.md, "lqg"), with the
 thesis's settings, the earlier default and today's: the thesis's filter and feedforward turn it into more than 10 N at once, the
 defaults into about 1 N."""
-from cartpole_bringup.analysis.tick_response import THESIS_SETTINGS, tick_response
+from cartpole_analysis.analysis.tick_response import THESIS_SETTINGS, tick_response
 
 
 def test_one_tick_moves_the_default_command_by_a_tenth_of_what_the_thesis_settings_did():

@@ -17,7 +17,7 @@ import pytest
 
 from cartpole_control.controllers.time_optimal import TimeOptimalSwingUp, plan_problem
 from cartpole_control.plan_cache import TrajectoryCache
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

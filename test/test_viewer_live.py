@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cartpole_sim.child_process import reap
+from cartpole_core.child_process import reap
 
-from cartpole_bringup.viewer.server import TOPICS
-from cartpole_bringup.viewer.client import ViewerClient
+from cartpole_analysis.viewer.server import TOPICS
+from cartpole_analysis.viewer.client import ViewerClient
 
 _spec = importlib.util.spec_from_file_location(
-    'foxglove_support', Path(__file__).resolve().parents[1] / 'src' / 'cartpole_bringup' / 'test'
+    'foxglove_support', Path(__file__).resolve().parents[1] / 'src' / 'cartpole_analysis' / 'test'
     / 'foxglove_support.py')
 foxglove_support = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(foxglove_support)

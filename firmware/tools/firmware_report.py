@@ -28,7 +28,7 @@ Usage: ``firmware_report.py IMAGE.elf [--size-tool arm-none-eabi-size] [--out RE
    M3's multi-cycle instructions and the flash wait states, 4 at 84 MHz, which
    its 128-bit prefetch buffer mostly hides).
 
-Standard library only (the QEMU launcher is ``src/cartpole_hw/cartpole_hw/qemu_board.py``,
+Standard library only (the QEMU launcher is ``src/cartpole_emulator/cartpole_emulator/qemu_board.py``,
 loaded by path).
 """
 from __future__ import annotations

@@ -22,8 +22,7 @@ setup(
     entry_points={
         'console_scripts': [
             'cartpole = cartpole_bringup.cli:main',
-            'recorder = cartpole_bringup.graph.recorder:main',
-            'viewer = cartpole_bringup.viewer.node:main',
+            'cartpole_recorder = cartpole_bringup.graph.recorder:main',
         ],
     },
 )

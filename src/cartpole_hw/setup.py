@@ -22,7 +22,6 @@ setup(
     entry_points={
         'console_scripts': [
             'hw_bridge = cartpole_hw.hw_node:main',
-            'emulator = cartpole_hw.emulator:main',
         ],
     },
 )

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from cartpole_bringup.bags.cdr_parse import parse_joint_state
+from cartpole_analysis.bags.cdr_parse import parse_joint_state
 
 
 def main() -> None:

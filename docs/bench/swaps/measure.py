@@ -58,7 +58,7 @@ def load():
 def direct():
     from cartpole_control.manager import ControllerManager
     from cartpole_control.controller import ControllerState
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     from cartpole_sim.plant import Plant, Scenario
     params = CartPoleParameters()
     manager = ControllerManager(params, params.sample_time)

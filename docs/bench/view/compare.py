@@ -4,13 +4,13 @@
 
 ROUNDS (default 2) rounds of four real-time runs of SECONDS (default 20) each,
 measured by ``cartpole bench loop``'s probe and statistics
-(:func:`cartpole_bringup.bench.loop._measure`), one after the other so that
+(:func:`cartpole_tools.bench.loop._measure`), one after the other so that
 they see about the same machine:
 
 - ``alone``: ``cartpole run --sim``;
 - ``view``: ``cartpole run --sim --view`` (the ``viewer_tap`` node in the
   graph's process, the samples over a local socket to the viewer process) and
-  a Foxglove WebSocket client (``python -m cartpole_bringup.viewer.client``)
+  a Foxglove WebSocket client (``python -m cartpole_analysis.viewer.client``)
   subscribed to every channel, at normal priority;
 - ``view_idle_client``: the same with the client at ``SCHED_IDLE`` (what the
   viewer costs without the client's own CPU);
@@ -25,9 +25,9 @@ import json
 import os
 import sys
 
-import cartpole_bringup.bench.loop as bench_loop
-from cartpole_bringup.bench.loop_view import COMMAND_TOPIC, SAMPLE_TOPIC, _free_port
-from cartpole_bringup.viewer.process import viewer_executable
+import cartpole_tools.bench.loop as bench_loop
+from cartpole_tools.bench.loop_view import COMMAND_TOPIC, SAMPLE_TOPIC, _free_port
+from cartpole_analysis.viewer.process import viewer_executable
 
 KINDS = ('alone', 'view', 'view_idle_client', 'standalone')
 _normal_client = bench_loop._start_viewer_client

@@ -4,7 +4,7 @@
 
 Starts ``cartpole run --sim --duration SECONDS+10 --view 127.0.0.1:0 --json``
 (real time), connects a Foxglove WebSocket client
-(:class:`cartpole_bringup.viewer.client.ViewerClient`) to every viewer channel,
+(:class:`cartpole_analysis.viewer.client.ViewerClient`) to every viewer channel,
 and subscribes ``/cartpole/state`` over DDS in this process. After 5 s it
 measures for SECONDS: per channel the messages received per wall second and
 per second of their own stamps, the largest gap between consecutive stamps,
@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[3] / 'src' / 'cartpole_b
 
 import foxglove_support  # noqa: E402  (the tests' protobuf reader of the advertised schema)
 
-from cartpole_bringup.viewer.server import TOPICS  # noqa: E402
-from cartpole_bringup.viewer.client import ViewerClient  # noqa: E402
+from cartpole_analysis.viewer.server import TOPICS  # noqa: E402
+from cartpole_analysis.viewer.client import ViewerClient  # noqa: E402
 
 WARMUP_S = 5.0
 

@@ -1,2 +1,2 @@
 """The `cartpole` command: starts the node graph, records bags, analyses runs, benchmarks."""
-import cartpole_sim  # noqa: F401,E402 - pins numerical threads to one before numpy loads
+import cartpole_core  # noqa: F401,E402 - pins numerical threads to one before numpy loads

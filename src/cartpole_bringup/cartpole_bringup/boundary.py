@@ -100,7 +100,7 @@ def _keys_are_names(data: dict, option: str, path: Path, where: str) -> None:
 
 def plant_parameters(path: Path | str | None, option: str = '--plant-params'):
     """The :class:`CartPoleParameters` of a plant parameters file (thesis values for None)."""
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
 
     if path is None:
         return CartPoleParameters()

@@ -1,9 +1,10 @@
 """`cartpole`: the one front door (README.md, "At a glance").
 
-Each subcommand lives in ``cartpole_bringup.commands.<name>`` with
-``add_arguments(parser)`` and ``main(args) -> int``; this module only
-dispatches, importing the chosen subcommand alone (so ``cartpole offline``
-never imports rclpy).
+Each subcommand is a module with ``add_arguments(parser)`` and ``main(args) -> int``:
+this package's own in ``cartpole_bringup.commands.<name>``, the tools' (``bench``,
+``identify``) found through the ``cartpole.commands`` entry points, so the
+orchestrator never imports the packages built on it. This module only dispatches
+(so ``cartpole offline`` never imports rclpy).
 
 Exit codes (the README's "Exit codes"): 0 a correct result; 1 a run or an
 operation that failed (its summary or reason printed); 2 a refused input, one
@@ -17,8 +18,9 @@ import argparse
 import importlib
 import signal
 import sys
+from importlib.metadata import entry_points
 
-from cartpole_sim.middleware import use_profiles
+from cartpole_core.middleware import use_profiles
 
 from .boundary import InputError
 
@@ -35,39 +37,54 @@ SUBCOMMANDS = {
     'offline': 'the same closed loop without ROS, far faster than real time',
     'analyze': 'run summary and plots from recorded bags',
     'bag': 'bags: repair one whose recording was killed, show what is in one',
-    'bench': 'benchmarks: controller comparison, loop latency, offline speed',
     'emulate': 'device emulator (the plant behind the Joint protocol) on a new pseudo-terminal',
-    'identify': 'fit plant parameters to a recorded test',
     'bound': 'minimum-time swing-up bounds for the parameters in use',
     'plan': 'solve and cache the minimum-time plan of the time_optimal swing-up for a start',
 }
+
+
+ENTRY_POINT_GROUP = 'cartpole.commands'
+"""Subcommands of other packages: ``name = module`` (the module has ``HELP``)."""
+
+
+def subcommand_modules() -> dict[str, str]:
+    """Subcommand name -> module: this package's, then the ``cartpole.commands`` entry points."""
+    modules = {name: f'cartpole_bringup.commands.{name}' for name in SUBCOMMANDS}
+    for entry in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        modules.setdefault(entry.name, entry.value)
+    return modules
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog='cartpole', description='Cart-pole swing-up and stabilisation on ROS 2 Jazzy.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
-    for name, help_text in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=f'cartpole_bringup.commands.{name}', _parser=p)
+    for name, module_name in subcommand_modules().items():
         if name == 'emulate':
-            # The emulator parses its own options (cartpole_hw.emulator).
+            # The emulator parses its own options (cartpole_emulator.emulator).
+            p = sub.add_parser(name, help=SUBCOMMANDS[name], description=SUBCOMMANDS[name])
+            p.set_defaults(_module=module_name, _parser=p)
             p.add_argument('emulator_args', nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
             continue
         try:
-            module = importlib.import_module(f'cartpole_bringup.commands.{name}')
+            module = importlib.import_module(module_name)
         except ImportError as exc:
-            p.set_defaults(_unavailable=str(exc))
+            help_text = SUBCOMMANDS.get(name, '(not available)')
+            p = sub.add_parser(name, help=help_text, description=help_text)
+            p.set_defaults(_module=module_name, _parser=p, _unavailable=str(exc))
             continue
+        help_text = SUBCOMMANDS.get(name) or module.HELP
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module_name, _parser=p)
         module.add_arguments(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    use_profiles()  # a service's reply never holds the loop (cartpole_sim.middleware)
+    use_profiles()  # a service's reply never holds the loop (cartpole_core.middleware)
     if argv[:1] == ['emulate']:
-        from cartpole_hw.emulator import main as emulate
+        from cartpole_emulator.emulator import main as emulate
         return emulate(argv[1:]) or 0
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from cartpole_sim import scenario_options
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.scenario import Scenario
 
 from . import boundary
@@ -140,7 +140,7 @@ def check_view_address(value: str | None) -> None:
     """``--view HOST:PORT`` refused before anything starts (InputError naming it); None: no view."""
     if value is None:
         return
-    from .viewer.server import parse_address
+    from cartpole_analysis.viewer.server import parse_address
     try:
         parse_address(value)
     except ValueError as error:
@@ -163,7 +163,7 @@ def print_summary(summary: dict[str, Any], as_json: bool) -> None:
         if isinstance(value, float):
             text = f'{value:.6g}'
         elif key == 'controllers' and isinstance(value, list):
-            from .analysis.timeline import describe
+            from cartpole_analysis.analysis.timeline import describe
             text = describe(value)
         else:
             text = 'null' if value is None else str(value)

@@ -8,7 +8,7 @@ from pathlib import Path
 from cartpole_bringup import cli
 from cartpole_bringup.boundary import figure_file, json_text
 
-_spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).with_name('bag_synth.py'))
+_spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).parents[2] / 'cartpole_analysis' / 'test' / 'bag_synth.py')
 bag_synth = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bag_synth)
 

@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 
 from cartpole_bringup import cli
 
-_spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).with_name('bag_synth.py'))
+_spec = importlib.util.spec_from_file_location('bag_synth', Path(__file__).parents[2] / 'cartpole_analysis' / 'test' / 'bag_synth.py')
 bag_synth = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bag_synth)
 
@@ -55,14 +55,14 @@ WORK = [  # (module, attribute): where each subcommand's work begins
     ('rclpy', 'init'),
     ('cartpole_control.trajectory_optimization', 'swingup_bounds'),
     ('cartpole_control.controllers.time_optimal', 'solve_plan_for'),
-    ('cartpole_bringup.analysis.analyze', 'analyze_bag'),
-    ('cartpole_bringup.identification.bag_input', 'load_recording'),
-    ('cartpole_bringup.identification.fit', 'identify'),
-    ('cartpole_bringup.identification.pulse_player', 'rehearse'),
-    ('cartpole_bringup.commands.bench', 'bench_control'),
-    ('cartpole_bringup.commands.bench', 'bench_robustness'),
-    ('cartpole_bringup.commands.bench', 'bench_offline'),
-    ('cartpole_bringup.commands.bench', 'bench_loop'),
+    ('cartpole_analysis.analysis.analyze', 'analyze_bag'),
+    ('cartpole_tools.identification.bag_input', 'load_recording'),
+    ('cartpole_tools.identification.fit', 'identify'),
+    ('cartpole_tools.identification.pulse_player', 'rehearse'),
+    ('cartpole_tools.commands.bench', 'bench_control'),
+    ('cartpole_tools.commands.bench', 'bench_robustness'),
+    ('cartpole_tools.commands.bench', 'bench_offline'),
+    ('cartpole_tools.commands.bench', 'bench_loop'),
 ]
 
 SETTINGS = settings(max_examples=120, deadline=None, derandomize=True, database=None,
@@ -312,7 +312,7 @@ def test_offline_refuses_a_run_that_loses_every_sample(data):
     seed = data.draw(st.integers(0, 50))
     drop = data.draw(st.floats(0.5, 0.99))
     # a run of one or two samples: lost entirely with a probability of drop^2
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     from cartpole_sim.plant import Plant
     from cartpole_sim.scenario import Scenario
     plant = Plant(CartPoleParameters(), Scenario(drop=drop, seed=seed))

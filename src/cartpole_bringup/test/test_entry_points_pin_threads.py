@@ -1,5 +1,5 @@
 """Every executable of the workspace pins the numerical libraries to one thread before numpy
-loads (cartpole_sim.realtime.pin_numerical_threads, run by each package's __init__): a BLAS
+loads (cartpole_core.realtime.pin_numerical_threads, run by each package's __init__): a BLAS
 thread pool competing with the loop on a small machine turned a 0.6 ms Riccati solve into
 16 ms (docs/benchmarks.md, loop latency)."""
 import os
@@ -10,10 +10,10 @@ from importlib.metadata import entry_points
 
 import pytest
 
-from cartpole_sim import realtime
+from cartpole_core import realtime
 
-PACKAGES = ('cartpole_bringup', 'cartpole_control', 'cartpole_estimation', 'cartpole_hw',
-            'cartpole_sim')
+PACKAGES = ('cartpole_analysis', 'cartpole_bringup', 'cartpole_control', 'cartpole_core',
+            'cartpole_emulator', 'cartpole_estimation', 'cartpole_hw', 'cartpole_sim', 'cartpole_tools')
 SCRIPTS = sorted({(ep.name, ep.value.split(':')[0]) for ep in entry_points(group='console_scripts')
                   if ep.value.split('.')[0] in PACKAGES})
 
@@ -21,8 +21,16 @@ SCRIPTS = sorted({(ep.name, ep.value.split(':')[0]) for ep in entry_points(group
 def test_every_package_has_its_executables_listed():
     modules = {module for _, module in SCRIPTS}
     assert {'cartpole_bringup.cli', 'cartpole_control.manager_node',
-            'cartpole_estimation.ekf_node', 'cartpole_hw.hw_node', 'cartpole_hw.emulator',
-            'cartpole_sim.sim_node'} <= modules
+            'cartpole_estimation.ekf_node', 'cartpole_hw.hw_node', 'cartpole_emulator.emulator',
+            'cartpole_sim.sim_node', 'cartpole_analysis.viewer.node',
+            'cartpole_bringup.graph.recorder'} <= modules
+
+
+def test_no_generic_name_on_the_path():
+    """The nodes keep their ``ros2 run`` names; every other executable is ``cartpole*``."""
+    node_names = {'sim_node', 'ekf_node', 'controller_manager', 'hw_bridge'}
+    generic = [name for name, _ in SCRIPTS if name not in node_names and not name.startswith('cartpole')]
+    assert not generic
 
 
 def threads_after_import(module, **env_update):

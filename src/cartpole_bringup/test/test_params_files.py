@@ -1,7 +1,7 @@
 """Each node's installed parameter file is current, and rcl loads it onto the node.
 
-The files come from :mod:`cartpole_bringup.readme_tables.params_files`; the README
-check (``python -m cartpole_bringup.readme_tables --check``, test_readme_tables.py)
+The files come from :mod:`cartpole_tools.readme_tables.params_files`; the README
+check (``python -m cartpole_tools.readme_tables --check``, test_readme_tables.py)
 fails when one is stale. Here: what each file holds reaches its node through
 ``--ros-args --params-file`` as ``ros2 run`` passes it (the process's arguments,
 rcl's YAML parser), typed as declared, in a namespace too.
@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cartpole_bringup.readme_tables import params_files
-from cartpole_bringup.readme_tables.introspect import NODES, NodeInfo, ParameterInfo, _build
+from cartpole_tools.readme_tables import params_files
+from cartpole_tools.readme_tables.introspect import NODES, NodeInfo, ParameterInfo, _build
 
 CHANGED = {
     'sim': ('friction_scale', '1.25', 1.25),
@@ -28,7 +28,8 @@ CHANGED = {
 
 
 def _node_name(executable: str) -> str:
-    return {'sim_node': 'sim', 'ekf_node': 'ekf'}.get(executable, executable)
+    return {'sim_node': 'sim', 'ekf_node': 'ekf', 'cartpole_recorder': 'recorder',
+            'cartpole_viewer': 'viewer'}.get(executable, executable)
 
 
 def _value(node, name: str):

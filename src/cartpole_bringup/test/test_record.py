@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import reap
+from cartpole_core.child_process import reap
 
 pytestmark = pytest.mark.ros
 
@@ -85,7 +85,7 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from cartpole_bringup.bags.writer import bag_custom_data
+    from cartpole_analysis.bags.writer import bag_custom_data
     from cartpole_bringup.graph.recorder import RecorderNode
 
     bag = tmp_path / 'bag'
@@ -177,7 +177,7 @@ def test_installed_recorder_closes_the_bag_on_sigint_and_sigterm(ros_context, sp
     from rclpy.duration import Duration
     from rclpy.executors import SingleThreadedExecutor
 
-    exe = str(installed('cartpole_bringup', 'recorder'))
+    exe = str(installed('cartpole_bringup', 'cartpole_recorder'))
     bags = {sig: tmp_path / sig.name for sig in (signal.SIGINT, signal.SIGTERM)}
     # Two nodes named recorder on one domain: allowed explicitly (one graph per domain).
     procs = {sig: subprocess.Popen([exe, '--ros-args', '-p', f'output:={bag}',

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cartpole_sim.child_process import reap
+from cartpole_core.child_process import reap
 
 from cartpole_bringup import cli
 from cartpole_bringup.commands import run as run_cmd

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 from .position_window import PositionWindow
 

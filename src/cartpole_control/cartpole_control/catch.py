@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cartpole_sim.model import CartPoleParameters, pendulum_energy, wrap_angle
+from cartpole_core.model import CartPoleParameters, pendulum_energy, wrap_angle
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, ClassVar, Mapping, Sequence, final
 
-from cartpole_sim.model import CartPoleParameters, wrap_angle
+from cartpole_core.model import CartPoleParameters, wrap_angle
 
 from .feedforward import FrictionFeedforward
 

@@ -47,7 +47,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from cartpole_sim.model import CartPoleParameters, acceleration_function, pendulum_energy
+from cartpole_core.model import CartPoleParameters, acceleration_function, pendulum_energy
 
 from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec

@@ -40,7 +40,7 @@ Wiring only; every decision is the manager's.
   ``plant_reset``) instead of the running controller (and the rail guard)
   seeing the jump;
 - ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between
-  two control cycles since start (a stall figure, :mod:`cartpole_sim.realtime`);
+  two control cycles since start (a stall figure, :mod:`cartpole_core.realtime`);
   ``cycle_compute_s`` / ``max_cycle_compute_s``: the compute time of the
   control cycle (:meth:`ControllerManager.update`, the swap of a staged
   parameter change included), the last one and the longest since start;
@@ -51,7 +51,7 @@ Wiring only; every decision is the manager's.
   (:meth:`health`, status ``controller_manager: control``);
 - the Python loggers of ``cartpole_control`` (the manager, the registry, the
   plan cache, the plugins) go to this node's logger, so ``/rosout``, while the
-  node lives (:mod:`cartpole_sim.ros_logging`); a refused parameter change is
+  node lives (:mod:`cartpole_core.ros_logging`); a refused parameter change is
   logged too;
 - zero force on shutdown (:meth:`publish_zero`, also called by
   :meth:`destroy_node`).
@@ -76,14 +76,14 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from cartpole_sim.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics, plain
-from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.realtime import CycleGapMeter, collect_when_idle
-from cartpole_sim.ros_logging import route_to_node
+from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics, plain
+from cartpole_core.model import CartPoleParameters
+from cartpole_core.realtime import CycleGapMeter, collect_when_idle
+from cartpole_core.ros_logging import route_to_node
 
 from .controller import ControllerState, ParameterSpec
 from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
-from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
@@ -549,7 +549,7 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
 def main(args=None) -> None:
     """Run the node until Ctrl-C / SIGTERM; its destroy_node commands zero force.
 
-    :func:`cartpole_sim.node_runner.run_node` keeps the context alive while the
+    :func:`cartpole_core.node_runner.run_node` keeps the context alive while the
     node shuts down, so the last zero force is still published.
     """
     run_node(ControllerManagerNode, args, name='controller_manager')

@@ -9,7 +9,7 @@ No ROS import.
 """
 from __future__ import annotations
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 from .controller import AUTO, ParameterSpec
 

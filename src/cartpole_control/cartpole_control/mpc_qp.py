@@ -66,7 +66,7 @@ last working set, no allocation in its solve), OSQP's wheel (``update`` of
 the vectors, warm-started ADMM), and the QP solvers bundled with CasADi
 (``casadi.conic``: DAQP, qpOASES, OSQP, ProxQP), which take the whole
 problem at each call. Which is fastest is measured
-(``python -m cartpole_bringup.bench.mpc_solve``, docs/controllers.md).
+(``python -m cartpole_tools.bench.mpc_solve``, docs/controllers.md).
 
 The number of QPs built is counted in :attr:`CondensedQp.constructions` (a
 class attribute: a test checks one construction per configure and none per

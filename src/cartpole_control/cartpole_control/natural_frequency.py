@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import math
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 from .position_window import PositionWindow
 

@@ -14,7 +14,7 @@ Olbrot (IEEE TAC 24(4), 1979), whose predictor is
     x_hat(t + tau) = x(t) + int_t^{t+tau} f(x(s), u(s - tau)) ds.
 
 Here the integral is one midpoint (RK2) step of the nominal model (4.18),
-the same equations the EKF predicts with (:func:`cartpole_sim.model.
+the same equations the EKF predicts with (:func:`cartpole_core.model.
 acceleration_function`), under the last force command (the command in
 flight; with a zero-order hold it is the one the plant applies next):
 

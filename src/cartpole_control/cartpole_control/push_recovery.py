@@ -74,7 +74,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters, accelerations, torque_accelerations
+from cartpole_core.model import CartPoleParameters, accelerations, torque_accelerations
 
 from .trajectory_optimization import SMOOTH_FRICTION_STEEPNESS, casadi_dynamics
 
@@ -227,7 +227,7 @@ def casadi_push_dynamics(params: CartPoleParameters, friction: bool = True,
                          steepness: float = SMOOTH_FRICTION_STEEPNESS):
     """CasADi Function ``f(s, F, tau) -> s_dot``: (4.18) with a force F on the cart and a
     torque tau on the pendulum, M(theta)^-1 [0, tau] added (as
-    :func:`cartpole_sim.model.torque_accelerations`); friction as
+    :func:`cartpole_core.model.torque_accelerations`); friction as
     :func:`~cartpole_control.trajectory_optimization.casadi_dynamics`."""
     import casadi as ca
     f = casadi_dynamics(params, friction, steepness)
@@ -386,7 +386,7 @@ class _RecoveryNLP:
 
         The law ignores the pendulum: it falls and swings. A start for the branch on
         which the pendulum is let go and swung up again (no angle limit); simulated with
-        RK4 at 1 ms on :func:`cartpole_sim.model.accelerations` (unsmoothed friction).
+        RK4 at 1 ms on :func:`cartpole_core.model.accelerations` (unsmoothed friction).
         """
         pr = self.problem
         p = pr.params

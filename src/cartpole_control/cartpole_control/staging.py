@@ -31,7 +31,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 from .catch import CatchTrigger
 from .controller import KINDS, ControlContext, Controller, ParameterSpec

@@ -20,7 +20,7 @@ Minimum-time problems of this kind have many local minima (which way the
 cart moves first, how many pendulum reversals); the solver is started from
 several energy-pumping guesses and the best solution is kept.
 
-Model. The rigid-body dynamics are those of :func:`cartpole_sim.model.accelerations`
+Model. The rigid-body dynamics are those of :func:`cartpole_core.model.accelerations`
 (4.18), restated with CasADi symbols (a test checks both agree). The cart
 and pendulum friction (4.20)/(4.21) are kept, with the discontinuous Coulomb
 term smoothed to ``tanh(k v)`` with k = :data:`SMOOTH_FRICTION_STEEPNESS`
@@ -57,7 +57,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
 
 SMOOTH_FRICTION_STEEPNESS = 100.0
 """k [s/m, s/rad] of the smoothed Coulomb friction tanh(k v) in the optimisation model."""

@@ -5,7 +5,7 @@ import textwrap
 from cartpole_control.controller import STABILIZER, SWINGUP, Controller, ControllerState, \
     ParameterSpec
 from cartpole_control.manager import ControllerManager
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 P = CartPoleParameters()
 TS = P.sample_time

@@ -5,7 +5,7 @@ import pytest
 
 from cartpole_control.actuator import ActuatorEstimator
 from cartpole_control.manager import ControllerManager
-from cartpole_sim.model import CartPoleParameters, accelerations
+from cartpole_core.model import CartPoleParameters, accelerations
 
 P = CartPoleParameters()
 

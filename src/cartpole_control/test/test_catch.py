@@ -4,7 +4,7 @@ import math
 import pytest
 
 from cartpole_control.catch import CatchTrigger
-from cartpole_sim.model import CartPoleParameters, pendulum_energy
+from cartpole_core.model import CartPoleParameters, pendulum_energy
 
 P = CartPoleParameters()
 E_STAR = P.upright_energy  # 2 m_p g l = 1.6473 J

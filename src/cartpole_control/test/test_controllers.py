@@ -14,7 +14,7 @@ from cartpole_control.controllers.full_energy import FullEnergySwingUp
 from cartpole_control.controllers.pendulum_energy import PendulumEnergySwingUp
 from cartpole_control.controllers.pid import PidStabilizer
 from cartpole_control.controllers.sign_based import SignBasedSwingUp
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy, system_energy
+from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy, system_energy
 
 PARAMS = CartPoleParameters()
 X_REF = PARAMS.x_middle

@@ -8,7 +8,7 @@ from cartpole_control.controllers.energy_saturated import (DEFAULT_GAINS, Energy
                                                            exact_force_for_acceleration,
                                                            saturated_energy_acceleration)
 from cartpole_control.registry import load_controllers
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
 
 P = CartPoleParameters()
 X_MID = P.x_middle

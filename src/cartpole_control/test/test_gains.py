@@ -13,7 +13,7 @@ from cartpole_control.controllers.lqg import LqgStabilizer, augmented_model, lqi
 from cartpole_control.controllers.pid import PidStabilizer
 from cartpole_control.controllers.smc import (SlidingModeStabilizer, ackermann,
                                               regular_form_linearisation)
-from cartpole_sim.model import CartPoleParameters, accelerations, linearise_upright
+from cartpole_core.model import CartPoleParameters, accelerations, linearise_upright
 
 PARAMS = CartPoleParameters()
 CONTEXT = ControlContext(plant=PARAMS, x_ref=PARAMS.x_middle, sample_time=PARAMS.sample_time)

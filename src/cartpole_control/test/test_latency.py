@@ -5,7 +5,7 @@ import pytest
 
 from cartpole_control.latency import LATENCY_MAX, CommandsInFlight, LatencyEstimator
 from cartpole_control.manager import ControllerManager
-from cartpole_sim.model import CartPoleParameters, acceleration_function
+from cartpole_core.model import CartPoleParameters, acceleration_function
 
 P = CartPoleParameters()
 ACC = acceleration_function(P)

@@ -7,7 +7,7 @@ import pytest
 from cartpole_control.controller import STABILIZER, SWINGUP, Controller
 from cartpole_control.feedforward import FrictionFeedforward
 from cartpole_control.manager import STABILIZING, SWINGUP_MODE, ControllerManager
-from cartpole_sim.model import accelerations
+from cartpole_core.model import accelerations
 from manager_test_support import P, TS, HoldA, HoldB, Recording, make, plugin, state, upright
 
 

@@ -8,7 +8,7 @@ from cartpole_control.controller import ControllerState
 from cartpole_control.manager import (FAULT, STABILIZING, SWINGUP_MODE, ControllerManager,
                                       ManagerOutput)
 from cartpole_control.rail_guard import LIMITED
-from cartpole_sim.model import wrap_angle
+from cartpole_core.model import wrap_angle
 from cartpole_sim.plant import Plant, Scenario
 from manager_test_support import P, TS, make, state
 

@@ -24,8 +24,8 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from cartpole_control.controllers.lqg import LqgStabilizer  # noqa: E402
 from cartpole_control.manager_node import STATUS_KEYS, ControllerManagerNode  # noqa: E402
-from cartpole_sim.child_process import reap  # noqa: E402
-from cartpole_sim.model import CartPoleParameters  # noqa: E402
+from cartpole_core.child_process import reap  # noqa: E402
+from cartpole_core.model import CartPoleParameters  # noqa: E402
 
 P = CartPoleParameters()
 ROOT = Path(__file__).resolve().parents[3]
@@ -307,7 +307,7 @@ def test_enabled_false_is_idle_with_zero_force(graph):
 def test_plant_reset_starts_a_new_swingup_from_the_first_state_after_it(graph):
     from std_msgs.msg import Header
 
-    from cartpole_sim.node_runner import PLANT_RESET_QOS
+    from cartpole_core.node_runner import PLANT_RESET_QOS
     node, h = graph
     _, status_array = h.send_state(5.0, theta=0.05)                  # caught: stabilising
     assert values_of(status_array)[1]['mode'] == 'stabilizing'

@@ -22,7 +22,7 @@ def test_a_refused_plugin_is_seen_on_rosout(ros_context, spin_until, tmp_path, m
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     from cartpole_control.manager_node import ControllerManagerNode
-    from cartpole_sim.ros_logging import RosLogHandler
+    from cartpole_core.ros_logging import RosLogHandler
 
     site = tmp_path / 'site'
     fake_distribution(site, 'fake-broken', '0.1', 'fake_broken', BROKEN,

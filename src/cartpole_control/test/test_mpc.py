@@ -11,7 +11,7 @@ from cartpole_control.controllers.lqg import augmented_model
 from cartpole_control.controllers.mpc import MpcStabilizer
 from cartpole_control.manager import ControllerManager
 from cartpole_control.mpc_qp import CondensedQp, discretise
-from cartpole_sim.model import CartPoleParameters, linearise_upright
+from cartpole_core.model import CartPoleParameters, linearise_upright
 
 P = CartPoleParameters()
 CONTEXT = ControlContext(plant=P, x_ref=P.x_middle, sample_time=P.sample_time)

@@ -21,7 +21,7 @@ from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from cartpole_control.manager_node import ControllerManagerNode  # noqa: E402
-from cartpole_sim.model import CartPoleParameters  # noqa: E402
+from cartpole_core.model import CartPoleParameters  # noqa: E402
 from cartpole_sim.plant import Plant, Scenario  # noqa: E402
 
 P = CartPoleParameters()

@@ -4,7 +4,7 @@ import math
 import pytest
 
 from cartpole_control.natural_frequency import NaturalFrequencyEstimator
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
 
 P = CartPoleParameters()
 

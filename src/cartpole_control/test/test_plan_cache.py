@@ -10,7 +10,7 @@ import pytest
 from cartpole_control import plan_cache
 from cartpole_control import trajectory_optimization as to
 from cartpole_control.plan_cache import PlanBusy, PlanError, TrajectoryCache, solve_cached
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 P = CartPoleParameters()
 PROBLEM = to.bound_problem('middle', P)

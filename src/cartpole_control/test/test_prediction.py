@@ -4,7 +4,7 @@ import math
 import pytest
 
 from cartpole_control.prediction import predict_over_commands, predict_state
-from cartpole_sim.model import CartPoleParameters, acceleration_function
+from cartpole_core.model import CartPoleParameters, acceleration_function
 
 P = CartPoleParameters()
 ACC = acceleration_function(P)

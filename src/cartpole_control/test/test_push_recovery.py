@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cartpole_control import push_recovery as pr
-from cartpole_sim.model import CartPoleParameters, accelerations, torque_accelerations
+from cartpole_core.model import CartPoleParameters, accelerations, torque_accelerations
 
 P = CartPoleParameters()
 COARSE = dict(horizon=2.0, push_step=0.01, step=0.05, fine_time=0.2)
@@ -28,7 +28,7 @@ def cart_fall_nlp():
 
 def test_push_widths_and_limits_are_the_grids():
     """The pushes are those of the robustness grid, the angle limit the fall detector's."""
-    robustness = pytest.importorskip('cartpole_bringup.bench.robustness')
+    robustness = pytest.importorskip('cartpole_tools.bench.robustness')
     assert pr.PUSH_WIDTHS == {'cart': robustness.CART_PUSH_WIDTH,
                               'pendulum': robustness.PENDULUM_PUSH_WIDTH}
     from cartpole_control.manager_parameters import manager_parameter_specs
@@ -113,7 +113,7 @@ def replay(problem, recovery, until: float):
 
 @pytest.mark.parametrize('target,impulse', [('cart', 4.0), ('pendulum', 0.03)])
 def test_a_push_well_below_the_bound_is_recovered_on_the_plant_model(target, impulse):
-    """Feasible; the solution's forces replayed on cartpole_sim.model (frictionless, so the
+    """Feasible; the solution's forces replayed on cartpole_core.model (frictionless, so the
     same equations) follow its states; the recovery stays on the rail and ends upright at
     rest; a pendulum pushed towards increasing theta (leaning left) makes the cart go left."""
     problem = coarse(target, max_angle=pr.FALL_ANGLE, friction=False)

@@ -4,7 +4,7 @@ import math
 import pytest
 
 from cartpole_control.rail_guard import ARMED, BRAKING, LIMITED, STOPPED, RailGuard
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
 
 P = CartPoleParameters()
@@ -249,7 +249,7 @@ def test_after_a_trip_the_guard_holds_a_creeping_cart_off_the_nearer_stop():
     # can drag the cart below rest_speed for seconds: creeping towards the nearer stop
     # is braked, creeping away (or standing) is left alone.
     from cartpole_control.rail_guard import STOPPED, RailGuard
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     p = CartPoleParameters()
     guard = RailGuard(p)
     guard.status = STOPPED

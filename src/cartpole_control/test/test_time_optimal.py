@@ -19,7 +19,7 @@ from cartpole_control.controllers.time_optimal import FALLBACK, PLAN, TimeOptima
 from cartpole_control import plan_cache
 from cartpole_control.plan_cache import TrajectoryCache
 from cartpole_control.registry import load_controllers
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 P = CartPoleParameters()
 TS = P.sample_time
@@ -308,7 +308,7 @@ def test_plan_force_is_net_of_the_managers_own_feedforward_settings():
     # will add, as the manager is configured (ControlContext.feedforward), not a copy.
     from cartpole_control.feedforward import FrictionFeedforward
     from cartpole_control.manager import ControllerManager
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     p = CartPoleParameters()
     m = ControllerManager(p, sample_time=p.sample_time)
     assert m.set_parameters({'swingup': 'time_optimal', 'feedforward.right': 4.0,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cartpole_control import trajectory_optimization as to
-from cartpole_sim.model import CartPoleParameters, accelerations, pendulum_energy
+from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
 
 P = CartPoleParameters()
 
@@ -14,7 +14,7 @@ P = CartPoleParameters()
 @pytest.mark.parametrize('state,force', [
     ((0.3, 2.0, 0.4, -3.0), 12.0), ((0.1, -0.7, -0.8, 5.0), -30.0), ((0.5, 4.0, 1.2, 0.5), 0.0)])
 def test_casadi_model_is_the_plant_model(state, force):
-    """The CasADi restatement of (4.18) equals cartpole_sim.model.accelerations."""
+    """The CasADi restatement of (4.18) equals cartpole_core.model.accelerations."""
     f0 = to.casadi_dynamics(P, friction=False)
     got = np.array(f0(state, force)).ravel()
     want = accelerations(*state, force, P, friction=False)

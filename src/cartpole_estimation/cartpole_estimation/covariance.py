@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-from cartpole_sim.model import wrap_angle
+from cartpole_core.model import wrap_angle
 
 __all__ = ['predict_covariance', 'correct']
 

@@ -2,7 +2,7 @@
 
 The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34), and the pendulum
 encoder's offset b (Appendix H), from the quantised cart position and
-pendulum angle, with the model of :mod:`cartpole_sim.model` discretised
+pendulum angle, with the model of :mod:`cartpole_core.model` discretised
 (5.6)-(5.9) by the explicit midpoint rule (forward Euler, the thesis's (5.8),
 one parameter away), a numerical Jacobian (5.20)/(5.21), the Kalman gain
 (5.12) and the Joseph form of the covariance update (5.14)
@@ -67,7 +67,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters, acceleration_function, wrap_angle
+from cartpole_core.model import CartPoleParameters, acceleration_function, wrap_angle
 
 from .covariance import correct, predict_covariance
 from .ekf_config import EkfConfig

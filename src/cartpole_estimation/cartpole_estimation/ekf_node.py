@@ -5,7 +5,7 @@ Subscribes ``/joint_states`` (the quantised positions of ``cart`` and
 ``/cartpole/state`` (estimated positions and velocities, stamp copied from
 the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
 (diagnostic_msgs/DiagnosticArray) every ``health_period``, and the same health as
-``ekf: estimation`` on ``/diagnostics`` once a second (:mod:`cartpole_sim.diagnostics`:
+``ekf: estimation`` on ``/diagnostics`` once a second (:mod:`cartpole_core.diagnostics`:
 OK, idle before the first sample; WARN when a :data:`DEGRADED` counter grew; STALE when
 the samples stopped). The numerical work
 is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
@@ -40,10 +40,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from cartpole_sim.diagnostics import OK, Health, HealthReport, NodeDiagnostics
-from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
-from cartpole_sim.realtime import CycleGapMeter
+from cartpole_core.diagnostics import OK, Health, HealthReport, NodeDiagnostics
+from cartpole_core.model import CartPoleParameters
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_core.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
 from .ekf_config import DISCRETISATIONS, changes_from_parameters, q_parameter

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter, StateEstimate
-from cartpole_sim.model import (CartPoleParameters, acceleration_function, accelerations,
+from cartpole_core.model import (CartPoleParameters, acceleration_function, accelerations,
                                  linearise_upright, wrap_angle)
 from cartpole_sim.plant import Plant, Scenario
 

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from cartpole_estimation.ekf import ExtendedKalmanFilter
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
 
 NOMINAL = CartPoleParameters()

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from cartpole_sim.child_process import reap
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.child_process import reap
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
 
 pytestmark = pytest.mark.ros
@@ -305,7 +305,7 @@ def test_plant_reset_reinitialises_from_the_first_sample_after_it(harness, spin_
     """/sim/reset puts the cart back at the stop: the jump is not filtered as an innovation."""
     from std_msgs.msg import Header
 
-    from cartpole_sim.node_runner import PLANT_RESET_QOS
+    from cartpole_core.node_runner import PLANT_RESET_QOS
     h = harness()
     assert connected(h, spin_until)
     reset_pub = h.node.create_publisher(Header, '/cartpole/plant_reset', PLANT_RESET_QOS)

@@ -1,2 +1,2 @@
 """Serial bridge to the Arduino Due rig (Joint protocol), device emulator and firmware support."""
-import cartpole_sim  # noqa: F401,E402 - pins numerical threads to one before numpy loads
+import cartpole_core  # noqa: F401,E402 - pins numerical threads to one before numpy loads

@@ -79,7 +79,7 @@ import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
 
-from cartpole_sim.realtime import CycleGapMeter
+from cartpole_core.realtime import CycleGapMeter
 
 from . import protocol as jp
 from .device_clock import DeviceClock

@@ -93,8 +93,8 @@ from std_srvs.srv import Trigger
 from . import protocol as jp
 from .bridge import BridgeConfig, BridgeCore, JointSample
 from .serial_link import SerialLink
-from cartpole_sim.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
-from cartpole_sim.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_core.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 RECEIPTS_KEPT = 400
 """Receipt times kept for the command-age rule (2 s of samples at 200 Hz); also the

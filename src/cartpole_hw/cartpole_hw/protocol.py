@@ -77,7 +77,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Iterable, Union
 
-from cartpole_sim.model import CartPoleParameters, EncoderResolution, wrap_counter
+from cartpole_core.model import CartPoleParameters, EncoderResolution, wrap_counter
 
 PROTOCOL_VERSION = 2
 """Version the device announces in ``V`` (2: tagged setpoints and the latency report)."""

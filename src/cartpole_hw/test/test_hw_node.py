@@ -25,7 +25,7 @@ def _make_rig(ros_context, tmp_path, active):
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
-    from cartpole_hw.emulator import Emulator
+    from cartpole_emulator.emulator import Emulator
     from cartpole_hw.hw_node import HwBridgeNode
     from cartpole_hw.lifecycle_client import LifecycleClient
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 
 from cartpole_hw import protocol as jp
 from cartpole_hw.protocol import CounterUnwrapper
-from cartpole_sim.model import CartPoleParameters, wrap_counter
+from cartpole_core.model import CartPoleParameters, wrap_counter
 from cartpole_sim.plant import Plant, Scenario
 
 _spec = importlib.util.spec_from_file_location('hw_vectors', Path(__file__).with_name('vectors.py'))

@@ -125,7 +125,7 @@ def test_a_late_writer_is_not_a_dead_port_but_a_full_one_is():
 
 
 def test_the_reader_thread_takes_the_real_time_priority_of_the_thread_that_starts_it(tmp_path):
-    """Configured after the process took SCHED_FIFO (cartpole_sim.realtime), the reader
+    """Configured after the process took SCHED_FIFO (cartpole_core.realtime), the reader
     thread runs at it too (a new thread would otherwise start at normal priority)."""
     import threading
 

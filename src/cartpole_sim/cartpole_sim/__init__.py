@@ -1,4 +1,2 @@
-"""Plant model of the thesis's cart-pendulum (dynamics, friction, actuator, end stops, encoders) and the simulator node."""
-from .realtime import pin_numerical_threads
-
-pin_numerical_threads()  # before numpy loads (cartpole_sim.realtime; unless set already)
+"""The simulated rig: the thesis's plant with its actuator, end stops, encoders and disturbances, and the simulator node."""
+import cartpole_core  # noqa: F401,E402 - pins numerical threads to one before numpy loads

@@ -12,7 +12,7 @@ from collections import deque
 
 import numpy as np
 
-from .model import torque_accelerations
+from cartpole_core.model import torque_accelerations
 
 STREAM_JITTER = 1
 STREAM_DROP = 2

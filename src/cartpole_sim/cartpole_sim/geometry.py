@@ -2,8 +2,8 @@
 
 One geometry behind every picture of the rig: the URDF
 (``share/cartpole_sim/urdf/cartpole.urdf``), the live Foxglove scene
-(:mod:`cartpole_bringup.viewer.scene`) and the animations made from bags
-(:mod:`cartpole_bringup.analysis.animation`).
+(:mod:`cartpole_analysis.viewer.scene`) and the animations made from bags
+(:mod:`cartpole_analysis.analysis.animation`).
 
 The rail frame (``rail``): origin at the pendulum joint when the cart is at
 the left end stop (x = 0), x along the rail to the right, z up, y from the
@@ -16,7 +16,7 @@ by theta about the -y axis.
 Dimensions (Table 2.1): rail length l_rail 0.889 m, rod diameter 1 cm, tip
 mass 10.4 cm high and 1.95 cm in diameter; the pendulum length l (joint to
 the centre of the tip mass) and the travel come from
-:class:`~cartpole_sim.model.CartPoleParameters`. The cart width is
+:class:`~cartpole_core.model.CartPoleParameters`. The cart width is
 ``l_rail - travel`` = 0.12 m (section 2.3: travel = l_rail - w_cart; Table
 2.1's "w_cart 33.45 cm" repeats l and contradicts the measured travel of
 0.769 m). The rod is drawn from the joint to the tip mass, ``l - h_mass/2``
@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 RAIL_LENGTH = 0.889
 """l_rail [m] (Table 2.1)."""

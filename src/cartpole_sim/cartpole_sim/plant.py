@@ -32,7 +32,7 @@ import numpy as np
 
 from .disturbance import STREAM_DROP, STREAM_FORCE_NOISE, CommandDelayLine, DisturbedHold, \
     RandomStream
-from .model import CartPoleParameters, acceleration_function, accelerations, wrap_counter
+from cartpole_core.model import CartPoleParameters, acceleration_function, accelerations, wrap_counter
 from .scenario import Push, Scenario, parse_push  # noqa: F401 (re-exported: the plant's scenario)
 
 END_STOP_TOLERANCE = 1.0e-6

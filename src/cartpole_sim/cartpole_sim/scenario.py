@@ -35,7 +35,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from .model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 DELAY_MAX = 0.04
 """[s] Largest sensor-to-actuator delay (and largest jitter) a scenario takes."""

@@ -42,7 +42,7 @@ controller manager starts a new swing-up instead of seeing the jump. Force
 commands stamped before the reset (answers to the old run) are ignored.
 
 Health: ``sim: simulation`` on ``/diagnostics`` once a second of the node clock
-(:meth:`SimNode.health`, :mod:`cartpole_sim.diagnostics`).
+(:meth:`SimNode.health`, :mod:`cartpole_core.diagnostics`).
 
 Topic names are relative (``joint_states`` is ``/joint_states`` without a
 namespace), so a graph can run in a namespace; ``/clock`` stays global.
@@ -64,13 +64,13 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from .diagnostics import OK, STALE, Health, NodeDiagnostics
-from .model import CartPoleParameters
+from cartpole_core.diagnostics import OK, STALE, Health, NodeDiagnostics
+from cartpole_core.model import CartPoleParameters
 from .plant import Scenario
 from .scenario import DELAY_MAX, DROP_MAX, parse_push
 from .sim_runner import (CART_JOINT, PENDULUM_JOINT, Sample, SampleClock, SimRunner,
                          force_from_command)
-from .node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""

@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from .model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from .plant import Measurement, Plant, Scenario
 
 CART_JOINT = 'cart'

@@ -33,7 +33,7 @@ import sys
 from pathlib import Path
 
 from .geometry import RigGeometry
-from .model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 ROBOT_NAME = 'cartpole'
 ROOT_LINK = 'base_link'

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cartpole_sim.disturbance import CommandDelayLine, lag_factors
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Push, Scenario, parse_push
 from cartpole_sim.sim_runner import SimRunner
 

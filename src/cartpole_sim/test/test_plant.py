@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from cartpole_sim.model import CartPoleParameters
-from cartpole_sim.model import wrap_counter
+from cartpole_core.model import CartPoleParameters
+from cartpole_core.model import wrap_counter
 from cartpole_sim.plant import END_STOP_TOLERANCE, Plant, Scenario
 
 NOMINAL = CartPoleParameters()

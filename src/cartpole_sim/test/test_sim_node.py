@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from cartpole_sim.child_process import interrupt
+from cartpole_core.child_process import interrupt
 
 pytestmark = pytest.mark.ros
 
@@ -257,7 +257,7 @@ def test_lockstep_steps_once_per_command_and_clock_follows(graph, spin_until, fo
 def test_lockstep_graph_is_deterministic_and_matches_the_offline_runner(graph, spin_until):
     # A measurement-feedback controller in the loop, noise on: the ROS graph in lockstep gives
     # bit for bit the samples of the ROS-free SimRunner driven by the same law.
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     from cartpole_sim.plant import Scenario
     from cartpole_sim.sim_runner import SimRunner
 
@@ -416,7 +416,7 @@ def test_disturbance_parameters_make_the_scenario_and_bad_ones_are_refused(graph
 def test_lockstep_skips_lost_samples_without_waiting_for_their_command(graph, spin_until):
     # drop: a lost sample is not published and lockstep does not wait for a command that
     # cannot come; the published ones are exactly the SimRunner's samples that are not lost.
-    from cartpole_sim.model import CartPoleParameters
+    from cartpole_core.model import CartPoleParameters
     from cartpole_sim.plant import Scenario
     from cartpole_sim.sim_runner import SimRunner
 

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Plant, Scenario
 from cartpole_sim.sim_runner import SampleClock, SimRunner, force_from_command
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cartpole_sim.geometry import RigGeometry
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 from cartpole_sim.urdf import rig_urdf
 
 

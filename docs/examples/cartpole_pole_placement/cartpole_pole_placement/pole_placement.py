@@ -7,7 +7,7 @@ chosen by pole placement instead of LQR:
 
 where K places the eigenvalues of ``A - B K`` at the parameter ``poles``, with
 (A, B) the linearisation about the upright rest (8.13)/(8.14) of the
-manager's plant model (``cartpole_sim.model.linearise_upright``) and
+manager's plant model (``cartpole_core.model.linearise_upright``) and
 ``scipy.signal.place_poles`` (Kautz, Nichols, Van Dooren). No integral action:
 a Coulomb friction left over by the feedforward (6.12) leaves a small cart
 offset from x*.
@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import place_poles
 
 from cartpole_control.controller import STABILIZER, Controller, ControllerState, ParameterSpec
-from cartpole_sim.model import linearise_upright
+from cartpole_core.model import linearise_upright
 
 
 class PolePlacementStabilizer(Controller):

@@ -4,7 +4,7 @@ import pytest
 
 from cartpole_control.controller import ControlContext, ControllerState
 from cartpole_pole_placement.pole_placement import PolePlacementStabilizer
-from cartpole_sim.model import CartPoleParameters, linearise_upright
+from cartpole_core.model import CartPoleParameters, linearise_upright
 
 PLANT = CartPoleParameters()
 CONTEXT = ControlContext(PLANT, PLANT.x_middle, PLANT.sample_time)

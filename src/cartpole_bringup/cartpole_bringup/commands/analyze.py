@@ -40,8 +40,8 @@ def write_animation(analysis, args: argparse.Namespace) -> dict:
     """``--animate``: the animation of one analysed bag; returns what was written."""
     from cartpole_sim.geometry import RigGeometry
 
-    from ..analysis.animation import series_from_analysis
-    from ..analysis.animation import write_animation as render
+    from cartpole_analysis.analysis.animation import series_from_analysis
+    from cartpole_analysis.analysis.animation import write_animation as render
 
     info = render(series_from_analysis(analysis), args.animate,
                   RigGeometry.from_parameters(nominal_parameters(args)), fps=args.fps,
@@ -53,7 +53,7 @@ def write_animation(analysis, args: argparse.Namespace) -> dict:
 
 def write_figures(analyses, directory: Path) -> list[Path]:
     """Per-run figures and, for several runs, the overlay; returns the paths."""
-    from ..analysis.plots import plot_overlay, run_title, write_plots
+    from cartpole_analysis.analysis.plots import plot_overlay, run_title, write_plots
 
     paths: list[Path] = []
     stems: set[str] = set()
@@ -71,7 +71,7 @@ def write_figures(analyses, directory: Path) -> list[Path]:
 
 def controllers_that_ran(analysis) -> dict[str, str]:
     """``swingup`` / ``stabilizer``: every one that ran, in order (``lqg -> smc``)."""
-    from ..analysis.timeline import names_that_ran
+    from cartpole_analysis.analysis.timeline import names_that_ran
     spans = analysis.summary.get('controllers') or []
     out = {}
     for kind in ('swingup', 'stabilizer'):
@@ -84,7 +84,7 @@ def controllers_that_ran(analysis) -> dict[str, str]:
 def checked_bag(bag: Path) -> Path:
     """``bag`` if it is a whole bag directory; InputError with the one "damaged" line if not
     (the same check as ``cartpole bag info``)."""
-    from ..bags.check import damage, damaged_line
+    from cartpole_analysis.bags.check import damage, damaged_line
 
     if not bag.exists():
         raise InputError(f'{bag}: no such bag (not a rosbag2 bag)')
@@ -125,8 +125,8 @@ def check(args: argparse.Namespace):
 
 
 def main(args: argparse.Namespace) -> int:
-    from ..analysis.analyze import analyze_bag, comparison_table
-    from ..bags.check import damaged_line
+    from cartpole_analysis.analysis.analyze import analyze_bag, comparison_table
+    from cartpole_analysis.bags.check import damaged_line
 
     params, bags = check(args)
     analyses = []

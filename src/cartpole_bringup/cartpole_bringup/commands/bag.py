@@ -2,7 +2,7 @@
 
 ``repair`` is the equivalent of ``ros2 bag reindex`` for the MCAP bags of
 ``cartpole run --record`` and the recorder node
-(:mod:`cartpole_bringup.bags.repair`); ``info`` prints what ``ros2 bag info``
+(:mod:`cartpole_analysis.bags.repair`); ``info`` prints what ``ros2 bag info``
 prints (for installs without the ros2 CLI). No ROS needed.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ def _existing(bags: list[Path]) -> None:
 
 
 def _repair(args: argparse.Namespace) -> int:
-    from ..bags.repair import RepairError, repair_bag
+    from cartpole_analysis.bags.repair import RepairError, repair_bag
 
     _existing(args.bags)
     code = 0
@@ -71,7 +71,7 @@ def _repair(args: argparse.Namespace) -> int:
 def bag_info(bag: Path) -> dict:
     """The facts of ``metadata.yaml``, checked against the bag's files; ValueError with the
     one line "BAG: damaged: ..., run `cartpole bag repair BAG`" if they disagree."""
-    from ..bags.check import damage, damaged_line, read_metadata
+    from cartpole_analysis.bags.check import damage, damaged_line, read_metadata
 
     bag = bag.parent if bag.is_file() else bag
     problem = damage(bag)

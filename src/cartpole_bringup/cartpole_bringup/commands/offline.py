@@ -86,7 +86,7 @@ def main(args: argparse.Namespace) -> int:
             server.stop()
     options.print_summary(run.summary, args.json)
     if plot is not None:
-        from ..analysis.plots import plot_offline_run
+        from cartpole_analysis.analysis.plots import plot_offline_run
         try:
             plot_offline_run(run, plot)
         except (OSError, ValueError) as error:
@@ -101,8 +101,8 @@ def _start_view(args: argparse.Namespace, nominal, manager: dict):
     """The viewer's server and the loop's real-time observer (waits for a client unless told)."""
     from cartpole_sim.geometry import RigGeometry
 
-    from ..viewer.server import LiveView, ViewerServer, parse_address
-    from ..viewer.offline import RealTimePlayer
+    from cartpole_analysis.viewer.server import LiveView, ViewerServer, parse_address
+    from cartpole_analysis.viewer.offline import RealTimePlayer
 
     try:
         host, port = parse_address(args.view)

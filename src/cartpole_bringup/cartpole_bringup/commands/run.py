@@ -164,7 +164,7 @@ def check(args: argparse.Namespace) -> None:
     if args.duration is not None:
         boundary.duration(args.duration)
     if args.realtime is not None:
-        from cartpole_sim.realtime import ENVIRONMENT_SWITCH, priority_from_environment
+        from cartpole_core.realtime import ENVIRONMENT_SWITCH, priority_from_environment
         try:
             priority_from_environment({ENVIRONMENT_SWITCH: args.realtime})
         except ValueError as exc:
@@ -178,7 +178,7 @@ def check(args: argparse.Namespace) -> None:
         boundary.output_directory(args.record, '--record')
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise boundary.InputError(f'--domain-id must be in [0, 232], got {args.domain_id}')
-    from .. import namespaces
+    from cartpole_core import namespaces
     try:
         namespaces.normalize(args.namespace)
     except ValueError as error:
@@ -216,7 +216,7 @@ class _StopRequest:
 def main(args: argparse.Namespace) -> int:
     check(args)  # InputError: `cartpole run: error: ...`, exit 2
     if args.realtime is not None:  # read by every node of the run, in this process or its own
-        from cartpole_sim.realtime import ENVIRONMENT_SWITCH
+        from cartpole_core.realtime import ENVIRONMENT_SWITCH
         os.environ[ENVIRONMENT_SWITCH] = args.realtime
     if args.domain_id is not None:
         os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
@@ -227,7 +227,7 @@ def main(args: argparse.Namespace) -> int:
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
 
-    from ..analysis.analyze import JOINTS, TRUE_STATE
+    from cartpole_analysis.analysis.analyze import JOINTS, TRUE_STATE
     from ..graph.graph import DuplicateNodeError, Graph, GraphError, GraphSpec
 
     names = controller_names(args)
@@ -260,7 +260,7 @@ def main(args: argparse.Namespace) -> int:
 
     viewer = None
     if args.view is not None:
-        from ..viewer.process import start_viewer
+        from cartpole_analysis.viewer.process import start_viewer
         try:
             viewer = start_viewer(args.view, plant_params=args.plant_params,
                                   log_level=args.log_level, ros_arguments=spec.ros_arguments)
@@ -318,7 +318,7 @@ def main(args: argparse.Namespace) -> int:
 def _params_file(args: argparse.Namespace, scratch: Path) -> Path | None:
     """``--params`` as the graph's nodes read it: in a namespace, a copy in ``scratch`` whose
     node sections (``controller_manager:``) name the nodes there (``/rig2/controller_manager:``)."""
-    from .. import namespaces
+    from cartpole_core import namespaces
     from ..graph.processes import NODES
 
     if args.params is None:
@@ -366,9 +366,9 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
     ``cartpole analyze`` of the bag reports the same. (None, None) when no
     summary can be made (the reason is printed).
     """
-    from ..analysis.analyze import analyze_bag
-    from ..bags.writer import update_custom_data
-    from ..bags.repair import RepairError, needs_repair, repair_bag
+    from cartpole_analysis.analysis.analyze import analyze_bag
+    from cartpole_analysis.bags.writer import update_custom_data
+    from cartpole_analysis.bags.repair import RepairError, needs_repair, repair_bag
 
     try:
         if bag is None:
@@ -392,8 +392,8 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
 def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
            run_dir: Path | None, bag: Path | None, elapsed: float, fault: str | None) -> int:
     """Plots, ``summary.json``, the printed summary; the exit code (1 after a fault)."""
-    from ..analysis.plots import run_title, write_plots
-    from ..analysis.timeline import names_that_ran
+    from cartpole_analysis.analysis.plots import run_title, write_plots
+    from cartpole_analysis.analysis.timeline import names_that_ran
 
     spans = (summary or {}).get('controllers') or []
     ran = {kind: ' -> '.join(names_that_ran(spans, kind)) or names[kind]

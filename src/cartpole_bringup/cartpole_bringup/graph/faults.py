@@ -1,9 +1,9 @@
 """What goes wrong while a graph runs: a second graph in its namespace, a node that dies or raises.
 
 **One graph per namespace.** Before any node exists, the graph's roles are
-claimed in its namespace of the domain (:mod:`cartpole_sim.domain_guard`); a
+claimed in its namespace of the domain (:mod:`cartpole_core.domain_guard`); a
 role taken already refuses the start
-(:class:`~cartpole_sim.domain_guard.DuplicateNodeError`) unless
+(:class:`~cartpole_core.domain_guard.DuplicateNodeError`) unless
 ``allow_duplicates``. A duplicate that shows up later is reported.
 
 **A fault stops the run.** A node process that dies (or, in one process, a
@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 import traceback
 
-from cartpole_sim.domain_guard import (NodeClaim, claim_graph, domain_id, probe_node,
+from cartpole_core.domain_guard import (NodeClaim, claim_graph, domain_id, probe_node,
                                        role_publishers)
 
 from .processes import describe_exit
@@ -37,7 +37,7 @@ class FaultWatch:
 
     # -- one graph per namespace -----------------------------------------------------------
     def _claim_names(self) -> NodeClaim:
-        """Claim the graph's roles in its namespace (cartpole_sim.domain_guard) before any node
+        """Claim the graph's roles in its namespace (cartpole_core.domain_guard) before any node
         exists.
 
         One process holds every role for its life; with one process a node

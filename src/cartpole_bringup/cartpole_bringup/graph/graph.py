@@ -14,10 +14,10 @@ watches the run: the time series for the summary, the run's duration
 
 **One graph per namespace.** Every node of the graph, the monitor included,
 runs in the spec's namespace (``cartpole run --namespace rig2``:
-:mod:`cartpole_bringup.namespaces`). Before any node exists, the graph's
+:mod:`cartpole_core.namespaces`). Before any node exists, the graph's
 roles are claimed in that namespace of the domain
-(:mod:`cartpole_sim.domain_guard`); a role taken already refuses the start
-(:class:`~cartpole_sim.domain_guard.DuplicateNodeError`) unless
+(:mod:`cartpole_core.domain_guard`); a role taken already refuses the start
+(:class:`~cartpole_core.domain_guard.DuplicateNodeError`) unless
 ``allow_duplicates``. A duplicate that shows up later is reported
 (:mod:`cartpole_bringup.graph.faults`).
 
@@ -58,11 +58,11 @@ from typing import Callable
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
-from cartpole_sim import realtime
-from cartpole_sim.child_process import reap
-from cartpole_sim.domain_guard import DuplicateNodeError
+from cartpole_core import realtime
+from cartpole_core.child_process import reap
+from cartpole_core.domain_guard import DuplicateNodeError
 
-from ..analysis.analyze import STATE, TRUE_STATE
+from cartpole_analysis.analysis.analyze import STATE, TRUE_STATE
 from .bridge_lifecycle import BridgeLifecycle
 from .faults import CHECK_PERIOD, DUPLICATE_CHECK_PERIOD, FaultWatch
 from .parameters import NodeParameters

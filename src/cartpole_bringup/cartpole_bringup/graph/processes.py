@@ -16,13 +16,15 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from cartpole_core.child_process import die_with_parent
+
 NODES: dict[str, tuple[str, str, str, str]] = {
     'sim': ('cartpole_sim', 'sim_node', 'cartpole_sim.sim_node', 'SimNode'),
     'hw_bridge': ('cartpole_hw', 'hw_bridge', 'cartpole_hw.hw_node', 'HwBridgeNode'),
     'ekf': ('cartpole_estimation', 'ekf_node', 'cartpole_estimation.ekf_node', 'EkfNode'),
     'controller_manager': ('cartpole_control', 'controller_manager',
                            'cartpole_control.manager_node', 'ControllerManagerNode'),
-    'recorder': ('cartpole_bringup', 'recorder', 'cartpole_bringup.graph.recorder', 'RecorderNode'),
+    'recorder': ('cartpole_bringup', 'cartpole_recorder', 'cartpole_bringup.graph.recorder', 'RecorderNode'),
 }
 """Node name -> (package, installed executable, module, class)."""
 
@@ -66,14 +68,6 @@ def node_command(name: str, parameters: Mapping[str, Any], *, log_level: str,
         cmd += ['-p', f'{key}:={ros_value_text(value)}']
     return cmd
 
-
-def die_with_parent() -> None:  # pragma: no cover - runs in the child
-    """In the child before exec: SIGTERM when the parent dies (Linux PR_SET_PDEATHSIG)."""
-    try:
-        import ctypes
-        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
 
 
 def start_node_process(cmd: Sequence[str]) -> subprocess.Popen:

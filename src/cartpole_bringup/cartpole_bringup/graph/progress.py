@@ -12,7 +12,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
-from ..namespaces import relative
+from cartpole_core.namespaces import relative
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 

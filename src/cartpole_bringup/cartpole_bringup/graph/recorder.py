@@ -1,10 +1,10 @@
 """The recorder node ``recorder``: every topic of the graph into a rosbag2 bag.
 
-Subscribes the topics of docs/architecture.md (:data:`cartpole_bringup.bags.writer.TOPICS`)
+Subscribes the topics of docs/architecture.md (:data:`cartpole_analysis.bags.writer.TOPICS`)
 with ``raw=True``, so rclpy hands over the serialized CDR bytes, and writes
 them unchanged into an MCAP bag (metadata version 9, readable by
 ``ros2 bag info``, Foxglove and ``rosbags``). Log time = the message's own
-stamp (simulated time in lockstep); see :mod:`cartpole_bringup.bags.writer`.
+stamp (simulated time in lockstep); see :mod:`cartpole_analysis.bags.writer`.
 
 Run alone next to a graph started otherwise::
 
@@ -27,7 +27,7 @@ custom_data when it closes.
 In a namespace (``-r __ns:=/rig2``, ``cartpole run --namespace rig2``) it
 subscribes the graph's topics there and records them by the names they have
 (``/rig2/joint_states``; ``/clock`` as remapped, ``/rig2/clock`` with ``cartpole
-run``); the bag's custom_data holds ``namespace`` (:mod:`cartpole_bringup.namespaces`),
+run``); the bag's custom_data holds ``namespace`` (:mod:`cartpole_core.namespaces`),
 and the ``topics`` parameter keeps the root names.
 """
 from __future__ import annotations
@@ -43,10 +43,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from cartpole_sim.node_runner import run_node
+from cartpole_core.node_runner import run_node
 
-from ..bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
-from ..namespaces import NAMESPACE_KEY, ROOT, relative
+from cartpole_analysis.bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from cartpole_core.namespaces import NAMESPACE_KEY, ROOT, relative
 from .progress import LockstepProgress
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
@@ -144,7 +144,7 @@ class RecorderNode(Node):
                               flush_period=flush_period)
         # The callbacks only queue what arrives; a thread writes it into the bag and
         # finishes the chunks on time (also while nothing arrives). The signal that stops
-        # the recorder (a KeyboardInterrupt, cartpole_sim.node_runner) can land anywhere in
+        # the recorder (a KeyboardInterrupt, cartpole_core.node_runner) can land anywhere in
         # this thread's callbacks, but never in the middle of writing a record, which
         # would make its chunk unreadable.
         self._queue: collections.deque = collections.deque()

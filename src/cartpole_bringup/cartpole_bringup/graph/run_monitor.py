@@ -1,7 +1,7 @@
 """The node ``cartpole_run`` of ``cartpole run``: what the run sees of its graph.
 
 It keeps the time series for the summary
-(:class:`cartpole_bringup.analysis.analyze.SeriesBuilder`), the stamp of the latest
+(:class:`cartpole_analysis.analysis.analyze.SeriesBuilder`), the stamp of the latest
 state (the run's clock: simulated time in lockstep), the force commands
 (counts, the last one, zeros), and it can command zero force itself
 (:meth:`RunMonitor.publish_zero_force`) when the controller manager is the
@@ -27,8 +27,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from ..analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
-from ..namespaces import relative
+from cartpole_analysis.analysis.analyze import FORCE, HW_HEALTH, STATE, STATUS, TRUE_STATE, SeriesBuilder
+from cartpole_core.namespaces import relative
 from .progress import LockstepProgress
 from .record_ledger import RecordLedger
 

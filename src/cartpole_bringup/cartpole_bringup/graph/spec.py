@@ -11,11 +11,11 @@ from typing import Any
 
 from rclpy.executors import SingleThreadedExecutor
 
-from .. import namespaces
+from cartpole_core import namespaces
 
 RECORDER_WINDOW = 10
 """Lockstep with a recorder: how many samples the simulator may be ahead of it (the
-publishers keep 100, cartpole_sim.node_runner.PUBLISH_DEPTH)."""
+publishers keep 100, cartpole_core.node_runner.PUBLISH_DEPTH)."""
 
 
 EXECUTORS = ('single', 'events')
@@ -60,7 +60,7 @@ class GraphSpec:
     allow_duplicates
         Start even when the graph's roles are taken in its namespace.
     namespace
-        ROS namespace of every node (``/`` or ``/rig2``; :mod:`cartpole_bringup.namespaces`).
+        ROS namespace of every node (``/`` or ``/rig2``; :mod:`cartpole_core.namespaces`).
     hw_arm
         The rig: activate (arm) the bridge once the loop answers; else it stays
         inactive (streaming, disarmed).

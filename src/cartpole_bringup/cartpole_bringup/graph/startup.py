@@ -16,11 +16,11 @@ from rclpy.parameter import Parameter
 from rcl_interfaces.srv import SetParameters
 from std_srvs.srv import Trigger
 
-from cartpole_sim import realtime
-from cartpole_sim.domain_guard import ALLOW_PARAMETER
+from cartpole_core import realtime
+from cartpole_core.domain_guard import ALLOW_PARAMETER
 
-from ..analysis.analyze import FORCE, JOINTS, STATE
-from ..namespaces import relative
+from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE
+from cartpole_core.namespaces import relative
 from .processes import NODES, NodeStartError, describe_exit, node_command, start_node_process
 from .spec import GraphSpec
 
@@ -70,7 +70,7 @@ class GraphStartup:
             self._start_processes()
         else:
             self._start_in_process()
-            # The loop's real-time hygiene for this process (cartpole_sim.realtime), once
+            # The loop's real-time hygiene for this process (cartpole_core.realtime), once
             # the executor has spun (its threads exist then and take the priority too).
             self.executor.spin_once(timeout_sec=0.0)
             try:

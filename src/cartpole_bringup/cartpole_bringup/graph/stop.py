@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from ..analysis.analyze import FORCE
+from cartpole_analysis.analysis.analyze import FORCE
 from .processes import stop_node_process
 
 ZERO_FORCE_TIMEOUT = 2.0

@@ -16,11 +16,11 @@ import numpy as np
 from cartpole_control.controller import ControllerState
 from cartpole_control.manager import FAULT, ControllerManager, ManagerOutput
 from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter, StateEstimate
-from cartpole_sim.model import CartPoleParameters, pendulum_energy
+from cartpole_core.model import CartPoleParameters, pendulum_energy
 from cartpole_sim.plant import Measurement, Plant, Scenario
 
-from ..analysis import metrics
-from ..analysis.timeline import spans_from_modes
+from cartpole_analysis.analysis import metrics
+from cartpole_analysis.analysis.timeline import spans_from_modes
 
 
 @dataclass

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import math
 
-from cartpole_sim import model
-from cartpole_sim.model import CartPoleParameters, force_for_acceleration
+from cartpole_core import model
+from cartpole_core.model import CartPoleParameters, force_for_acceleration
 
 from ..controller import CommandFeedback, ControlContext, ControllerState, ParameterSpec
 

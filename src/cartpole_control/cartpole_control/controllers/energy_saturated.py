@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
-from cartpole_sim.model import CartPoleParameters, pendulum_energy
+from cartpole_core.model import CartPoleParameters, pendulum_energy
 
 from ..controller import SWINGUP, Controller, ControllerState, ParameterSpec
 from . import ADAPTIVE_TARGET, energy_and_target, saturation

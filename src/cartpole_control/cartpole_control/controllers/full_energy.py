@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from cartpole_sim.model import pendulum_energy, system_energy
+from cartpole_core.model import pendulum_energy, system_energy
 
 from ..controller import ControllerState, ParameterSpec
 from . import ADAPTIVE_TARGET, energy_and_target

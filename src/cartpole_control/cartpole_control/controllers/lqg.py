@@ -1,7 +1,7 @@
 """LQR stabiliser on the upright linearisation, section 8.2, with integral action (LQI).
 
 The model linearised about upright rest, (8.13)/(8.14), comes from
-:func:`cartpole_sim.model.linearise_upright` (with the 1/m_c that the printed
+:func:`cartpole_core.model.linearise_upright` (with the 1/m_c that the printed
 A44 of (8.13) lacks). The gain minimising (8.15)
 
     J = int (x^T Q x + u^T R u) dt
@@ -81,7 +81,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from cartpole_sim.model import linearise_upright
+from cartpole_core.model import linearise_upright
 
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
 from . import ConditionalIntegrator, StepClock

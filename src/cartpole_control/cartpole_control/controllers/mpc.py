@@ -2,7 +2,7 @@
 
 The model, the weights and the integral action are the LQI's
 (:mod:`.lqg`): the linearisation about upright rest (8.13)/(8.14)
-(:func:`cartpole_sim.model.linearise_upright`, with the 1/m_c the printed A44
+(:func:`cartpole_core.model.linearise_upright`, with the 1/m_c the printed A44
 lacks), augmented with the integral of the cart error ``xi = int (x - x*) dt``,
 the state ``z = [x - x*, theta_w, x_dot, theta_dot, xi]`` and the weights
 ``q = [10, 10000, 10, 1, 400]`` of the cost (8.15), with ``r = 0.008``
@@ -82,7 +82,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cartpole_sim.model import linearise_upright
+from cartpole_core.model import linearise_upright
 
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
 from ..mpc_qp import SOLVERS, CondensedQp, QpSettings, discretise, sampled_cost

@@ -82,7 +82,7 @@ import math
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters, accelerations
+from cartpole_core.model import CartPoleParameters, accelerations
 
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
 from . import ConditionalIntegrator, StepClock, saturation

@@ -69,7 +69,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from cartpole_sim.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters
 
 from ..controller import SWINGUP, ControlContext, Controller, ControllerState, ParameterSpec
 from ..plan_cache import (CachedPlan, PlanError, Progress, TrajectoryCache,

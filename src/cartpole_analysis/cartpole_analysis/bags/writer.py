@@ -1,0 +1,178 @@
+"""Writing rosbag2 bags (MCAP storage) from serialized messages, without ROS.
+
+The ROS-free half of the recorder (:mod:`cartpole_bringup.graph.recorder`): the table
+of the graph's topics (docs/architecture.md), the log-time rule and a writer
+on top of :class:`cartpole_analysis.bags.storage.McapBagFile` (an MCAP file
+that survives a kill). Messages arrive already
+serialized (ROS 2 CDR, as rclpy hands them to a ``raw=True`` subscription)
+and are written as they are, never deserialized.
+
+Log time of a message (``log_time``): by default ``'stamp'``, its own stamp
+(``header.stamp`` of JointState and DiagnosticArray, ``clock`` of
+rosgraph_msgs/Clock; in both cases the first eight bytes of the CDR payload),
+so a lockstep run is recorded in simulated time (sample 0 at t = 0) and a
+real-time run in the publisher's clock; ``'receive'`` uses the receive time
+the caller gives instead.
+"""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from typing import Mapping
+
+import yaml
+
+from .storage import (BAG_FORMAT_VERSION, FLUSH_PERIOD, McapBagFile, TopicInfo,  # noqa: F401
+                          bagfile_information, write_metadata)
+
+TOPICS: dict[str, str] = {
+    '/joint_states': 'sensor_msgs/msg/JointState',
+    '/cartpole/state': 'sensor_msgs/msg/JointState',
+    '/cartpole/force_command': 'sensor_msgs/msg/JointState',
+    '/cartpole/true_state': 'sensor_msgs/msg/JointState',
+    '/cartpole/controller_status': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/cartpole/ekf/health': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/cartpole/hw/health': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/clock': 'rosgraph_msgs/msg/Clock',
+}
+"""Every topic of docs/architecture.md and its type: what the recorder records."""
+
+LOG_TIMES = ('stamp', 'receive')
+"""Choices of the log time of a recorded message."""
+
+_STAMP_LE = struct.Struct('<iI')
+_STAMP_BE = struct.Struct('>iI')
+
+
+def cdr_stamp_ns(data: bytes | memoryview) -> int:
+    """The stamp [ns] at the start of a CDR message (0 if the payload is too short).
+
+    Every recorded type begins with a ``builtin_interfaces/Time`` (``header.stamp``
+    or ``clock``): int32 sec, uint32 nanosec after the 4-byte encapsulation
+    header, whose second byte tells the byte order (1 little, 0 big endian).
+    """
+    if len(data) < 12:
+        return 0
+    layout = _STAMP_LE if data[1] & 1 else _STAMP_BE
+    sec, nanosec = layout.unpack_from(data, 4)
+    return max(0, sec * 1_000_000_000 + nanosec)
+
+
+class BagWriter:
+    """A rosbag2 bag (MCAP storage, metadata version 9) being written.
+
+    Connections are added on a topic's first message, so the bag lists the
+    topics that carried data. Use as a context manager, or call
+    :meth:`close`; closing twice is harmless, and :meth:`close` writes the
+    MCAP summary and ``metadata.yaml`` (without it ``ros2 bag info`` cannot
+    read the bag). Until then the file is written in chunks of at most
+    ``flush_period`` (:mod:`cartpole_analysis.bags.storage`), so a killed
+    recorder loses at most that much and ``cartpole bag repair`` recovers
+    the rest.
+
+    Parameters
+    ----------
+    path
+        The bag directory to create; it must not exist.
+    topics
+        Topic name -> message type (``pkg/msg/Type``) of the topics that may
+        be written.
+    custom_data
+        Strings stored in the bag's ``custom_data`` (run description: x*,
+        controllers, scenario).
+    log_time
+        ``'stamp'`` (the message's stamp) or ``'receive'`` (the receive time).
+    flush_period
+        Longest time [s] a message waits in memory before it is in the file.
+    """
+
+    def __init__(self, path: str | Path, topics: Mapping[str, str] = TOPICS,
+                 custom_data: Mapping[str, str] | None = None, log_time: str = 'stamp',
+                 flush_period: float = FLUSH_PERIOD) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        if log_time not in LOG_TIMES:
+            raise ValueError(f'log_time must be one of {LOG_TIMES}, got {log_time!r}')
+        self._use_stamp = log_time == 'stamp'
+        self.path = Path(path)
+        if self.path.exists():
+            raise FileExistsError(f'bag {self.path} already exists; choose a new directory')
+        self._typestore = get_typestore(Stores.ROS2_JAZZY)
+        unknown = [t for t in topics.values() if t not in self._typestore.types]
+        if unknown:
+            raise ValueError(f'unknown message types {unknown}')
+        self._topics = dict(topics)
+        self.path.mkdir(parents=True)
+        self._file = McapBagFile(self.path / f'{self.path.name}.mcap', custom_data,
+                                 flush_period=flush_period)
+        self.counts: dict[str, int] = {}
+        """Messages written per topic."""
+        self.closed = False
+
+    def _add_topic(self, topic: str) -> None:
+        if topic not in self._topics:
+            raise KeyError(f'topic {topic!r} is not recorded')
+        msgtype = self._topics[topic]
+        msgdef, _ = self._typestore.generate_msgdef(msgtype, ros_version=2)
+        self._file.add_topic(TopicInfo(topic, msgtype, self._typestore.hash_rihs01(msgtype)),
+                             msgdef.encode())
+
+    def write(self, topic: str, data: bytes | memoryview, receive_time_ns: int) -> int:
+        """Write one serialized message; returns the log time used [ns]."""
+        if self.closed:
+            raise RuntimeError(f'bag {self.path} is closed')
+        if not self._file.has_topic(topic):
+            self._add_topic(topic)
+        stamp = cdr_stamp_ns(data) if self._use_stamp else int(receive_time_ns)
+        self._file.write(topic, stamp, bytes(data), int(receive_time_ns))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        return stamp
+
+    def flush_if_due(self) -> bool:
+        """Write the open chunk if it is ``flush_period`` old (call when idle)."""
+        return self._file.flush_if_due()
+
+    def close(self) -> None:
+        """Finish the MCAP file and write ``metadata.yaml``."""
+        if not self.closed:
+            self.closed = True
+            info = bagfile_information(self._file.path.name, self._file.stats,
+                                       self._file.custom_data)
+            self._file.close(info)
+            write_metadata(self.path, info)
+
+    def __enter__(self) -> 'BagWriter':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def bag_custom_data(path: str | Path) -> dict[str, str]:
+    """The ``custom_data`` of a bag's ``metadata.yaml`` ({} if none)."""
+    meta = Path(path) / 'metadata.yaml'
+    if not meta.is_file():
+        return {}
+    info = (yaml.safe_load(meta.read_text()) or {}).get('rosbag2_bagfile_information', {})
+    return {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
+
+
+def update_custom_data(path: str | Path, values: Mapping[str, str | None]) -> dict[str, str]:
+    """Add (or, with None, remove) entries of a closed bag's ``custom_data``; returns the new one.
+
+    ``cartpole run`` stores there what is known only at the end of a run
+    (why it stopped, when), so that ``cartpole analyze`` of the bag reports
+    what the run reported. Raises FileNotFoundError without ``metadata.yaml``.
+    """
+    meta = Path(path) / 'metadata.yaml'
+    doc = yaml.safe_load(meta.read_text()) or {}
+    info = doc.setdefault('rosbag2_bagfile_information', {})
+    custom = {str(k): str(v) for k, v in (info.get('custom_data') or {}).items()}
+    for key, value in values.items():
+        if value is None:
+            custom.pop(key, None)
+        else:
+            custom[str(key)] = str(value)
+    info['custom_data'] = custom or None
+    write_metadata(path, info)
+    return custom

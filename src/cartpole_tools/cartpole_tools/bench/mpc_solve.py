@@ -1,0 +1,120 @@
+"""Solve time of the ``mpc`` stabiliser per control cycle, in the closed loop.
+
+The offline closed loop (plant with noise, EKF, controller manager; the same
+blocks as :func:`cartpole_bringup.offline.closed_loop.run_closed_loop`),
+stepped here so that the running stabiliser's
+:meth:`~cartpole_control.controller.Controller.status_values` can be read
+after every cycle: ``mpc_solve_us`` (wall time of the QP solve with its
+Python calls, :func:`time.perf_counter`) and ``mpc_fallbacks``. Only cycles
+the MPC runs count (after the catch). By default each run gets cart pushes
+(a 4 N s one right at 8 s and left at 14 s) so that the constraints become
+active and the solver works, not only the unconstrained cycles.
+
+``python -m cartpole_tools.bench.mpc_solve --solvers daqp casadi_qpoases
+--horizons 40 60`` prints the table of docs/controllers.md (p50 / p99 / max
+per solver and horizon, with the load average); ``cartpole bench loop``
+uses :func:`solve_times` when the stabiliser is mpc. No ROS.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from cartpole_control.manager import STABILIZING, ControllerManager
+from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
+from cartpole_core.model import CartPoleParameters
+from cartpole_sim.plant import Plant, Push, Scenario
+
+DEFAULT_PUSHES = (Push(8.0, 'cart', 40.0, 0.1), Push(14.0, 'cart', -40.0, 0.1))
+"""Pushes that make the rail and force constraints active (4 N s each way)."""
+
+
+def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 30.0,
+                seed: int = 1, pushes: Sequence[Push] = DEFAULT_PUSHES) -> dict[str, Any]:
+    """Closed loop with ``stabilizer: mpc`` and ``parameters``; solve-time statistics [us].
+
+    Returns the cycles counted, p50 / p99 / max of ``mpc_solve_us``, the
+    fall-backs, and whether the pendulum stayed up (no fall, no fault).
+    """
+    nominal = CartPoleParameters()
+    scenario = Scenario(noise=True, seed=seed, pushes=tuple(pushes))
+    plant = Plant(nominal, scenario)
+    ekf = ExtendedKalmanFilter(nominal, EkfConfig())
+    manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False,
+                                stabilizer='mpc', **dict(parameters or {}))
+    times: list[float] = []
+    force = 0.0
+    falls = faults = 0
+    fallbacks = 0
+    for k in range(int(round(duration / nominal.sample_time)) + 1):
+        meas = plant.measure()
+        est = ekf.update(meas.t, meas.x, meas.theta, force)
+        out = manager.update_values(est.t, est.x, est.theta, est.x_dot, est.theta_dot)
+        force = out.force
+        if out.mode == STABILIZING:
+            values = manager.active_plugins()['stabilizer'].status_values()
+            times.append(values['mpc_solve_us'])
+            fallbacks = int(values['mpc_fallbacks'])
+        falls = out.fall_count
+        faults += out.event.count('fault:')
+        plant.step(force)
+    t = np.array(times)
+    return {'cycles': int(t.size),
+            'p50_us': float(np.percentile(t, 50)) if t.size else None,
+            'p99_us': float(np.percentile(t, 99)) if t.size else None,
+            'max_us': float(t.max()) if t.size else None,
+            'fallbacks': fallbacks, 'falls': int(falls), 'faults': faults,
+            'balanced': bool(t.size and falls == 0 and faults == 0)}
+
+
+def table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown table of :func:`solve_times` results (each with ``solver`` and ``horizon``)."""
+    out = ['| solver | horizon | cycles | p50 [us] | p99 [us] | max [us] | fall-backs | balanced |',
+           '|---|---|---|---|---|---|---|---|']
+    for r in rows:
+        if r.get('error'):
+            out.append(f'| {r["solver"]} | {r["horizon"]} | {r["error"]} | | | | | |')
+            continue
+        out.append(f'| {r["solver"]} | {r["horizon"]} | {r["cycles"]} | {r["p50_us"]:.0f} | '
+                   f'{r["p99_us"]:.0f} | {r["max_us"]:.0f} | {r["fallbacks"]} | '
+                   f'{"yes" if r["balanced"] else "no"} |')
+    return '\n'.join(out) + '\n'
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--solvers', nargs='*', default=['daqp'])
+    parser.add_argument('--horizons', nargs='*', type=int, default=[60])
+    parser.add_argument('--duration', type=float, default=30.0, metavar='S')
+    parser.add_argument('--budget-us', type=float, default=1e6,
+                        help='mpc.budget_us for the measurement (default 1e6: no fall-back, '
+                             'so that every solve is timed)')
+    parser.add_argument('--json', action='store_true')
+    args = parser.parse_args(argv)
+    rows = []
+    load = os.getloadavg()
+    for solver in args.solvers:
+        for horizon in args.horizons:
+            params = {'mpc.solver': solver, 'mpc.horizon': horizon,
+                      'mpc.budget_us': args.budget_us}
+            try:
+                r = solve_times(params, duration=args.duration)
+            except Exception as error:  # a solver that cannot run is a row, not an abort
+                r = {'error': f'{type(error).__name__}: {error}'[:120]}
+            rows.append({'solver': solver, 'horizon': horizon, **r})
+    if args.json:
+        print(json.dumps({'load_before': load, 'load_after': os.getloadavg(), 'rows': rows}))
+    else:
+        print(f'load average before {load[0]:.2f}, after {os.getloadavg()[0]:.2f} '
+              f'({os.cpu_count()} CPUs)')
+        print(table(rows))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
