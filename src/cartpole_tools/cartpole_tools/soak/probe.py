@@ -59,6 +59,12 @@ class SoakProbe(Node):
         self.create_subscription(Header, 'cartpole/plant_reset', self._on_reset, PLANT_RESET_QOS)
         self.reset_client = self.create_client(Trigger, 'sim/reset')
 
+    def restart_counts(self) -> None:
+        """Count from here on: the bag is compared from the first sample after this call (a
+        recorder in its own process may miss the plant's very first samples while DDS
+        discovery completes; that is the start, not a loss)."""
+        self.published = {t: {'count': 0, 'first_ns': None, 'last_ns': None} for t in COUNTED}
+
     def now_s(self) -> float:
         return time.monotonic() - self.origin
 

@@ -28,6 +28,8 @@ MIN_MEMORY_WINDOW_S = 600.0
 shorter window an allocator's step of a few MB extrapolates to tens of MB an hour."""
 PROBE_PRIORITY = 10
 """SCHED_FIFO priority of this process: below the loop's (cartpole_core.realtime's 20)."""
+COUNT_FROM_S = 2.0
+"""Seconds after the start from which the bag is compared with what the probe saw."""
 SOAK_PROCESS = 'cartpole soak'
 """This process: the graph's run monitor and the soak's probe (the instrument)."""
 
@@ -152,6 +154,8 @@ def run_soak(config: SoakConfig, should_stop: Callable[[], bool] = lambda: False
                                       log=lambda text: None, warn=say)
         probe.origin = time.monotonic()
         judge.restart(0.0, from_stamp_ns=0)
+        graph.spin_until(lambda: probe.now_s() >= COUNT_FROM_S, None)
+        probe.restart_counts()
         samples = {name: ProcessSamples(proc.pid) for name, proc in graph.processes.items()}
         samples[SOAK_PROCESS] = ProcessSamples(os.getpid())
         say(f'graph up ({", ".join(f"{n} pid {s.pid}" for n, s in samples.items())}); '
