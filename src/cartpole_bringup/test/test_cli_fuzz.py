@@ -400,7 +400,7 @@ def test_analyze_refuses_damaged_bags_and_bad_options(data, good_bag, files):
     check('analyze options', ['analyze', str(good_bag), f'{opt}={value}'], [opt, value])
 
 
-@SETTINGS
+@settings(SETTINGS, max_examples=40)  # each example copies, damages and repairs a bag: ~0.2 s
 @given(data=st.data())
 def test_bag_info_says_damaged_and_repair_says_what_it_cannot(data, good_bag, files):
     bag = data.draw(damaged_bags(good_bag, files))
