@@ -5,7 +5,7 @@
 ``firmware/qemu_lm3s6965/`` board layer) runs in ``qemu-system-arm``
 (:mod:`cartpole_emulator.qemu_board`) instead of its Python mirror
 (:class:`cartpole_hw.device.DeviceLogic`). :class:`QemuDevice` is the
-:class:`~cartpole_emulator.emulator.Emulator` with the firmware swapped in:
+:class:`~cartpole_emulator.emulated_rig.Emulator` with the firmware swapped in:
 
 - the host link: the emulator's pseudo-terminal (``--link``, disconnects,
   stalls and the link faults work unchanged) is relayed byte for byte to
@@ -31,7 +31,6 @@ the rig, where the amplifier's lag is not either).
 """
 from __future__ import annotations
 
-import re
 import select
 import time
 from collections import deque
@@ -42,8 +41,9 @@ from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
 
 from cartpole_hw import protocol as jp
-from .emulator import Emulator, FaultConfig
-from .qemu_board import FirmwareStatistics, QemuBoard, format_counts
+from .emulated_rig import Emulator, FaultConfig
+from .qemu_board import (FirmwareStatistics, QemuBoard, build_image, format_counts,
+                         missing_message, missing_packages)
 
 HOST_BACKLOG = 1 << 16
 """Host bytes waiting for the firmware's UART before the pty is no longer read [bytes]."""
@@ -193,7 +193,6 @@ class QemuDevice(Emulator):
     def power_on(self) -> None:
         """Start QEMU with the image (built by ``make -C firmware arm-image`` if not given)."""
         if self.board is None:
-            from .qemu_board import build_image
             self.board = QemuBoard(build_image(), icount_shift=None)
         if not self.board.running:
             self.board.start()
@@ -251,7 +250,6 @@ class QemuDevice(Emulator):
 
 def firmware_available() -> tuple[bool, str]:
     """Whether the ARM toolchain and QEMU are installed; else the message naming the packages."""
-    from .qemu_board import missing_message, missing_packages
     missing = missing_packages()
     return (not missing, missing_message(missing) if missing else '')
 
