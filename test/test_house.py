@@ -30,22 +30,14 @@ NEVER = {('cartpole_hw', 'cartpole_sim'), ('cartpole_estimation', 'cartpole_sim'
          ('cartpole_control', 'cartpole_sim')}
 """(importer, imported) pairs refused although the layers would allow them."""
 
-KNOWN_CIRCLES = [['cartpole_emulator.emulator', 'cartpole_emulator.qemu_device']]
+KNOWN_CIRCLES: list[list[str]] = []
 """Circles that other work in progress breaks; the merge that breaks one removes it here."""
 
 MAX_LINES = 500
 
 TOO_LONG_KNOWN = {
-    'src/cartpole_control/cartpole_control/manager.py',
-    'src/cartpole_control/cartpole_control/push_recovery.py',
-    'src/cartpole_control/cartpole_control/trajectory_optimization.py',
-    'src/cartpole_control/cartpole_control/manager_node.py',
-    'src/cartpole_estimation/cartpole_estimation/ekf.py',
-    'src/cartpole_emulator/cartpole_emulator/emulator.py',
-    'src/cartpole_sim/cartpole_sim/sim_node.py',
-    'src/cartpole_hw/cartpole_hw/hw_node.py',
-    'src/cartpole_hw/cartpole_hw/bridge.py',
-    'src/cartpole_hw/cartpole_hw/protocol.py',
+    'src/cartpole_bringup/test/test_cli_fuzz.py',
+    'src/cartpole_tools/test/test_identify.py',
 }
 """Files over the limit that other work in progress splits; the merge that splits one
 removes it here. A listed file that is no longer too long fails the test too, so the
