@@ -32,9 +32,9 @@ STAMP_TOLERANCE = 10.0
 """Default of every node's ``stamp_tolerance`` [s]: longer than any stall of a process."""
 
 
-def declare_stamp_tolerance(node: Node) -> float:
+def declare_stamp_tolerance(node: Node, default: float = STAMP_TOLERANCE) -> float:
     """Declare the node's read-only ``stamp_tolerance`` parameter and return its value."""
-    node.declare_parameter('stamp_tolerance', STAMP_TOLERANCE, ParameterDescriptor(
+    node.declare_parameter('stamp_tolerance', float(default), ParameterDescriptor(
         description='Messages stamped further than this from the node clock [s], or with a '
                     'zero stamp, are dropped and counted (refused_inputs); 0 = stamps not '
                     'judged (synthetic or replayed stamps).', read_only=True,

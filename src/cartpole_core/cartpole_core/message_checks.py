@@ -30,13 +30,14 @@ SAMPLE, STATE, TRUTH, COMMAND = 'sample', 'state', 'truth', 'command'
 force command (``cartpole/force_command``)."""
 
 REASONS = ('non_finite', 'joint_names', 'array_length', 'cart_range', 'pendulum_range',
-           'velocity_range', 'effort_range', 'zero_stamp', 'stamp_far')
-"""Every reason a message is refused, in the order they are checked."""
+           'velocity_range', 'effort_range', 'zero_stamp', 'stamp_far', 'undecodable')
+"""Every reason a message is refused, in the order they are checked (``undecodable``:
+bytes a node that takes serialized messages could not read)."""
 
 _FIELDS = {  # kind -> the joints, and which arrays must have one value per joint
     SAMPLE: ((CART, PENDULUM), ('position',)),
     STATE: ((CART, PENDULUM), ('position', 'velocity')),
-    TRUTH: ((CART, PENDULUM), ('position', 'velocity', 'effort')),
+    TRUTH: ((CART, PENDULUM), ('position', 'velocity')),
     COMMAND: ((CART,), ('effort',)),
 }
 
