@@ -80,6 +80,17 @@ class ViewerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            server = getattr(self, 'server', None)
+            if server is not None:
+                server.stop()
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the server, subscriptions, timers."""
         self.declare_parameter('host', DEFAULT_HOST, ParameterDescriptor(
             description='Address the Foxglove WebSocket server binds to (0.0.0.0: every '
                         'interface)', read_only=True))
