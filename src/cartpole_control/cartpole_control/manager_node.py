@@ -34,6 +34,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import SAMPLE, STATE, RigLimits
 from cartpole_core.model import CartPoleParameters
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter, collect_when_idle
@@ -86,6 +88,7 @@ class ControllerManagerNode(Node):
             self._start()
         except BaseException:  # refused to start: the loggers are no longer routed here
             self._log_route.remove()
+            Node.destroy_node(self)   # and nothing of the node stays in the graph
             raise
 
     def _start(self) -> None:
@@ -107,6 +110,10 @@ class ControllerManagerNode(Node):
             floating_point_range=[FloatingPointRange(from_value=1e-4, to_value=0.1, step=0.0)]))
         plant = load_plant_parameters(self.get_parameter('plant_params_file').value)
         self.manager = ControllerManager(plant, self.get_parameter('sample_time').value)
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            plant, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/state', 'joint_states', 'cartpole/plant_reset', 'cartpole/command_applied'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._specs = self.manager.parameter_specs()
         for name, spec in self._specs.items():
             self.declare_parameter(name, ros_value(spec, spec.default), descriptor_for(spec))
@@ -208,6 +215,9 @@ class ControllerManagerNode(Node):
         two lockstep runs are the same run however the processes are scheduled.
         In real time the cycle runs at once: the latency path does not wait.
         """
+        if not self.inputs.accept(msg, STATE, 'cartpole/state'):
+            self.bad_states += 1
+            return
         if self._lockstep:
             newest = self._newest_sample_ns
             if newest is None or newest < _stamp_ns(msg.header.stamp):
@@ -280,9 +290,14 @@ class ControllerManagerNode(Node):
         collect_when_idle()  # the command is out: the loop has time until the next sample
 
     def _on_command_applied(self, msg: TimeReference) -> None:
+        if not self.inputs.accept_stamps('cartpole/command_applied', msg.header.stamp,
+                                         msg.time_ref):
+            return
         self.manager.command_applied(_stamp_seconds(msg.time_ref), _stamp_seconds(msg.header.stamp))
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
+            return
         stamp_ns = _stamp_ns(msg.header.stamp)
         if self._newest_sample_ns is None or stamp_ns > self._newest_sample_ns:
             self._newest_sample_ns = stamp_ns
@@ -304,6 +319,8 @@ class ControllerManagerNode(Node):
             self.manager.measured(_stamp_seconds(msg.header.stamp), x, theta)
 
     def _on_plant_reset(self, msg: Header) -> None:
+        if not self.inputs.accept_stamps('cartpole/plant_reset', msg.stamp):
+            return
         self._reset_from = _stamp_seconds(msg.stamp)
         self.get_logger().info(f'plant reset at t = {self._reset_from:.3f} s: a new swing-up '
                                'starts from the first state after it')
@@ -339,6 +356,11 @@ class ControllerManagerNode(Node):
 
     # -- health ------------------------------------------------------------------------------
     def health(self) -> Health:
+        """The manager's health for ``/diagnostics`` with the input checks' counts
+        (:meth:`_own_health`; WARN once an input was refused)."""
+        return self.inputs.health(self._own_health())
+
+    def _own_health(self) -> Health:
         """The manager's health for ``/diagnostics`` (``controller_manager: control``): OK
         while it controls or idles (no state yet, control disabled), ERROR in a fault, STALE
         while the states have stopped (the stale-state fault); WARN when states were ignored

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 
@@ -27,33 +28,122 @@ __all__ = ['Emulator', 'FaultConfig', 'build_parser', 'main']
 
 
 # -- command line -------------------------------------------------------------------------------
-def _pair(text: str) -> tuple[float, float]:
+MAX_DURATION_S = 3600.0
+"""[s] Longest ``--duration`` (the rest of ``cartpole`` takes runs of at most an hour too);
+without it the emulator runs until Ctrl-C, as a device does."""
+MAX_STALL_MS = 60_000.0
+"""[ms] Longest ``--stall`` of the link."""
+MAX_LIMIT_MARGIN_M = 0.1
+"""[m] Largest ``--limit-margin``: the switches close within 10 cm of a stop at most."""
+MAX_NAME = 80
+"""Longest ``--name`` (the ``V`` line has at most 96 bytes)."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An argparse parser whose error is one line, ``cartpole emulate: error: MESSAGE``,
+    exit 2, as every ``cartpole`` command's (the usage is in ``--help``)."""
+
+    def error(self, message: str):
+        self.exit(2, f'{self.prog}: error: {message}\n')
+
+
+def _number(text: str, low: float, high: float, unit: str, low_open: bool = False) -> float:
+    """A finite number in [low, high] (``(low, high]`` with ``low_open``), or the refusal."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a finite number, got {text!r}')
+    if (value <= low if low_open else value < low) or value > high:
+        bracket = '(' if low_open else '['
+        raise argparse.ArgumentTypeError(
+            f'must be in {bracket}{low:g}, {high:g}] {unit}, got {value:g}')
+    return value
+
+
+def _duration(text: str) -> float:
+    return _number(text, 0.0, MAX_DURATION_S, 's', low_open=True)
+
+
+def _limit_margin(text: str) -> float:
+    return _number(text, 0.0, MAX_LIMIT_MARGIN_M, 'm')
+
+
+def _usb_jitter(text: str) -> float:
+    return _number(text, 0.0, 1.0, 's')
+
+
+def _pair(text: str, high: float, unit: str) -> tuple[float, float]:
     try:
         a, b = text.split(':')
         a_f, b_f = float(a), float(b)
     except ValueError:
         raise argparse.ArgumentTypeError(f'expected AT:VALUE (two numbers), got {text!r}')
-    if not (math.isfinite(a_f) and math.isfinite(b_f) and a_f >= 0 and b_f > 0):
-        raise argparse.ArgumentTypeError(f'expected AT >= 0 and VALUE > 0, got {text!r}')
+    if not (math.isfinite(a_f) and math.isfinite(b_f) and 0 <= a_f <= MAX_DURATION_S
+            and 0 < b_f <= high):
+        raise argparse.ArgumentTypeError(
+            f'expected AT in [0, {MAX_DURATION_S:g}] s and VALUE in (0, {high:g}] {unit}, '
+            f'got {text!r}')
     return a_f, b_f
 
 
+def _stall(text: str) -> tuple[float, float]:
+    return _pair(text, MAX_STALL_MS, 'ms')
+
+
+def _disconnect(text: str) -> tuple[float, float]:
+    return _pair(text, MAX_DURATION_S, 's')
+
+
 def _probability(text: str) -> float:
+    return _number(text, 0.0, 1.0, '(a probability)')
+
+
+def _name(text: str) -> str:
+    """A firmware name the ``V`` line can carry: printable ASCII, no ``,`` or ``*``."""
+    if not 0 < len(text) <= MAX_NAME or any(not 0x20 <= ord(c) <= 0x7E or c in ',*' for c in text):
+        raise argparse.ArgumentTypeError(
+            f'must be 1 to {MAX_NAME} printable ASCII characters without "," or "*", '
+            f'got {text!r}')
+    return text
+
+
+def _file(text: str) -> str:
+    if not os.path.isfile(text):
+        raise argparse.ArgumentTypeError(f'{text}: no such file')
+    if not os.access(text, os.R_OK):
+        raise argparse.ArgumentTypeError(f'{text}: not readable (permission denied)')
+    return text
+
+
+def _link(text: str) -> str:
+    parent = os.path.dirname(os.path.abspath(text)) or '/'
+    if not os.path.isdir(parent):
+        raise argparse.ArgumentTypeError(f'{text}: the directory {parent} does not exist')
+    if os.path.isdir(text):
+        raise argparse.ArgumentTypeError(f'{text}: is a directory, a link path is needed')
+    return text
+
+
+def load_parameters(path: str | None) -> CartPoleParameters:
+    """``--params``: the plant's parameters from a CartPoleParameters YAML; ValueError with
+    the file's name when it is not one (not YAML, a wrong key or value)."""
+    if not path:
+        return CartPoleParameters()
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f'a probability must be in [0, 1], got {value}')
-    return value
+        return CartPoleParameters.from_yaml(path)
+    except Exception as exc:  # noqa: BLE001 - yaml.YAMLError, TypeError, ...: one line
+        text = ' '.join(str(exc).split())
+        raise ValueError(f'--params {path}: not a CartPoleParameters YAML: {text}') from None
 
 
 def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog=prog,
         description='Emulate the Arduino Due rig (plant behind the Joint protocol) on a new '
                     'pseudo-terminal and print its path.')
-    p.add_argument('--link', metavar='PATH',
+    p.add_argument('--link', metavar='PATH', type=_link,
                    help='symlink pointing at the current pty (stable across disconnects), '
                         'e.g. /tmp/cartpole-emu; give this path to the bridge')
     p.add_argument('--firmware', choices=('python', 'qemu'), default='python',
@@ -61,26 +151,30 @@ def build_parser(prog: str = 'cartpole emulate') -> argparse.ArgumentParser:
                         'the firmware compiled for the Cortex-M3 in qemu-system-arm (hardware in '
                         'the loop, needs gcc-arm-none-eabi, libnewlib-arm-none-eabi, '
                         'qemu-system-arm)')
-    p.add_argument('--image', metavar='ELF',
+    p.add_argument('--image', metavar='ELF', type=_file,
                    help='with --firmware qemu: the firmware image (default: make -C firmware '
                         'arm-image builds firmware/build/arm/cartpole_bridge.elf)')
-    p.add_argument('--name', default='cartpole_emulator',
+    p.add_argument('--name', default='cartpole_emulator', type=_name,
                    help='firmware name in the V answer (python; the compiled firmware says '
                         'cartpole_bridge)')
-    p.add_argument('--duration', type=float, default=None, metavar='S', help='exit after S seconds')
-    p.add_argument('--params', metavar='FILE.yaml', help='plant parameters (CartPoleParameters YAML)')
-    p.add_argument('--limit-margin', type=float, default=0.003, metavar='M',
-                   help='limit switches close this close to a stop (default 3 mm)')
+    p.add_argument('--duration', type=_duration, default=None, metavar='S',
+                   help=f'exit after S seconds (at most {MAX_DURATION_S:g}; without it: until '
+                        'Ctrl-C)')
+    p.add_argument('--params', metavar='FILE.yaml', type=_file,
+                   help='plant parameters (CartPoleParameters YAML)')
+    p.add_argument('--limit-margin', type=_limit_margin, default=0.003, metavar='M',
+                   help='limit switches close this close to a stop (default 3 mm, at most '
+                        f'{MAX_LIMIT_MARGIN_M:g} m)')
     p.add_argument('--drop-lines', type=_probability, default=0.0, metavar='P',
                    help='probability of losing any line sent (a link fault; --drop loses samples)')
     p.add_argument('--corrupt', type=_probability, default=0.0,
                    help='probability of corrupting one byte of a line')
-    p.add_argument('--usb-jitter', type=float, default=0.0, metavar='S',
+    p.add_argument('--usb-jitter', type=_usb_jitter, default=0.0, metavar='S',
                    help='USB latency jitter: each line leaves up to S seconds late (uniform, '
                         'seeded by --seed, order kept; t_us stays the sample time)')
-    p.add_argument('--stall', type=_pair, action='append', default=[], metavar='AT:MS',
+    p.add_argument('--stall', type=_stall, action='append', default=[], metavar='AT:MS',
                    help='freeze the link for MS milliseconds at device time AT seconds (repeatable)')
-    p.add_argument('--disconnect', type=_pair, action='append', default=[], metavar='AT:S',
+    p.add_argument('--disconnect', type=_disconnect, action='append', default=[], metavar='AT:S',
                    help='pull the cable at AT seconds for S seconds (repeatable)')
     add_scenario_arguments(p, title='emulated plant scenario')
     return p
@@ -99,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     """``cartpole emulate`` / ``emulator``: run until Ctrl-C (or ``--duration``)."""
     args = build_parser().parse_args(argv)
     try:
-        params = CartPoleParameters.from_yaml(args.params) if args.params else CartPoleParameters()
+        params = load_parameters(args.params)
         scenario = scenario_from_args(args)
         faults = FaultConfig(drop=args.drop_lines, corrupt=args.corrupt,
                              usb_jitter=args.usb_jitter, stalls=list(args.stall),

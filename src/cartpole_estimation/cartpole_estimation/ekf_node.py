@@ -27,6 +27,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_core.diagnostics import OK, Health, HealthReport, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, SAMPLE, RigLimits
 from cartpole_core.model import CartPoleParameters
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter
@@ -78,6 +80,14 @@ class EkfNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('ekf', **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the filter, topics, services, timers."""
         defaults = EkfConfig()
         self.declare_parameter('q', q_parameter(defaults), ParameterDescriptor(
             description='Process covariance Q_k added per sample period: its diagonal for '
@@ -135,6 +145,10 @@ class EkfNode(Node):
             else CartPoleParameters()
         self.filter = ExtendedKalmanFilter(params, EkfConfig(**changes_from_parameters(
             {n: self.get_parameter(n).value for n in names})))
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            params, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('joint_states', 'cartpole/force_command'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._command_timeout = self.get_parameter('command_timeout').value
 
         # Force command held as the plant holds it: value and the measurement
@@ -228,6 +242,9 @@ class EkfNode(Node):
 
     # -- inputs -------------------------------------------------------------------------
     def _on_force_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command'):
+            self.counts.bad_commands += 1
+            return
         try:
             force = float(msg.effort[list(msg.name).index('cart')])
         except (ValueError, IndexError):
@@ -281,6 +298,9 @@ class EkfNode(Node):
         return self._force
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
+            self.counts.bad_messages += 1
+            return
         names = msg.name
         try:
             i_cart = names.index('cart')
@@ -383,7 +403,7 @@ class EkfNode(Node):
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,
         }
-        return Health(OK, message, values)
+        return self.inputs.health(Health(OK, message, values))
 
     def health_status(self) -> DiagnosticStatus:
         """The DiagnosticStatus ``ekf`` of ``/cartpole/ekf/health`` (see the README, "State

@@ -41,6 +41,8 @@ from .hw_parameters import bridge_config, declare_bridge_parameters
 from .receipts import RECEIPTS_KEPT, ReceiptLog
 from .serial_link import SerialLink
 from cartpole_core.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, RigLimits
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 HANDSHAKE_TIMEOUT = 3.0
@@ -62,8 +64,20 @@ class HwBridgeNode(LifecycleNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('hw_bridge', **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            self.destroy_node()
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the core, topics, services, timers."""
         declare_bridge_parameters(self)
         config, self.port = bridge_config(self)
+        self.inputs = InputGuard(self, RigLimits(
+            travel=config.calibration.travel, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/force_command',))
+        """Judges every force command before it is taken (refused_inputs in the health)."""
 
         self.core = BridgeCore(config)
         self._lock = threading.RLock()
@@ -326,6 +340,10 @@ class HwBridgeNode(LifecycleNode):
         return best[1]
 
     def _on_force_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command'):
+            with self._lock:
+                self.core.counts.bad_commands += 1
+            return
         try:
             force = float(msg.effort[list(msg.name).index('cart')]) if msg.name else float(msg.effort[0])
         except (ValueError, IndexError):
@@ -393,6 +411,12 @@ class HwBridgeNode(LifecycleNode):
         self._health_pub.publish(msg)
 
     def health(self, values: dict[str, str] | None = None, state: str | None = None) -> Health:
+        """The bridge's health (:meth:`_own_health`) with the input checks' counts (WARN
+        once a force command was refused)."""
+        return self.inputs.health(self._own_health(values, state))
+
+    def _own_health(self, values: dict[str, str] | None = None,
+                    state: str | None = None) -> Health:
         """The bridge's health (``values``: the core's, read under the lock if not given;
         ``state``: the lifecycle's): unconfigured is OK (idle, port closed; its sample count
         left out: no samples is no staleness then) or ERROR after a fault or a refused

@@ -29,6 +29,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_core.diagnostics import OK, STALE, Health, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, RigLimits
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from .sim_parameters import SCENARIO_PARAMETERS, declare_sim_parameters, scenario_from
 from .sim_runner import (CART_JOINT, PENDULUM_JOINT, Sample, SampleClock, SimRunner,
@@ -55,6 +57,14 @@ class SimNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('sim', **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the plant, topics, services, timers."""
         declare_sim_parameters(self)
         self.commands = 0
         """Force commands taken (the health's ``commands``)."""
@@ -71,6 +81,10 @@ class SimNode(Node):
         self._runner = SimRunner(params, scenario,
                                  integration_step=values['integration_step'],
                                  command_timeout=self.get_parameter('command_timeout').value)
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            params, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/force_command', 'cartpole/recorder/progress'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._lockstep = bool(self.get_parameter('lockstep').value)
         self._loop_established = not (self._lockstep
                                       and self.get_parameter('lockstep_startup_wait').value)
@@ -266,6 +280,9 @@ class SimNode(Node):
         self._lockstep_advance()
 
     def _on_progress(self, msg: Header) -> None:
+        if not self.inputs.accept_stamps('cartpole/recorder/progress', msg.stamp,
+                                         now_ns=self._now_ns()):
+            return
         self._recorder_ns = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
         self._try_advance()
 
@@ -305,7 +322,17 @@ class SimNode(Node):
         self._publish(self._runner.sample)
         self._try_advance()  # the recorder's wait may have timed out
 
+    def _now_ns(self) -> int:
+        """What input stamps are judged against: simulated time in lockstep (the samples'
+        stamps, whatever the node clock), else the node clock."""
+        if self._lockstep:
+            return max(self._runner.stamp_ns, 1)
+        return self.get_clock().now().nanoseconds
+
     def _on_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command', self._now_ns()):
+            self.rejected_commands += 1
+            return
         force = force_from_command(msg.name, msg.effort)
         if force is None:
             self.rejected_commands += 1
@@ -356,6 +383,11 @@ class SimNode(Node):
 
     # -- health ------------------------------------------------------------------------------
     def health(self) -> Health:
+        """The simulator's health with the input checks' counts (:meth:`_own_health`; WARN
+        once an input was refused)."""
+        return self.inputs.health(self._own_health())
+
+    def _own_health(self) -> Health:
         """The simulator's health for ``/diagnostics`` (``sim: simulation``): OK while it
         runs or waits for a controller; STALE once the force commands stopped (the watchdog
         holds zero force); WARN when a :data:`DEGRADED` counter grew since the last report."""
