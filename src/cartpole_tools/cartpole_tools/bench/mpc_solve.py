@@ -67,6 +67,7 @@ def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 3
     return {'cycles': int(t.size),
             'p50_us': float(np.percentile(t, 50)) if t.size else None,
             'p99_us': float(np.percentile(t, 99)) if t.size else None,
+            'p999_us': float(np.percentile(t, 99.9)) if t.size else None,
             'max_us': float(t.max()) if t.size else None,
             'fallbacks': fallbacks, 'falls': int(falls), 'faults': faults,
             'balanced': bool(t.size and falls == 0 and faults == 0)}
@@ -74,14 +75,15 @@ def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 3
 
 def table(rows: Sequence[dict[str, Any]]) -> str:
     """Markdown table of :func:`solve_times` results (each with ``solver`` and ``horizon``)."""
-    out = ['| solver | horizon | cycles | p50 [us] | p99 [us] | max [us] | fall-backs | balanced |',
-           '|---|---|---|---|---|---|---|---|']
+    out = ['| solver | horizon | cycles | p50 [us] | p99 [us] | p99.9 [us] | max [us] | fall-backs '
+           '| balanced |',
+           '|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         if r.get('error'):
-            out.append(f'| {r["solver"]} | {r["horizon"]} | {r["error"]} | | | | | |')
+            out.append(f'| {r["solver"]} | {r["horizon"]} | {r["error"]} | | | | | | |')
             continue
         out.append(f'| {r["solver"]} | {r["horizon"]} | {r["cycles"]} | {r["p50_us"]:.0f} | '
-                   f'{r["p99_us"]:.0f} | {r["max_us"]:.0f} | {r["fallbacks"]} | '
+                   f'{r["p99_us"]:.0f} | {r["p999_us"]:.0f} | {r["max_us"]:.0f} | {r["fallbacks"]} | '
                    f'{"yes" if r["balanced"] else "no"} |')
     return '\n'.join(out) + '\n'
 
