@@ -277,6 +277,7 @@ class CondensedQp:
             w, ok, reason = self.backend.solve()
         except Exception as error:  # a solver that raises is a failed solve, not a fault
             w, ok, reason = None, False, f'{type(error).__name__}: {error}'
+            self.backend.reset()
         force = math.nan
         if ok:
             force = float(w[0])
@@ -290,7 +291,10 @@ class CondensedQp:
             self._plan_c[:] = w[:self.moves]
             self._plan_age = 0
             return Solution(force, True, elapsed, '', QP)
-        self.backend.reset()
+        if w is not None and not math.isfinite(force):
+            self.backend.reset()
+        elif w is None:
+            self.backend.failed()  # a late solution keeps its warm start
         low, high = first
         if self._plan_age < 0:  # nothing planned since the activation
             force = min(max(-float(self.gain_row @ z), low), high)

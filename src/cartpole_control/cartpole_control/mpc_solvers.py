@@ -8,7 +8,8 @@ cycle gets the new row bounds only, warm-started from the previous solution
 CasADi (``casadi.conic``: DAQP, qpOASES, OSQP, ProxQP), which take the whole
 problem at each call. The QP's ``f`` and bounds change every cycle. ``solve()`` returns ``(w, ok, reason)``: the solution
 vector (None if there is none) and the solver's verdict; the caller checks it
-every time. CasADi's HPIPM is not one: its interface takes a multistage
+every time; after a failed one it calls ``failed()`` (a back-end decides whether
+its warm start is still worth keeping). CasADi's HPIPM is not one: its interface takes a multistage
 (OCP-structured) QP and refuses the dense condensed one. No ROS import.
 """
 from __future__ import annotations
@@ -27,8 +28,13 @@ class DaqpBackend:
     """DAQP's wheel: ``daqp.Model`` set up once; each cycle ``update(f, bounds)`` and ``solve``.
 
     Warm start: the model keeps the last working set (``update`` without
-    ``sense`` reuses it). Simple bounds come first in DAQP's bound vectors.
+    ``sense`` reuses it), also after a solve stopped by the time limit: the
+    next cycle goes on from where it got. Simple bounds come first in DAQP's
+    bound vectors.
     """
+
+    TIME_LIMIT: ClassVar[int] = -7
+    """DAQP's exit flag when ``time_limit`` stopped it."""
 
     def __init__(self, qp: Any) -> None:
         import daqp
@@ -46,6 +52,9 @@ class DaqpBackend:
     def reset(self) -> None:
         self._cold = True
 
+    def failed(self) -> None:
+        pass  # a real failure has set _cold; a stopped solve keeps its working set
+
     def solve(self) -> Result:
         qp, nv = self.qp, self.qp.n_vars
         self.upper[:nv] = qp.variable_high
@@ -58,7 +67,10 @@ class DaqpBackend:
         else:
             self.model.update(f=qp.f, bupper=self.upper, blower=self.lower)
         x, _, flag, _ = self.model.solve()
+        if flag == self.TIME_LIMIT:  # the working set it reached is the next cycle's start
+            return None, False, 'DAQP time limit'
         if flag <= 0:
+            self._cold = True
             return None, False, f'DAQP exit flag {flag}'
         return x, True, ''
 
@@ -85,6 +97,9 @@ class OsqpBackend:
 
     def reset(self) -> None:
         pass  # ADMM's warm start is only a starting point: a stale one costs iterations
+
+    def failed(self) -> None:
+        pass
 
     def solve(self) -> Result:
         qp, nv = self.qp, self.qp.n_vars
@@ -131,6 +146,9 @@ class CasadiBackend:
 
     def reset(self) -> None:
         self.x0 = self.lam_x0 = self.lam_a0 = None
+
+    def failed(self) -> None:
+        self.reset()
 
     def solve(self) -> Result:
         qp = self.qp
