@@ -8,35 +8,12 @@ robustness grid's "actuator gain") or act later (a slower current loop, a
 filter: "actuator lag"), and neither is something the plant can report: the
 device only knows when it wrote the setpoint. Both show in how the cart moves.
 
-The cart row of (4.17) is a momentum balance: with p = (m_c + m_p) x_dot -
-m_p l cos(theta) theta_dot,
+The cart row of (4.17) is a momentum balance, dp/dt = F - B_c(x_dot) with
+p = (m_c + m_p) x_dot - m_p l cos(theta) theta_dot; weighed over windows of
+the encoders' samples it gives the gain by recursive least squares for each
+candidate dead time.
 
-    dp/dt = F - B_c(x_dot)        (end stops aside).
-
-Weighed with the triangle ``k(s) = T - |s|`` over ``[t - T, t + T]`` and
-integrated by parts (k vanishes at both ends), only positions are needed::
-
-    Y   = -sum_i k'_i ((m_c + m_p) dx_i - m_p l cos(theta_i) dtheta_i) + int k B_c ds
-    Y   = int k F ds  =  G int k F*(s - d) ds  =  G Phi_d
-
-with F* the commanded force as the plant reported it applied (piecewise
-constant), ``G`` the actuator's gain and ``d`` its extra dead time (a
-first-order lag of time constant tau acts, at the frequencies a swing-up and
-a balanced pendulum excite, much like a dead time tau). For each candidate
-``d`` in ``0, 5, ..., 100 ms`` recursive least squares (with forgetting)
-fits ``G_d``; the candidate with the smallest residual is the estimate. It
-takes the windows where the commanded force is large against the cart's
-friction (the swing-up, a catch, a push: while balancing quietly the
-friction, known only roughly, would bias it) and away from the end stops;
-until enough of them (``min_excitation``) the estimate is the nominal ``G =
-1, d = 0``.
-
-The controller manager uses it (``actuator.gain``, ``actuator.delay``:
-``auto``): the command is divided by ``G`` (bounded to ``[GAIN_MIN,
-GAIN_MAX]``, less a band of :data:`GAIN_DEADBAND` around 1 that the
-estimate cannot resolve, :attr:`ActuatorEstimator.compensation`) and the
-prediction horizon grows by ``d`` less half a candidate step
-(:attr:`ActuatorEstimator.delay_compensation`).
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.actuator``).
 
 No ROS import.
 """

@@ -1,28 +1,6 @@
 """The controller plugin contract: what a swing-up law or a stabiliser provides.
 
-A controller is loaded by its type string from a Python entry-point group
-(:mod:`cartpole_control.registry`), configured from parameters, activated from
-the current state (bumpless, like ros2_control's
-``set_current_state_as_first_setpoint``), updated once per control cycle and
-deactivated. It returns the *raw* force of its law; the controller manager adds
-the cart friction feedforward (6.12), saturates to what the actuator can give
-and guards the rail. After each update the manager tells the plugin what became
-of its force (:class:`CommandFeedback`, :meth:`Controller.command_applied`), so
-that a law with an integrator stops integrating while its command is not what
-reaches the cart (anti-windup). The hook has a default that does nothing: a
-plugin without integrators ignores it.
-
-Activation is a template method, as ros2_control's lifecycle transitions
-call ``on_activate``: :meth:`Controller.activate` and
-:meth:`Controller.deactivate` do the manager's bookkeeping (:attr:`Controller.active`)
-and call the plugin's hooks :meth:`Controller.on_activate` and
-:meth:`Controller.on_deactivate`. A plugin overrides the hooks only (there is
-no ``super()`` to forget); a class that overrides ``activate`` or
-``deactivate`` themselves is refused when it is defined (TypeError), so the
-registry skips it like any plugin that fails to import.
-
-The contract carries a version number (:data:`API_VERSION`); the registry
-refuses plugins written for another major version.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.controller``).
 """
 from __future__ import annotations
 

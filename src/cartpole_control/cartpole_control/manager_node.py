@@ -1,73 +1,30 @@
 """The ``controller_manager`` node: :class:`~cartpole_control.manager.ControllerManager` on ROS.
 
-Wiring only; every decision is the manager's.
-
-- subscribes ``/cartpole/state`` (sensor_msgs/JointState, joints found by
-  name ``cart``/``pendulum``); each message runs one control cycle at once and
-  publishes ``/cartpole/force_command`` (JointState ``name=['cart']``,
-  ``effort=[F]``, ``header.stamp`` = the state's stamp) -- this callback is
-  the loop's latency path -- and then ``/cartpole/controller_status``
-  (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``).
-  A state with the stamp of the previous one (the lockstep simulator re-publishes
-  its first sample until it is answered) is answered with the same command
-  again, not with a second control cycle. With ``lockstep:=true`` (``cartpole
-  run --lockstep`` sets it) a state's cycle waits until the encoders' sample it
-  was estimated from has arrived on ``joint_states`` (at most ``lockstep_wait``
-  wall seconds, then it runs and ``lockstep_timeouts`` counts it), so the cycle
-  takes the same reports and samples whatever the delivery order;
-- parameters: every entry of :meth:`ControllerManager.parameter_specs` (the
-  manager's and every plugin's as ``<plugin>.<param>``) with a descriptor;
-  validated in the on-set callback (a refused value keeps the old one and says
-  why), handed to the manager in the post-set callback, applied by it between
-  two control cycles; plus the read-only ``plant_params_file`` and
-  ``sample_time``;
-- a stale-state timer on the node clock (the ROS clock: with
-  ``use_sim_time`` it follows ``/clock``, so a lockstep simulation slower than
-  real time is not "stale"): no state for ``state_timeout`` -> zero force and
-  fault ``stale state``. Only time this process ran counts: of each interval
-  between two checks at most ``STALE_CHECK_SLACK`` (two check periods) is
-  counted, the rest is a stall of this process, not silence of the EKF (the
-  states may be waiting in the subscription). So after a stall of the whole
-  graph the states have ``state_timeout`` of running time to arrive, and a
-  process that keeps running late still faults within a few checks;
-- service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
-  fault; ``success`` false and the reason when there is nothing to restart;
-- subscribes ``/cartpole/plant_reset`` (std_msgs/Header, published by the
-  simulator's ``~/reset`` and the bridge's homing): the plant (or the
-  position reference) is new from ``stamp`` on, so the first state stamped at
-  or after it starts a new run (:meth:`ControllerManager.reset`: swing-up, or
-  idle when disabled; event
-  ``plant_reset``) instead of the running controller (and the rail guard)
-  seeing the jump;
-- ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between
-  two control cycles since start (a stall figure, :mod:`cartpole_core.realtime`);
-  ``cycle_compute_s`` / ``max_cycle_compute_s``: the compute time of the
-  control cycle (:meth:`ControllerManager.update`, the swap of a staged
-  parameter change included), the last one and the longest since start;
-- a parameter change is staged in the on-set callback (validated, and the
-  new plugin instance built and configured there, :mod:`cartpole_control.staging`);
-  the post-set callback queues that same instance, the cycle swaps it in;
-- its health on ``/diagnostics`` once a second of the node clock
-  (:meth:`health`, status ``controller_manager: control``);
-- the Python loggers of ``cartpole_control`` (the manager, the registry, the
-  plan cache, the plugins) go to this node's logger, so ``/rosout``, while the
-  node lives (:mod:`cartpole_core.ros_logging`); a refused parameter change is
-  logged too;
-- zero force on shutdown (:meth:`publish_zero`, also called by
-  :meth:`destroy_node`).
+Wiring only; every decision is the manager's. Each ``cartpole/state``
+(JointState, joints ``cart``/``pendulum``) runs one control cycle at once and
+publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp) and
+``cartpole/controller_status``; a repeated stamp gets the same answer again.
+With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``) for
+the encoders' sample it was estimated from, so lockstep runs are the same run
+whatever the delivery order. The plugins' parameters are ROS parameters:
+validated (and the new plugin staged) in the on-set callback, queued in the
+post-set callback, swapped in between two cycles. A stale-state timer on the
+node clock faults with zero force when the states stop for ``state_timeout``
+of this process's running time. ``~/restart_swingup`` starts a new swing-up;
+``cartpole/plant_reset`` starts one from the first state after the reset.
+Health on ``/diagnostics`` (``controller_manager: control``); the package's
+Python loggers go to ``/rosout`` while the node lives; zero force on shutdown.
+Topics, parameters and guards in detail: docs/controller_manager.md.
 """
 from __future__ import annotations
 
-import array
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -76,18 +33,21 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics, plain
+from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics
 from cartpole_core.model import CartPoleParameters
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter, collect_when_idle
 from cartpole_core.ros_logging import route_to_node
 
-from .controller import ControllerState, ParameterSpec
+from .controller import ControllerState
 from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
-from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from .parameter_descriptors import descriptor_for, manager_value, ros_value
+from .status_message import NODE_NAME, status_message
+
+__all__ = ['ControllerManagerNode', 'STATUS_KEYS', 'descriptor_for', 'main', 'status_message']
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
-NODE_NAME = 'controller_manager'
 STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
 STALE_CHECK_SLACK = 2 * STALE_CHECK_PERIOD
@@ -105,59 +65,6 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
     if not Path(path).is_file():
         raise ValueError(f'plant_params_file {path!r} does not exist')
     return CartPoleParameters.from_yaml(path)
-
-
-def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
-    """A ROS parameter descriptor from a :class:`ParameterSpec` (ranges, constraints text)."""
-    d = ParameterDescriptor(description=spec.description, dynamic_typing=spec.auto)
-    default = spec.default
-    constraints = []
-    if spec.auto:  # a string or a double: the range is checked by the manager
-        d.additional_constraints = f"'auto' or a number in [{_fmt(spec.low)}, {_fmt(spec.high)}]"
-        return d
-    if spec.choices is not None:
-        constraints.append('one of: ' + ', '.join(spec.choices))
-    if isinstance(default, bool) or isinstance(default, str):
-        pass
-    elif isinstance(default, (tuple, list)):
-        count = f'{spec.length} numbers' if spec.length is not None else 'numbers'
-        bounds = f' in [{_fmt(spec.low)}, {_fmt(spec.high)}]' if (
-            spec.low is not None or spec.high is not None) else ''
-        constraints.append(count + (' each' + bounds if bounds else ''))
-    elif isinstance(default, int):
-        if spec.low is not None and spec.high is not None:
-            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
-                                            step=1)]
-    elif spec.low is not None or spec.high is not None:
-        low = -sys.float_info.max if spec.low is None else float(spec.low)
-        high = sys.float_info.max if spec.high is None else float(spec.high)
-        d.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
-    d.additional_constraints = '; '.join(constraints)
-    return d
-
-
-def _fmt(value: float | None) -> str:
-    return '-inf' if value is None else f'{value:g}'
-
-
-def ros_value(spec: ParameterSpec, value: Any) -> Any:
-    """A manager value as the ROS parameter type fixed by the spec's default."""
-    if spec.auto:
-        return value if isinstance(value, str) else float(value)
-    if isinstance(spec.default, (tuple, list)):
-        return [float(v) for v in value]
-    if isinstance(spec.default, bool) or isinstance(spec.default, str):
-        return value
-    if isinstance(spec.default, int):
-        return int(value)
-    return float(value)
-
-
-def manager_value(value: Any) -> Any:
-    """A ROS parameter value as the manager takes it (arrays as tuples)."""
-    if isinstance(value, (array.array, list, tuple)):
-        return tuple(value)
-    return value
 
 
 def _stamp_ns(stamp) -> int:
@@ -496,54 +403,6 @@ class ControllerManagerNode(Node):
             pass
         self._log_route.remove()
         super().destroy_node()
-
-
-def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
-                   extra_event: str = '', cycle_compute: float = 0.0,
-                   max_cycle_compute: float = 0.0) -> DiagnosticArray:
-    """The ``/cartpole/controller_status`` message of one cycle (counts as integers, other
-    numbers as repr(float)).
-
-    ``extra_event`` (the node's own, e.g. ``plant_reset``) goes before the
-    manager's events in ``event``.
-    """
-    event = ';'.join(e for e in (extra_event, out.event) if e)
-    if out.mode == FAULT:
-        level = DiagnosticStatus.ERROR
-    else:  # idle (control disabled, or the run stopped) is no trouble
-        level = DiagnosticStatus.OK
-    values = {
-        'mode': out.mode,
-        'swingup': out.swingup,
-        'stabilizer': out.stabilizer,
-        'enabled': 'true' if out.enabled else 'false',
-        'energy': repr(float(out.energy)),
-        'energy_error': repr(float(out.energy_error)),
-        'raw_force': repr(float(out.raw_force)),
-        'feedforward': repr(float(out.feedforward)),
-        'force': repr(float(out.force)),
-        'catch_count': plain(out.catch_count),
-        'fall_count': plain(out.fall_count),
-        'event': event,
-        'state_stamp': repr(_stamp_seconds(stamp)),
-        'swingup_law': out.swingup_law,
-        'longest_cycle_gap_s': repr(float(longest_cycle_gap)),
-        'cycle_compute_s': repr(float(cycle_compute)),
-        'max_cycle_compute_s': repr(float(max_cycle_compute)),
-        'latency_s': repr(float(out.latency)),
-        'predict_horizon_s': repr(float(out.horizon)),
-        'omega0_sq': repr(float(out.omega_sq)),
-        'actuator_gain': repr(float(out.actuator_gain)),
-        'actuator_delay_s': repr(float(out.actuator_delay)),
-    }
-    status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
-                              hardware_id='cartpole',
-                              values=[KeyValue(key=k, value=values[k]) for k in STATUS_KEYS]
-                              + [KeyValue(key=k, value=repr(float(v)))
-                                 for k, v in out.plugin_status.items()])
-    array_msg = DiagnosticArray(status=[status])
-    array_msg.header.stamp = stamp
-    return array_msg
 
 
 def main(args=None) -> None:

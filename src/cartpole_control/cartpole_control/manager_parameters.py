@@ -9,9 +9,70 @@ No ROS import.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
+from typing import Mapping
+
 from cartpole_core.model import CartPoleParameters
 
-from .controller import AUTO, ParameterSpec
+from .controller import AUTO, KINDS, STABILIZER, SWINGUP, Controller, ParameterSpec
+from .registry import load_controllers
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
+"""Default plugins (the thesis's pairing in section 9.2.1)."""
+
+MANAGER_PREFIXES = ('actuator', 'catch', 'fall', 'feedforward', 'predict', 'rail')
+"""Parameter groups of the manager itself; a plugin cannot take these names."""
+
+
+def checked_registry(registry: Mapping[str, Mapping[str, type[Controller]]] | None
+                     ) -> dict[str, dict[str, type[Controller]]]:
+    """The plugins by kind and name; None discovers the installed ones (their entry points).
+
+    A plugin named like a manager parameter or like a plugin of the other kind
+    is skipped with a warning; ValueError if a kind has none left.
+    """
+    reserved = set(MANAGER_PREFIXES) | {'swingup', 'stabilizer', 'enabled', 'x_ref',
+                                        'state_timeout'}
+    out: dict[str, dict[str, type[Controller]]] = {}
+    taken: set[str] = set()
+    for kind in KINDS:
+        found = load_controllers(kind) if registry is None else dict(registry.get(kind, {}))
+        out[kind] = {}
+        for name, cls in sorted(found.items()):
+            if name in reserved or name in taken:
+                logger.warning('skipping %s controller %r: the name is taken', kind, name)
+                continue
+            taken.add(name)
+            out[kind][name] = cls
+        if not out[kind]:
+            raise ValueError(f'no {kind} controller is registered (entry-point group '
+                             f'cartpole_control.{kind}); run `make build`?')
+    return out
+
+
+def parameter_specs(p: CartPoleParameters, ts: float,
+                    registry: Mapping[str, Mapping[str, type[Controller]]]
+                    ) -> dict[str, ParameterSpec]:
+    """Every parameter by full name: the plugin choice, the manager's own, each plugin's."""
+    specs: list[ParameterSpec] = []
+    for kind, title in ((SWINGUP, 'Swing-up law (chapter 7)'),
+                        (STABILIZER, 'Stabiliser (chapter 8)')):
+        names = tuple(registry[kind])
+        default = DEFAULT_CONTROLLERS[kind] if DEFAULT_CONTROLLERS[kind] in names else names[0]
+        specs.append(ParameterSpec(kind, default, f'{title}: one of the registered plugins '
+                                   f'{list(names)}; switched bumplessly between two cycles',
+                                   choices=names))
+    specs += manager_parameter_specs(p, ts)
+    out = {spec.name: spec for spec in specs}
+    for kind in KINDS:
+        for name, cls in registry[kind].items():
+            for spec in cls.parameters:
+                full = f'{name}.{spec.name}'
+                out[full] = dataclasses.replace(spec, name=full)
+    return out
 
 
 def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterSpec]:

@@ -5,59 +5,7 @@ Zero force alone does not stop the cart: with only Coulomb friction (about
 3 N on 5 kg) a cart at 2 m/s rolls almost 3 m. The guard therefore knows the
 cart's stopping distance and brakes *before* it is too late.
 
-Each cycle, for the force ``F`` the controllers want, the guard predicts the
-cart after the command has acted for the dead time ``T_d`` (the loop latency
-plus the current loop's time constant 1/a of (4.4)), with the conservative
-acceleration ``F / (m_c + m_p)`` (friction ignored)::
-
-    v_1 = v + F T_d / (m_c + m_p),   x_1 = x + v T_d + F T_d^2 / (2 (m_c + m_p))
-
-and from there the distance a full brake needs::
-
-    d = v_1^2 / (2 a_b),   a_b = (F_b + c_c/2 - m_p (l theta_dot^2 + g)) / (m_c + m_p)
-
-where ``F_b`` is the braking force (``max_brake_force``, limited by what the
-amplifier gives in that direction: ``force_max`` to push right, ``-force_min``
-to push left), ``c_c/2`` credits only half the smaller Coulomb friction of the
-model (friction helps braking but is uncertain), and ``m_p (l theta_dot^2 + g)``
-bounds the pull of a swinging pendulum on the cart (rod tension: centripetal
-plus gravity). If ``x_1 +- d`` would leave ``[margin, travel - margin]`` while
-the cart moves towards that side:
-
-- a cart at rest (``|x_dot| <= rest_speed``, e.g. sitting at the left stop
-  after reset) is not braked; only the force pushing it towards that stop is
-  withheld (set to zero). Pushing away from a stop is always allowed. Inside
-  a margin a push towards that stop is withheld whatever the velocity
-  estimate says (a noisy estimate of a resting cart may show it moving
-  away), and a cart slower than ``creep_speed`` (0.1 m/s) counts as at
-  rest there: a hysteresis band for the noisy velocity of a cart resting at
-  a stop, which the trip would otherwise kick with the full brake and drop
-  the pendulum for. It is safe because the braking envelope admits a cart
-  into the margin only slowly (its stop was kept outside the margin), and
-  the cart's own Coulomb friction (2.45-3.4 N) stops 0.1 m/s within 1 cm
-  with no push towards the stop.
-- before that test, a moving cart (``limit`` on, the default) whose stop
-  would leave ``[margin + r, travel - margin - r]`` (``r`` =
-  ``limit_reserve``, 5 cm) gets its command **limited**: the force becomes
-  the one nearest the command whose stopping position stays on that inner
-  boundary, found by bisection on ``[-F_b, F]`` (the stopping position
-  grows monotonically with F); if even the full brake F_b does not keep it
-  there, the full brake (a cart at rest there only has a push further in
-  withheld). This is the braking-distance envelope used as a
-  control barrier (the safe set ``{stop(x, F) inside}`` is kept invariant
-  by the least intervention on the command, Ames et al., "Control barrier
-  functions: theory and applications", ECC 2019, section III): a swing-up or
-  a catch transient that would reach the envelope is bent back by it
-  instead of losing the pendulum to a trip. The limited force then goes
-  through the trip test below, so the guard brakes at least as early as
-  without the limiter; the reserve ``r`` is what an unmodelled delay or a
-  mismatched plant may use up before the trip test fails.
-- a moving cart whose (limited) command still leaves
-  ``[margin, travel - margin]`` trips the guard:
-  it brakes with the full opposing force (the last step proportional,
-  ``(m_c + m_p) |v| / Ts``, so it does not reverse the cart) until
-  ``|x_dot| <= rest_speed``, then holds zero force. The guard stays tripped
-  until :meth:`reset`; the manager reports the fault ``rail guard``.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.rail_guard``).
 
 No ROS import.
 """

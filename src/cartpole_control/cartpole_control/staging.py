@@ -10,17 +10,7 @@ the real context (an LQR's Riccati solve, a time-optimal plan read from the
 cache with its TV-LQR gains). The instance that validated the change is the
 one that runs: there is no scratch copy built and thrown away.
 
-The cycle (:meth:`ControllerManager._apply_pending`) then only swaps the ready
-objects in between two updates, like ros2_control's ``do_switch``: a new
-plugin of a running kind is activated from the current state (bumpless); the
-same plugin with new gains takes over the running one's integrators
-(:meth:`Controller.take_over`), as a reconfiguration in place would have kept
-them.
-
-Plugins that are registered but not selected are still checked when their
-gains (or the context) change, on a scratch instance with
-``validation_only`` set (no plan loading, no files), so that a bad gain is
-refused when it is set, not when the plugin is switched to later.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.staging``).
 
 No ROS import.
 """

@@ -17,7 +17,9 @@ import pytest
 import serial
 
 from cartpole_hw import protocol as jp
-from cartpole_emulator.emulator import Emulator, FaultConfig, main
+from cartpole_hw.line_splitter import LineSplitter
+from cartpole_emulator.emulated_rig import Emulator, FaultConfig
+from cartpole_emulator.emulator import main
 from cartpole_sim.plant import Scenario
 
 
@@ -26,7 +28,7 @@ class Client:
 
     def __init__(self, path):
         self.port = serial.Serial(path, 115200, timeout=0.01)
-        self.splitter = jp.LineSplitter()
+        self.splitter = LineSplitter()
         self.messages = []
         self.errors = []
 

@@ -1,30 +1,16 @@
 """ROS 2 node ``ekf``: the EKF of chapter 5 between the encoders and the controllers.
 
-Subscribes ``/joint_states`` (the quantised positions of ``cart`` and
-``pendulum``) and ``/cartpole/force_command`` (``cart`` effort), publishes
-``/cartpole/state`` (estimated positions and velocities, stamp copied from
-the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
-(diagnostic_msgs/DiagnosticArray) every ``health_period``, and the same health as
-``ekf: estimation`` on ``/diagnostics`` once a second (:mod:`cartpole_core.diagnostics`:
-OK, idle before the first sample; WARN when a :data:`DEGRADED` counter grew; STALE when
-the samples stopped). The numerical work
-is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
-wires it to ROS.
-
-With ``lockstep:=true`` (``cartpole run --lockstep`` sets it) a sample is
-estimated only once the force command computed from the previous sample has
-arrived: the simulator published the sample only after it received that
-command, so it exists, and waiting for it makes the estimate independent of
-the order in which DDS delivers the two (with one process a node the sample
-can overtake the command). A command that does not come within
-``lockstep_wait`` wall seconds (the simulator stepped on its own timeout) is
-not waited for any longer.
-
-A ``/cartpole/plant_reset`` (std_msgs/Header, the simulator's ``~/reset``)
-re-initialises the filter from the first sample stamped at or after its
-``stamp`` (reset reason ``plant reset``): the jump of the plant back to its
-initial state is not an innovation to filter. The health reports the
-longest wall-clock gap between two samples (``longest_cycle_gap_s``).
+Subscribes ``joint_states`` (the quantised positions of ``cart`` and
+``pendulum``) and ``cartpole/force_command`` (``cart`` effort), publishes
+``cartpole/state`` (positions and velocities, the sample's stamp) at once in
+the sample's callback, ``cartpole/ekf/health`` every ``health_period`` and
+``ekf: estimation`` on ``/diagnostics``. The numerical work is
+:class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only wires
+it. With ``lockstep:=true`` a sample is estimated only once the command
+computed from the previous sample has arrived (at most ``lockstep_wait``), so
+the estimate does not depend on DDS's delivery order. A ``cartpole/plant_reset``
+re-initialises the filter from the first sample stamped at or after it.
+docs/estimation.md.
 """
 from __future__ import annotations
 
@@ -88,11 +74,6 @@ class EkfNode(Node):
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``,
     ``parameter_overrides``, ``namespace``, ...).
-
-    Why one class of about 330 lines: a node adapter, most of it the declaration of
-    its parameters and their validation (``__init__``) and the three callbacks that
-    share the pending sample and the held force; the filter itself is
-    :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`.
     """
 
     def __init__(self, **kwargs) -> None:

@@ -30,8 +30,9 @@ from typing import Callable
 
 import serial
 
-from . import protocol as jp
-from .bridge import BridgeCore, JointSample
+from .line_splitter import LineSplitter
+from .bridge import BridgeCore
+from .bridge_records import JointSample
 
 WRITE_TIMEOUT = 0.05
 """Longest time the port may stay unwritable before the link counts as broken [s]."""
@@ -84,7 +85,7 @@ class SerialLink:
         self.log = logger or (lambda text: None)
         self._serial: serial.Serial | None = None
         self._broken: str | None = None
-        self._splitter = jp.LineSplitter()
+        self._splitter = LineSplitter()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._deferred = 0

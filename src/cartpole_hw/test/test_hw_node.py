@@ -25,7 +25,7 @@ def _make_rig(ros_context, tmp_path, active):
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
-    from cartpole_emulator.emulator import Emulator
+    from cartpole_emulator.emulated_rig import Emulator
     from cartpole_hw.hw_node import HwBridgeNode
     from cartpole_hw.lifecycle_client import LifecycleClient
 
@@ -377,7 +377,7 @@ def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
     node = rig.node
     now = node.get_clock().now().nanoseconds
     sampled = now - 80_000_000                 # device time of a sample read just now
-    node._note_receipt(sampled, now, 12345)
+    node.receipts.note(sampled, now, 12345)
     assert node.command_age(sampled, now) < 0.01
     assert node.command_age(sampled - 5_000_000, now) == pytest.approx(0.085)
     assert rig.spin(lambda: len(rig.joint_states) > 3, force=1.0)

@@ -10,7 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-MAGIC = b'\x89MCAP0\r\n'
+from .framing import MAGIC, RepairError, complete_prefix
+
 SQLITE_MAGIC = b'SQLite format 3\x00'
 
 
@@ -106,8 +107,6 @@ def damage(bag: str | Path) -> str | None:
 
 def _mcap_counts(path: Path, seen: dict[str, int]) -> str | None:
     """Add the MCAP file's messages per topic (from its summary) to ``seen``; a problem or None."""
-    from .repair import RepairError, complete_prefix
-
     try:
         _, complete = complete_prefix(path)
     except (RepairError, OSError) as error:

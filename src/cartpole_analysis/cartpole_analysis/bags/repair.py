@@ -23,24 +23,16 @@ beginning of one more record.
 from __future__ import annotations
 
 import os
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 import yaml
 
+from .check import damage
+from .framing import RepairError, complete_prefix
 from .storage import (CUSTOM_DATA_RECORD, NO_QOS, ROSBAG2_RECORD, BagStats, McapBagFile,
                           TopicInfo, bagfile_information, write_metadata)
-
-MAGIC = b'\x89MCAP0\r\n'
-_OP_FOOTER = 0x02
-_RECORD_HEADER = struct.Struct('<BQ')
-
-
-class RepairError(RuntimeError):
-    """The bag cannot be repaired (no MCAP file, not an MCAP file, ...); the message says why."""
-
 
 @dataclass
 class RepairResult:
@@ -96,28 +88,6 @@ def _bag_file(bag: Path) -> Path:
         raise RepairError(f'{bag}: cannot repair: expected one .mcap file, found '
                           f'{", ".join(p.name for p in candidates) or "none"}')
     return candidates[0]
-
-
-def complete_prefix(path: Path) -> tuple[int, bool]:
-    """(length of the part made of whole records, whether it ends with the footer and magic)."""
-    size = path.stat().st_size
-    with path.open('rb') as f:
-        if f.read(len(MAGIC)) != MAGIC:
-            raise RepairError(f'{path} is not an MCAP file (it does not start with the MCAP '
-                              'magic); nothing in it can be recovered'
-                              if size else f'{path} is empty; nothing in it can be recovered')
-        pos = len(MAGIC)
-        while pos + _RECORD_HEADER.size <= size:
-            f.seek(pos)
-            opcode, length = _RECORD_HEADER.unpack(f.read(_RECORD_HEADER.size))
-            end = pos + _RECORD_HEADER.size + length
-            if end > size:
-                break
-            pos = end
-            if opcode == _OP_FOOTER:
-                f.seek(pos)
-                return pos, f.read(len(MAGIC)) == MAGIC
-    return pos, False
 
 
 class _Prefix:
@@ -231,8 +201,6 @@ def repair_bag(bag: str | Path) -> RepairResult:
         bag = bag.parent
     if not bag.is_dir():
         raise RepairError(f'{bag}: no such bag directory')
-    from .check import damage
-
     path = _bag_file(bag)
     limit, complete = complete_prefix(path)
     size = path.stat().st_size

@@ -1,42 +1,20 @@
 """The ``viewer`` node: the running graph, live, in Foxglove (a WebSocket server).
 
-Subscribes the graph's topics (docs/architecture.md) and feeds
-:class:`cartpole_analysis.viewer.server.LiveView`, which serves the Foxglove
-WebSocket protocol through the foxglove-sdk (channels, rates and contents:
-:mod:`cartpole_analysis.viewer.server`)::
+Subscribes the graph's topics and feeds :class:`cartpole_analysis.viewer.server.LiveView`
+(the Foxglove WebSocket protocol through the foxglove-sdk)::
 
     ros2 run cartpole_bringup viewer                      # ws://127.0.0.1:8765
-    ros2 run cartpole_bringup viewer --ros-args -p host:=0.0.0.0 -p port:=8765
 
-or ``cartpole run --sim --view``, which starts it in its own process. It
-never publishes on the graph and subscribes best-effort (a reliable reader
-in another process costs the publishers acknowledgements and resends): a
-viewer that falls behind drops samples, the loop never waits for it.
-
-Topics: ``/cartpole/state`` (the estimate: each one that is due draws the
-scene), ``/cartpole/controller_status`` (mode, energies, the force command
-and its parts, events), the plant's own state drawn under the
-estimate -- ``/cartpole/true_state`` (the simulator's ground truth) while it
-has a publisher, else ``/joint_states`` (the encoders' measurement) -- and
-``/parameter_events`` (x* follows ``ros2 param set /controller_manager
-x_ref ...``). Every subscription a process adds costs the publishers a send
-per message, so the viewer takes only these: the force command is the
-status's ``force``, the value the manager publishes on
-``/cartpole/force_command`` with the same stamp, and only one of the
-measurement and the truth is subscribed at a time (chosen every
-:data:`PLANT_TOPIC_CHECK_PERIOD`). The names are relative: a viewer started in a
-graph's namespace (``-r __ns:=/rig2``) shows that graph (``/rig2/cartpole/state``,
-the manager ``/rig2/controller_manager``).
-
-With ``feed:=PATH`` it subscribes none of these 200 Hz topics but takes the
-samples from a local Unix socket instead, sent by the ``viewer_tap``
-node inside the graph's process (:mod:`cartpole_analysis.viewer.feed`: no
-remote DDS reader on the loop's critical path); ``cartpole run --view``
-works this way.
-
-It runs at the lowest CPU priority (:func:`lower_priority`), so that it never
-takes the processor from the loop. On start it prints one line to stderr,
-``viewer: serving ws://HOST:PORT`` (the real port when ``port`` is 0).
+It never publishes on the graph and subscribes best-effort, so a viewer that
+falls behind drops samples and the loop never waits for it. It takes only
+``cartpole/state`` (each one due draws the scene), ``cartpole/controller_status``,
+one of ``cartpole/true_state`` (while it has a publisher) or ``joint_states``
+(chosen every :data:`PLANT_TOPIC_CHECK_PERIOD`) and ``/parameter_events``:
+every subscription costs the publishers a send per message. With
+``feed:=PATH`` it takes the samples from the ``viewer_tap`` node's Unix
+socket instead (:mod:`cartpole_analysis.viewer.feed`; ``cartpole run --view``).
+It runs at the lowest CPU priority and prints ``viewer: serving ws://HOST:PORT``
+to stderr on start. docs/live_view.md.
 """
 from __future__ import annotations
 
@@ -74,12 +52,7 @@ PLANT_TOPIC_CHECK_PERIOD = 1.0
 
 
 class ViewerNode(Node):
-    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``.
-
-    Why one class of about 180 lines: a node adapter whose ``__init__`` declares the
-    viewer's parameters and chooses between the graph's topics and the tap's feed;
-    the view itself is :class:`cartpole_analysis.viewer.server.LiveView`.
-    """
+    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)

@@ -1,34 +1,17 @@
 """The recorder node ``recorder``: every topic of the graph into a rosbag2 bag.
 
 Subscribes the topics of docs/architecture.md (:data:`cartpole_analysis.bags.writer.TOPICS`)
-with ``raw=True``, so rclpy hands over the serialized CDR bytes, and writes
-them unchanged into an MCAP bag (metadata version 9, readable by
-``ros2 bag info``, Foxglove and ``rosbags``). Log time = the message's own
-stamp (simulated time in lockstep); see :mod:`cartpole_analysis.bags.writer`.
-
-Run alone next to a graph started otherwise::
-
-    ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag
-
-The bag is closed (``metadata.yaml`` written) when the node is destroyed,
-on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
-chunks at most ``flush_period`` old (also while no message arrives: a
-thread writes an idle chunk on the wall clock), so a recorder killed with SIGKILL loses at most
-that much; ``cartpole bag repair BAG`` makes the rest readable.
-
-Complete bags (:mod:`cartpole_bringup.graph.record_ledger`): with ``lockstep:=true``
-the recorder publishes on ``/cartpole/recorder/progress`` (std_msgs/Header)
-the stamp up to which it holds every sample topic, and the simulator does not
-step more than ``recorder_window`` samples ahead of it; a sample re-published
-while the graph starts is written once. In real time the messages it missed
-are counted by stamp and stored as ``recorder_missed`` in the bag's
-custom_data when it closes.
-
-In a namespace (``-r __ns:=/rig2``, ``cartpole run --namespace rig2``) it
-subscribes the graph's topics there and records them by the names they have
-(``/rig2/joint_states``; ``/clock`` as remapped, ``/rig2/clock`` with ``cartpole
-run``); the bag's custom_data holds ``namespace`` (:mod:`cartpole_core.namespaces`),
-and the ``topics`` parameter keeps the root names.
+with ``raw=True`` and writes the serialized CDR bytes unchanged into an MCAP
+bag (readable by ``ros2 bag info``, Foxglove and ``rosbags``), log time = the
+message's own stamp (:mod:`cartpole_analysis.bags.writer`). Run alone next to
+a graph: ``ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag``.
+The bag is closed when the node is destroyed (Ctrl-C, SIGTERM); until then it
+is written in chunks at most ``flush_period`` old, so a SIGKILL loses at most
+that (``cartpole bag repair``). With ``lockstep:=true`` it publishes its
+progress on ``cartpole/recorder/progress`` and the simulator waits for it
+(:mod:`cartpole_bringup.graph.record_ledger`); in real time the messages it
+missed are counted by stamp (``recorder_missed`` in the bag's custom_data).
+In a namespace it records the graph's topics by the names they have there.
 """
 from __future__ import annotations
 

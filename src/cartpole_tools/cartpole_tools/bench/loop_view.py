@@ -9,7 +9,7 @@ process fed by the ``viewer_tap`` node) and a Foxglove WebSocket client
 subscribed to every viewer channel (``python -m cartpole_analysis.viewer.client``,
 its own process), the load a user watching the run puts on it. The median of
 the pairs' p99 ratios is the viewer's cost; the same probe as
-:mod:`cartpole_tools.bench.loop` measures both.
+:mod:`cartpole_tools.bench.loop_probe` measures both.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .loop import WARMUP_S, _graph_cmds, _graph_labels, _measure
+from .loop_probe import WARMUP_S, graph_cmds, graph_labels, measure
 
 SAMPLE_TOPIC = '/joint_states'
 COMMAND_TOPIC = '/cartpole/force_command'
@@ -38,11 +38,11 @@ def view_rounds(mode: str, executor: str, duration: float, rounds: int,
     ``p99_ratio_view`` (None when no pair has both p99s)."""
     out = []
     for _ in range(rounds):
-        alone = _measure(_graph_cmds(mode, duration, executor), SAMPLE_TOPIC, COMMAND_TOPIC,
-                         duration, _graph_labels(mode), warmup)
+        alone = measure(graph_cmds(mode, duration, executor), SAMPLE_TOPIC, COMMAND_TOPIC,
+                         duration, graph_labels(mode), warmup)
         port = _free_port()
-        viewed = _measure(_graph_cmds(mode, duration, executor, port), SAMPLE_TOPIC,
-                          COMMAND_TOPIC, duration, _graph_labels(mode), warmup,
+        viewed = measure(graph_cmds(mode, duration, executor, port), SAMPLE_TOPIC,
+                          COMMAND_TOPIC, duration, graph_labels(mode), warmup,
                           viewer_url=f'ws://127.0.0.1:{port}')
         out.append({'graph': alone, 'graph_view': viewed,
                     'p99_ratio': (viewed['p99_ms'] / alone['p99_ms'])
@@ -71,7 +71,7 @@ def markdown(results: dict[str, Any], runs: list[tuple[str, str]], duration: flo
         r = results[mode][ex]
         if not r.get('view_rounds'):
             continue
-        graph = _graph_labels(mode)[0]
+        graph = graph_labels(mode)[0]
         for k, pair in enumerate(r['view_rounds'], 1):
             a, v = pair['graph'], pair['graph_view']
             ratio = '-' if pair['p99_ratio'] is None else f'{pair["p99_ratio"]:.2f}'
