@@ -24,6 +24,13 @@ SOLVERS = ('daqp', 'osqp', 'casadi_daqp', 'casadi_qpoases', 'casadi_osqp', 'casa
 Result = tuple['np.ndarray | None', bool, str]
 
 
+def _stack_bounds(qp: Any, upper: np.ndarray, lower: np.ndarray) -> None:
+    """This cycle's bounds of the variables, then of the rows, into ``upper`` and ``lower``."""
+    nv = qp.n_vars
+    upper[:nv], lower[:nv] = qp.variable_high, qp.variable_low
+    upper[nv:], lower[nv:] = qp.row_high, qp.row_low
+
+
 class DaqpBackend:
     """DAQP's wheel: ``daqp.Model`` set up once; each cycle ``update(f, bounds)`` and ``solve``.
 
@@ -56,11 +63,8 @@ class DaqpBackend:
         pass  # a real failure has set _cold; a stopped solve keeps its working set
 
     def solve(self) -> Result:
-        qp, nv = self.qp, self.qp.n_vars
-        self.upper[:nv] = qp.variable_high
-        self.lower[:nv] = qp.variable_low
-        self.upper[nv:] = qp.row_high
-        self.lower[nv:] = qp.row_low
+        qp = self.qp
+        _stack_bounds(qp, self.upper, self.lower)
         if self._cold:
             self.model.update(f=qp.f, bupper=self.upper, blower=self.lower, sense=self.sense)
             self._cold = False
@@ -102,11 +106,8 @@ class OsqpBackend:
         pass
 
     def solve(self) -> Result:
-        qp, nv = self.qp, self.qp.n_vars
-        self.upper[:nv] = qp.variable_high
-        self.lower[:nv] = qp.variable_low
-        self.upper[nv:] = qp.row_high
-        self.lower[nv:] = qp.row_low
+        qp = self.qp
+        _stack_bounds(qp, self.upper, self.lower)
         self.solver.update(q=qp.f, l=self.lower, u=self.upper)
         result = self.solver.solve()
         if result.info.status_val != self._solved:

@@ -124,18 +124,19 @@ def _after_a_6_ns_cart_push(stabilizer):
 
 @pytest.mark.slow
 def test_after_a_6_ns_cart_push_the_mpc_never_drives_the_cart_into_an_end_stop():
-    """Safety first, whether the pendulum is kept or not (it is in 3 of 12 seeds, as with
-    lqg: docs/robustness.md): the rail constraint and the guard keep the cart off the stops."""
+    """Safety first, whether the pendulum is kept or not (it is in 2 of 12 seeds:
+    docs/controllers.md): the rail constraint and the guard keep the cart off the stops."""
     runs = _after_a_6_ns_cart_push('mpc')
     assert not any(contact for _, contact in runs)
     assert 0 < sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 3 of 12 seeds only: '
-                   'it is 90 % of what a controller that sees the push after 20 ms can recover '
-                   'behind the rail guard (6.66 N s, docs/robustness.md, "Behind the rail '
-                   'guard, reacting to what the encoders show")')
+@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 2 of 12 seeds only '
+                   '(lqg: 3 of 3 of seeds 0-2): planning inside the amplifier and the rail guard\'s '
+                   'stopping-point boundary, the MPC keeps pushing towards the stop where the '
+                   'saturated LQR lets the guard brake and swings the pendulum back '
+                   '(docs/controllers.md, the mpc section)')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
     assert all(recovered for recovered, _ in _after_a_6_ns_cart_push('mpc'))
 
