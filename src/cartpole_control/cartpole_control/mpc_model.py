@@ -14,13 +14,11 @@ actuator between the command u and F:
   + d'``, ``0 < d' <= Ts``, ``s_{k+1} = Phi s_k + Gamma_1 u_{k-l} + Gamma_0
   u_{k-l+1}``; the state grows by the l commands in flight.
 
-Both 0 (the default) leave the five states of (8.13) with the LQI: the
-controller manager already hands the stabiliser the state predicted over the
-measured latency under the commands in flight, so ``dead_time`` is only what
-that prediction does not cover. The cost (8.15) over one sample is integrated
-exactly (:func:`sampled_cost`); with a dead time its cross term is left out
-(an O(Ts^2) term). The terminal cost is the discrete Riccati solution of the
-same model and weights (:func:`terminal_lqr`). No ROS import.
+Both 0 (the default) leave the five states of (8.13): the manager already
+predicts the state over the measured latency, so ``dead_time`` is only what
+that does not cover. The cost (8.15) over one sample is exact
+(:func:`sampled_cost`; with a dead time less its O(Ts^2) cross term), the
+terminal cost the discrete Riccati solution (:func:`terminal_lqr`). No ROS.
 """
 from __future__ import annotations
 

@@ -1,40 +1,19 @@
 """The quadratic program of the ``mpc`` stabiliser: built once, solved every cycle.
 
-The model is :mod:`.mpc_model`'s ``s_{k+1} = A_d s_k + B_d u_k`` (the
-upright linearisation (8.13)/(8.14) with the integral of the cart error, the
-actuator's lag and dead time when set), the cost (8.15) sampled exactly, the
-terminal cost P of the discrete Riccati equation of the same model and
-weights (the discrete counterpart of (8.18)). With that P the finite-horizon
-cost equals the infinite-horizon one while no constraint is active, so the
-first move is then exactly the terminal LQR's ``-K_d s_0`` (Scokaert and
-Rawlings, IEEE TAC 43(8), 1998; Mayne et al., Automatica 36, 2000).
-
-Pre-stabilised predictions ``u_k = -K_d s_k + c_k`` (Rossiter, Kouvaritakis and
-Rice, Automatica 34(1), 1998): the stable ``A_d - B_d K_d`` instead of powers
-of the unstable A_d, and ``J = s_0^T P s_0 + sum_k c_k^T (R_d + B_d^T P B_d)
-c_k``, a diagonal Hessian whose unconstrained optimum is c = 0. c is held over
-blocks of ``block`` steps (c = 0 stays in the blocked space). In ``w = [c_1 ..
-c_M, s_1 .. s_S, sigma]``::
-
-    minimise    1/2 w^T H w + rho sum_i s_i + rho_F sigma
-    subject to  u_lo <= u_k <= u_hi                          each block's first step (hard)
-                u_lo - sigma <= u_k <= u_hi + sigma          every other step of the horizon
-                lo - s_i <= x_k + t_b x_dot_k <= hi + s_i    each block's last step
-                s_i >= 0, sigma >= 0
-
-Every predicted force is bounded: a block's first is met by its own c_j, the
-others through one slack sigma with an exact l_inf penalty, the rail through
-one slack a point with an exact l1 penalty (Kerrigan and Maciejowski, UKACC
-Control 2000): while the constraints can be met the solution is the
-hard-constrained one (no predicted force outside the amplifier), and the QP
-is always feasible. ``x + t_b x_dot`` bounds the rail guard's stopping point.
-The rows are ``A w + G s_0`` with A, G, H built once; a cycle only writes the
-bounds, ``G s_0`` into preallocated vectors and warm-starts (:mod:`.mpc_solvers`).
-
-A solve that fails, raises, returns a non-finite answer or overruns the
-budget gives the previous plan shifted by one step: its predicted force for
-this cycle, clipped to this cycle's bounds (:meth:`CondensedQp.solve`,
-``Solution.source``). No ROS import.
+The model is :mod:`.mpc_model`'s, the terminal cost the discrete Riccati
+solution P of the same model and weights (the discrete (8.18)), so without
+an active constraint the first move is the terminal LQR's ``-K_d s_0``
+(Scokaert and Rawlings, IEEE TAC 43(8), 1998). The first ``free_steps``
+forces are moves of their own with exact bounds; after them ``u_k = -K_d s_k
++ c_j`` (Rossiter, Kouvaritakis and Rice, Automatica 34(1), 1998), c held
+over ``block`` steps, the cost-to-go from there ``s^T P s + sum c^T (R_d +
+B_d^T P B_d) c``. Every later force and the rail guard's stopping point ``x +
+t_b x_dot`` are soft with exact penalties (Kerrigan and Maciejowski, 2000):
+always feasible, the hard-constrained solution whenever one exists. A cycle
+writes only the bounds, ``G s_0`` and the cost's linear term into
+preallocated vectors and warm-starts (:mod:`.mpc_solvers`). A failed or late
+solve gives the previous plan shifted by one step. The formulation and its
+measurements: docs/controllers.md, the ``mpc`` section. No ROS import.
 """
 from __future__ import annotations
 
