@@ -9,11 +9,12 @@ STAMP_BUILD := install/.built
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
-.PHONY: run test build venv clean bench help firmware-deps
+.PHONY: run test test-fast build venv clean bench help firmware-deps
 
 help:
 	@echo "make run   - simulated swing-up with the default controllers, recorded and summarised"
 	@echo "make test  - build and run the whole test suite"
+	@echo "make test-fast - the tests that need neither a ROS graph nor real time (while working)"
 	@echo "make build - (re)build the colcon workspace"
 	@echo "make clean - remove build/, install/, log/ (keeps .venv)"
 
@@ -36,6 +37,10 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 # qemu-system-arm: installed here when missing and we are root (CI); else those tests skip, naming them.
 test: $(STAMP_BUILD) firmware-deps
 	source ./env.sh && python -m pytest -q
+
+# The day-to-day loop: no rclpy/DDS (marker ros), no long closed-loop runs (marker slow).
+test-fast: $(STAMP_BUILD)
+	source ./env.sh && python -m pytest -q -m "not ros and not slow"
 
 firmware-deps:
 	@$(MAKE) -s -C firmware arm-deps

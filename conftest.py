@@ -20,6 +20,21 @@ os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ['CARTPOLE_CACHE_DIR'] = tempfile.mkdtemp(prefix='cartpole-test-cache-')
 
 
+@pytest.fixture(autouse=True)
+def _rclpy_needs_the_ros_marker(request, monkeypatch):
+    """A test that starts rclpy in this process is marked ``ros`` (so ``make test-fast``,
+    ``-m "not ros and not slow"``, never waits on DDS): unmarked, rclpy.init refuses."""
+    if request.node.get_closest_marker('ros') is not None:
+        return
+    import rclpy
+    if getattr(rclpy.init, '__module__', None) != 'rclpy':
+        return  # a test's own stand-in (the fuzz tests stop the work there)
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError(f'{request.node.nodeid} starts rclpy: mark it pytest.mark.ros')
+    monkeypatch.setattr(rclpy, 'init', refuse)
+
+
 @pytest.fixture
 def ros_context():
     """An initialised rclpy Context, shut down after the test."""

@@ -93,8 +93,8 @@ def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, truth_s
     # of running ahead (at most its recorder_window of 10 samples, plus one a
     # lockstep_timeout), and once it thaws the bag still holds every sample, each once.
     code, out, err, ahead_ns, ran_ahead = _run_with_a_frozen_recorder(
-        ['run', '--sim', '--processes', '--lockstep', '--duration', '16', '--record',
-         str(tmp_path), '--json'], truth_stamps, spin_until, timeout=150)
+        ['run', '--sim', '--processes', '--lockstep', '--duration', '9', '--window', '3',
+         '--record', str(tmp_path), '--json'], truth_stamps, spin_until, timeout=150)
     assert not ran_ahead and ahead_ns <= 0.25e9, ahead_ns  # window, in flight, probe lag
     assert code == 0, err
     # An orderly stop: no fault, no refusal, no error logged by any node.
@@ -104,7 +104,7 @@ def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, truth_s
     assert result['fault'] is None
     assert result['catch_time_s'] is not None and result['catch_time_s'] < 10.0
     assert result['success'] is True, result
-    assert result['elapsed_s'] >= 16.0
+    assert result['elapsed_s'] >= 9.0 and result['window_s'] == 3.0
     bag = Path(result['bag'])
     assert bag.parent.parent == tmp_path and bag.parent.name.endswith('_pendulum_energy_lqg')
     assert json.loads((bag.parent / 'summary.json').read_text())['success'] is True
@@ -148,12 +148,12 @@ def test_processes_lockstep_is_deterministic():
     """
     summaries = []
     for _ in range(2):
-        # 16 s: the summary's 10 s window starts well after the catch (2.8 s) and after the
-        # first samples, which the run monitor of a graph of processes may miss (README,
-        # "Recording"): with 8 s the window took them in, and two such runs differed in
-        # mse_x (0.016449 vs 0.016415).
-        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '16',
-                              '--json'], timeout=150)
+        # The summary's window (the last 3 s of 9) starts well after the catch (2.8 s) and
+        # after the first samples, which the run monitor of a graph of processes may miss
+        # (README, "Recording"): a window that took them in (the 10 s window of an 8 s run)
+        # made two such runs differ in mse_x (0.016449 vs 0.016415).
+        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '9',
+                              '--window', '3', '--json'], timeout=150)
         assert code == 0, err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})

@@ -20,11 +20,12 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 def test_real_time_sim_run_with_disturbances_still_succeeds():
     # The scenario's disturbances reach the real-time simulator node: 4 ms of delay with
     # 2 ms of jitter on top of the graph's own latency, 5 % lost samples and a 0.5 N s push
-    # on the balancing cart at 8 s, 1 s before the verdict's 10 s window; the default pair
+    # on the balancing cart at 8 s, 1 s before the verdict's window (the last 3 s of 12: the
+    # window starts at 9 s, as the default 10 s window of a 19 s run); the default pair
     # still ends balanced.
     run = subprocess.run(
-        [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration', '19',
-         '--delay', '0.004', '--jitter', '0.002', '--drop', '0.05', '--push', '8:cart:5:0.1',
+        [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration', '12',
+         '--window', '3', '--delay', '0.004', '--jitter', '0.002', '--drop', '0.05', '--push', '8:cart:5:0.1',
          '--json'],
         capture_output=True, text=True, timeout=180)
     assert run.returncode == 0, run.stderr[-3000:]
@@ -49,8 +50,8 @@ def test_a_real_time_run_stalled_again_and_again_still_succeeds():
     trips (3 of 6 such runs beside three busy processes: the guard doing its work).
     The default swing-up peaks at 1.15-1.17 m/s (8 of 8 under the same load)."""
     run = subprocess.Popen(
-        [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration', '16',
-         '--json'],
+        [sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim', '--duration', '9',
+         '--window', '3', '--json'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stalls = 0
     try:

@@ -47,7 +47,7 @@ def test_lockstep_processes_run_solves_the_missing_plan_before_it_starts(tmp_pat
 
 
 def test_real_time_run_without_a_plan_falls_back_announced_then_the_next_one_tracks_it(tmp_path):
-    summary, err = cartpole_run(tmp_path, '--duration', '16')
+    summary, err = cartpole_run(tmp_path, '--duration', '10', '--window', '3')
     # The loop did not wait: energy_saturated swung up, said so, and the run succeeded.
     assert summary['swingup_law'] == 'time_optimal:fallback(no plan)', summary
     assert summary['success'] is True, (summary, err[-3000:])

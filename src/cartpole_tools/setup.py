@@ -24,6 +24,7 @@ setup(
         'cartpole.commands': [
             'bench = cartpole_tools.commands.bench',
             'identify = cartpole_tools.commands.identify',
+            'soak = cartpole_tools.commands.soak',
         ],
     },
 )

@@ -52,6 +52,19 @@ def test_known_trajectory_gives_the_known_summary(known_bag):
     assert a.series.t[0] == 0.0 and a.series.t[-1] == pytest.approx(20.0)
 
 
+def test_the_scoring_window_comes_from_the_bag_or_the_caller(tmp_path, known_bag):
+    """``cartpole run --window 3`` stores ``window_s``; the analysis scores the last 3 s."""
+    path = tmp_path / 'run' / 'bag'
+    bag_synth.write_run(path, custom_data={'x_ref': repr(bag_synth.X_REF), 'lockstep': 'true',
+                                           'window_s': '3.0'})
+    t, *_, force = bag_synth.trajectory()
+    for s in (analyze_bag(path).summary, analyze_bag(known_bag, window=3.0).summary):
+        last = force[t >= t[-1] - 3.0]
+        assert s['force_rms_n'] == pytest.approx(float(np.sqrt(np.mean(last ** 2))), rel=1e-9)
+        assert s['success'] is True
+    assert analyze_bag(path, window=10.0).summary == analyze_bag(known_bag).summary
+
+
 def test_summary_names_the_swingup_law_of_the_catch(tmp_path):
     # The status at the catch names the law that swung up; what the swing-up plugin
     # reports later (here: after the catch, a fall-back reason) does not change it.

@@ -95,6 +95,9 @@ def test_run_directory_is_named_by_time_and_controllers(tmp_path):
     (['--sim', '--view', 'localhost:70000'], '--view: port must be in'),
     (['--sim', '--realtime', 'fast'], "--realtime: CARTPOLE_REALTIME='fast': expected on, off"),
     (['--sim', '--realtime', '60'], 'SCHED_FIFO priority 1..49'),
+    (['--sim', '--duration', '5', '--window', '6'], '--window must be <= 5 s'),
+    (['--sim', '--window', '0'], '--window must be > 0 s'),
+    (['--sim', '--window', 'nan'], '--window must be a finite number'),
 ])
 def test_bad_options_are_refused_before_anything_starts(argv, reason, capsys, tmp_path):
     try:

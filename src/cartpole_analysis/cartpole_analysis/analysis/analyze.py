@@ -4,48 +4,9 @@
 ``cartpole run``) into a :class:`~cartpole_analysis.analysis.plots.RunSeries` and the
 summary of :func:`cartpole_analysis.analysis.metrics.summarize` -- the very function
 ``cartpole offline`` uses, so both report the same numbers for the same
-trajectory.
-
-What is taken from where:
-
-- states: the ground truth ``/cartpole/true_state`` when present (simulator),
-  else the estimate ``/cartpole/state`` (hardware);
-- time: the messages' ``header.stamp``; t = 0 is simulated time zero when the
-  run was in lockstep (``/clock`` recorded, or ``lockstep=true`` in the bag's
-  custom_data), else the first sample;
-- swing-up law (``swingup_law``): the status's ``swingup_law`` at the catch
-  (else the last one); None for bags recorded before the status carried it;
-- catch time: the first ``/cartpole/controller_status`` whose ``event`` has
-  ``catch`` (events are ';'-separated) or whose ``mode`` is the stabilising one, at its ``state_stamp``
-  (the sample the switch was computed from) or else its header stamp;
-- end-stop contact: the plant's own contact state (simulator): a non-zero
-  end-stop force in ``effort[1]`` of ``/cartpole/true_state``, or (bags
-  written before it was published) the true position past a stop by more
-  than the plant's tolerance;
-  on hardware, a limit flag ``limit_left`` / ``limit_right`` of
-  ``/cartpole/hw/health`` closing after it was seen open (the cart starts on
-  the left switch); with neither, the estimate outside [0, travel];
-- t = 0: in lockstep sample 0; in real time the start of control (the first
-  controller status with a swing-up or stabiliser running), else the first sample;
-- x*: ``--x-ref``, else ``x_ref`` of the bag's custom_data, else the middle of
-  the travel;
-- the end of the run: ``run_end_ns`` of the bag's custom_data (written by
-  ``cartpole run``: its ``--duration``, or the moment its stop began), else
-  the last sample; what the stop records after it (the pendulum falling
-  once the controller is off) is not summarised;
-- ``controllers``: the controller status's ``mode``, ``swingup`` and
-  ``stabilizer`` cycle by cycle (:mod:`cartpole_analysis.analysis.timeline`);
-- ``recorder_missed``: ``recorder_missed`` of the bag's custom_data (the
-  recorder counts by stamp what it missed, :mod:`cartpole_bringup.graph.record_ledger`);
-- ``fault``: ``fault`` of the bag's custom_data (``cartpole run``: a node
-  that died), else the first ``fault:<reason>`` event of the controller
-  status, else the first fault the hardware bridge counted (its
-  ``last_error``), before the end of the run;
-- ``longest_cycle_gap_s``: the largest ``longest_cycle_gap_s`` of the
-  controller status (null when the manager does not report it);
-- ``latency_s``, ``predict_horizon_s``, ``omega0_sq`` and the active plugin's
-  own figures (e.g. ``mpc_fallbacks``): their last value in the controller
-  status up to the end of the run (what the manager measured and used).
+trajectory. What each summary key is taken from (ground truth or estimate, the
+stamps, the catch, end-stop contact, the end of the run, the fault, the loop's
+figures) is the table of docs/running.md, "`cartpole analyze`".
 """
 from __future__ import annotations
 
@@ -260,10 +221,10 @@ class SeriesBuilder:
         return last
 
     def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
-                  label: str = '', end_ns: int | None = None,
-                  fault: str | None = None) -> tuple[RunSeries, dict[str, Any]]:
+                  label: str = '', end_ns: int | None = None, fault: str | None = None,
+                  window: float = metrics.WINDOW_S) -> tuple[RunSeries, dict[str, Any]]:
         """The series and the run summary (README.md, "The run summary"); ``fault``
-        overrides the reported one."""
+        overrides the reported one; ``window`` [s] is the final window it scores."""
         series, contact = self.build(params=params, x_ref=x_ref, lockstep=lockstep, label=label,
                                      end_ns=end_ns)
         summary = metrics.summarize(series.t, series.x, series.theta, x_ref=x_ref,
@@ -272,7 +233,8 @@ class SeriesBuilder:
                                     controllers=series.controllers,
                                     longest_cycle_gap_s=self.longest_cycle_gap(end_ns),
                                     swingup_law=self.swingup_law,
-                                    force=series.force, t_force=series.t_force)
+                                    force=series.force, t_force=series.t_force,
+                                    window=window)
         summary.update(self.last_figures(end_ns))
         return series, summary
 
@@ -363,7 +325,8 @@ def run_end_ns(custom: Mapping[str, str]) -> int | None:
 
 
 def analyze_bag(path: str | Path, *, x_ref: float | None = None,
-                params: CartPoleParameters | None = None, label: str = '') -> BagAnalysis:
+                params: CartPoleParameters | None = None, label: str = '',
+                window: float | None = None) -> BagAnalysis:
     """Series and run summary of one recorded run.
 
     Parameters
@@ -374,18 +337,23 @@ def analyze_bag(path: str | Path, *, x_ref: float | None = None,
         x* [m]; default: the bag's custom_data ``x_ref``, else mid-travel.
     params
         Nominal plant parameters (travel for the end-stop test, l, g, E*).
+    window
+        The final window the summary scores [s]; default: the bag's custom_data
+        ``window_s`` (``cartpole run --window``), else :data:`metrics.WINDOW_S`.
     """
     path = Path(path)
     params = params or CartPoleParameters()
     custom = bag_custom_data(path)
     if x_ref is None:
         x_ref = float(custom['x_ref']) if 'x_ref' in custom else params.x_middle
+    if window is None:
+        window = _float_or_none(custom.get('window_s')) or metrics.WINDOW_S
     builder, topics = read_bag(path)
     lockstep = CLOCK in topics or custom.get('lockstep', '').lower() == 'true'
     series, summary = builder.summarize(params=params, x_ref=x_ref, lockstep=lockstep,
                                         label=label or run_label(path),
                                         end_ns=run_end_ns(custom),
-                                        fault=custom.get('fault') or None)
+                                        fault=custom.get('fault') or None, window=window)
     summary['recorder_missed'] = recorder_missed(custom)
     return BagAnalysis(path=path, series=series, summary=summary, source=builder.source,
                        topics=topics, controllers=dict(builder.controllers),

@@ -3,34 +3,15 @@
 Fed sample by sample -- by the ``viewer`` node from the graph's topics
 (:mod:`cartpole_analysis.viewer.node`) or by ``cartpole offline --view``
 straight from the offline loop (:mod:`cartpole_analysis.viewer.offline`) --
-:class:`LiveView` publishes, through the ``foxglove-sdk`` server:
+:class:`LiveView` publishes, through the ``foxglove-sdk`` server, the scene
+(``/cartpole/view/scene``, foxglove.SceneUpdate), the state and the control
+(``/cartpole/view/state``, ``/cartpole/view/control``, JSON) and the events
+(``/cartpole/view/events``, foxglove.Log); docs/live_view.md lists their fields.
 
-============================  =====================  ==========================================
-channel                       schema                 content
-============================  =====================  ==========================================
-``/cartpole/view/scene``      foxglove.SceneUpdate   the rig, the plant's and the estimated state
-                              (protobuf)             (:mod:`cartpole_analysis.viewer.scene`)
-``/cartpole/view/state``      JSON                   estimate ``x, theta, theta_w, theta_w_deg,
-                                                     x_dot, theta_dot``, measurement ``*_meas``,
-                                                     ground truth ``*_true`` (simulator),
-                                                     ``x_ref``, ``x_err``; theta_w wrapped to
-                                                     (-pi, pi]
-``/cartpole/view/control``    JSON                   ``force`` (the command), ``raw_force``,
-                                                     ``feedforward``, ``energy`` E_p (7.3),
-                                                     ``energy_target`` E*, ``energy_error``,
-                                                     ``mode``, ``mode_code``, ``active`` (the
-                                                     plugin in charge), ``swingup``,
-                                                     ``stabilizer``, ``catch_count``, ...
-``/cartpole/view/events``     foxglove.Log           every catch, fall, fault, switch, restart
-============================  =====================  ==========================================
-
-Every message's log time is the stamp of the sample it shows (the
-``/joint_states`` sample the estimate and the command were computed from),
-so a client orders and plots by the loop's own time, simulated in lockstep.
-The scene, state and control channels are decimated by those stamps to at
-most ``max_rate`` (default and upper bound 60 Hz): a sample is shown when
-at least ``1 / max_rate`` has passed since the last one shown (every fourth
-5 ms sample at 60 Hz: 50 Hz). Events are never decimated.
+Every message's log time is the stamp of the sample it shows, so a client orders
+and plots by the loop's own time (simulated in lockstep). Scene, state and control
+are decimated by those stamps to at most ``max_rate`` (default and upper bound
+60 Hz); events never are.
 """
 from __future__ import annotations
 

@@ -9,21 +9,11 @@ the amplifier's force limits and the cart kept on the rail:
 - ``left_stop``: the same from the left end stop;
 - ``upright_at_rest``: from the middle to upright at rest.
 
-and, asked for with ``--case`` (not by default), the physical limit for the
-robustness grid's pushes (:mod:`cartpole_control.push_recovery`): the
-largest impulse any controller within the force limits can recover from,
-balanced at rest in the middle, the cart kept in ``[m, travel - m]``:
-
-- ``push_cart``: a constant force to the right for 0.1 s [N s];
-- ``push_pendulum``: a constant torque towards increasing theta for 0.05 s [N m s];
-
-each for every ``--margin`` (default 0 and the rail guard's 0.02 m), without
-and with the fall detector's |theta| <= ``--fall-angle`` (45 deg); with
-``--guard`` inside the rail guard's braking envelope too (its limiter keeps
-the cart's stopping position 5 cm inside the margin: what any controller
-behind this project's guard can recover from); with ``--reaction S`` the
-controller's force is zero for the first S of the push (one that acts only on
-what it has seen).
+and, asked for with ``--case`` (not by default), the physical limits for the
+robustness grid's pushes (:mod:`cartpole_control.push_recovery`): the largest
+impulse (``push_cart`` [N s], ``push_pendulum`` [N m s]) any controller within the
+force limits recovers from, balanced at rest in the middle, per ``--margin``, with
+and without the fall detector, ``--guard`` and ``--reaction`` (docs/robustness.md).
 
 No ROS.
 """

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument('--duration', type=float, default=None, metavar='S',
                    help='stop after S seconds (simulated in lockstep, wall otherwise); '
                         'default: until Ctrl-C')
+    g.add_argument('--window', type=float, default=10.0, metavar='S',
+                   help='the final window the run summary scores (amplitude, cart error, MSE, '
+                        'force) [s]; default 10, the thesis\'s table 10.2; at most --duration')
     g.add_argument('--record', type=Path, default=None, metavar='DIR',
                    help='record a bag into DIR/<UTC time>_<swingup>_<stabilizer>/bag')
     g.add_argument('--plots', nargs='?', const='', default=None, metavar='DIR',
@@ -163,6 +166,9 @@ def check(args: argparse.Namespace) -> None:
         raise boundary.InputError('--lockstep needs --sim')
     if args.duration is not None:
         boundary.duration(args.duration)
+    boundary.number('--window', args.window, 0.0,
+                    boundary.MAX_DURATION_S if args.duration is None else args.duration,
+                    low_open=True, unit='s')
     if args.realtime is not None:
         from cartpole_core.realtime import ENVIRONMENT_SWITCH, priority_from_environment
         try:
@@ -248,6 +254,7 @@ def main(args: argparse.Namespace) -> int:
         run_dir.mkdir(parents=True)
         bag = run_dir / 'bag'
     custom = {'x_ref': repr(x_ref), 'lockstep': str(bool(args.lockstep)).lower(),
+              'window_s': repr(float(args.window)),
               'plant': 'sim' if args.sim else 'hw', **names,
               'command': ' '.join(['cartpole', 'run'] + sys.argv[2:])[:1000]}
     scratch = tempfile.TemporaryDirectory(prefix='cartpole-run-')  # the run's own files
@@ -310,7 +317,7 @@ def main(args: argparse.Namespace) -> int:
         print(f'cartpole run: warning: {w}', file=sys.stderr)
     end_ns = run_end_ns(graph.stop_stamp_ns, args.duration if args.lockstep else None)
     series, summary = summarize_run(graph, bag, end_ns=end_ns, x_ref=x_ref, params=nominal,
-                                    lockstep=args.lockstep)
+                                    lockstep=args.lockstep, window=args.window)
     return report(args, names, summary, series, run_dir=run_dir, bag=bag, elapsed=elapsed,
                   fault=graph.fault)
 
@@ -359,7 +366,7 @@ def run_end_ns(stop_stamp_ns: int | None, lockstep_duration: float | None) -> in
 
 
 def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, params,
-                  lockstep: bool):
+                  lockstep: bool, window: float = 10.0):
     """(series, summary) of the run: from its bag (repaired if need be), else from the monitor.
 
     The bag's custom_data gets ``run_end_ns`` and ``fault``, so that
@@ -374,7 +381,7 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
         if bag is None:
             series, summary = graph.monitor.builder.summarize(
                 params=params, x_ref=x_ref, lockstep=lockstep, label='run', end_ns=end_ns,
-                fault=graph.fault)
+                fault=graph.fault, window=window)
             if summary is not None:
                 summary['recorder_missed'] = None  # no bag: nothing was recorded, nothing counted
             return series, summary
@@ -382,7 +389,7 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
             print(f'cartpole run: {repair_bag(bag).describe()}', file=sys.stderr)
         update_custom_data(bag, {'run_end_ns': None if end_ns is None else str(end_ns),
                                  'fault': graph.fault})
-        analysis = analyze_bag(bag, x_ref=x_ref, params=params)
+        analysis = analyze_bag(bag, x_ref=x_ref, params=params, window=window)
         return analysis.series, analysis.summary
     except (ValueError, OSError, RepairError) as exc:
         print(f'cartpole run: no summary: {exc}', file=sys.stderr)
@@ -403,7 +410,8 @@ def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
         plot_dir = run_dir if args.plots == '' else Path(args.plots)
         plots = write_plots(series, plot_dir, 'run',
                             title=run_title(spans, f'{names["swingup"]} + {names["stabilizer"]}'))
-    extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), **ran,
+    extra = {'elapsed_s': elapsed, 'lockstep': bool(args.lockstep), 'window_s': args.window,
+             **ran,
              'run_dir': str(run_dir) if run_dir else None, 'bag': str(bag) if bag else None,
              'plots': [str(p) for p in plots]}
     result = dict(summary) if summary is not None else {'fault': fault, 'success': False}

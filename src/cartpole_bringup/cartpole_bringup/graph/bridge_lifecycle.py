@@ -21,6 +21,8 @@ unconfigured, whether in this process or its own. The graph
 """
 from __future__ import annotations
 
+from typing import Callable
+
 from lifecycle_msgs.msg import TransitionEvent
 
 from cartpole_hw.lifecycle_client import LifecycleClient
@@ -40,53 +42,64 @@ TRANSITION_TIMEOUT = 6.0
 
 
 class BridgeLifecycle:
-    """The bridge's transitions for :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+    """The bridge's transitions for a :class:`cartpole_bringup.graph.graph.Graph`.
 
-    Uses the graph's ``spec``, ``monitor``, ``fault``, ``should_stop``,
-    ``spin_until``, ``_alive``, ``_set_fault`` and ``_bridge`` (None at first).
+    Its lifecycle client and the transition subscription live on the run
+    ``monitor``; ``spin_until`` waits while the graph spins, ``alive(name)``
+    tells whether a node still runs, ``set_fault(reason)`` reports the bridge's
+    fault and ``stopping()`` is true once the run should end (Ctrl-C, a fault).
     """
 
-    def _bridge_client(self) -> LifecycleClient:
-        """The lifecycle client of the bridge, created early (discovery of its responses)."""
-        if self._bridge is None:
-            self._bridge = LifecycleClient(self.monitor, BRIDGE, self.spin_until)
-            self.monitor.create_subscription(TransitionEvent, f'{BRIDGE}/transition_event',
-                                             self._on_bridge_transition, 10)
-        return self._bridge
+    def __init__(self, spec, monitor, spin_until: Callable, alive: Callable[[str], bool],
+                 set_fault: Callable[[str], None], stopping: Callable[[], bool]) -> None:
+        self.spec = spec
+        self.monitor = monitor
+        self.spin_until = spin_until
+        self.alive = alive
+        self.set_fault = set_fault
+        self.stopping = stopping
+        self._client: LifecycleClient | None = None
 
-    def _on_bridge_transition(self, event: TransitionEvent) -> None:
+    def client(self) -> LifecycleClient:
+        """The lifecycle client of the bridge, created early (discovery of its responses)."""
+        if self._client is None:
+            self._client = LifecycleClient(self.monitor, BRIDGE, self.spin_until)
+            self.monitor.create_subscription(TransitionEvent, f'{BRIDGE}/transition_event',
+                                             self._on_transition, 10)
+        return self._client
+
+    def _on_transition(self, event: TransitionEvent) -> None:
         if event.goal_state.label == 'errorprocessing':
             reported = self.monitor.builder.first_fault() or ''   # from /cartpole/hw/health
             why = reported if reported.startswith(f'{BRIDGE}:') else \
                 f'{BRIDGE}: fault while armed (its log says why)'
-            self._set_fault(f'{why}; zero force, disarmed, port closed (on_error)')
+            self.set_fault(f'{why}; zero force, disarmed, port closed (on_error)')
 
-    def _configure_bridge(self) -> str:
+    def configure(self) -> str:
         """Configure the bridge: '' when done, else why not."""
-        ok, reason = self._bridge_client().change('configure', CONFIGURE_TIMEOUT)
+        ok, reason = self.client().change('configure', CONFIGURE_TIMEOUT)
         return '' if ok else f'{BRIDGE} configure: {reason}'
 
-    def _activate_bridge(self) -> str:
+    def activate(self) -> str:
         """Arm the bridge once the controller answers: '' when done, else why not."""
         m = self.monitor
         first = m.forces
         # twice the bridge's count: the monitor sees a command before the bridge does
         if not self.spin_until(lambda: m.forces >= first + 2 * WARM_COMMANDS, ACTIVATE_TIMEOUT):
             return f'{BRIDGE} activate: the controller manager does not answer the samples'
-        stopping = lambda: self.should_stop() or self.fault is not None  # noqa: E731
-        ok, reason = self._bridge_client().change_retrying(
+        ok, reason = self.client().change_retrying(
             'activate', int(ACTIVATE_TIMEOUT / ACTIVATE_RETRY), ACTIVATE_RETRY,
-            TRANSITION_TIMEOUT, give_up=stopping)
+            TRANSITION_TIMEOUT, give_up=self.stopping)
         if ok:
             return ''
-        return f'{BRIDGE} activate: {reason}' if stopping() else \
+        return f'{BRIDGE} activate: {reason}' if self.stopping() else \
             f'{BRIDGE} activate: {reason} for {ACTIVATE_TIMEOUT:g} s'
 
-    def _bridge_to(self, transition: str, state: str) -> list[str]:
+    def to(self, transition: str, state: str) -> list[str]:
         """At the stop: ``transition`` if the bridge is in ``state``; warnings."""
-        if self.spec.plant != BRIDGE or not self._alive(BRIDGE):
+        if self.spec.plant != BRIDGE or not self.alive(BRIDGE):
             return []
-        client = self._bridge_client()
+        client = self.client()
         if client.state(TRANSITION_TIMEOUT) != state:
             return []
         ok, reason = client.change(transition, TRANSITION_TIMEOUT)

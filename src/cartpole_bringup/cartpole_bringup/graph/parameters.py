@@ -1,7 +1,7 @@
 """The parameters of a graph's nodes: in process directly, across processes by their services."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
@@ -9,13 +9,21 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 
 
 class NodeParameters:
-    """Set and get parameters of the nodes of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+    """Set and get parameters of the nodes of a :class:`cartpole_bringup.graph.graph.Graph`.
 
-    Uses the graph's ``nodes``, ``monitor`` (the clients' node), ``_clients``
-    and ``spin_until``.
+    ``nodes`` are the graph's in-process nodes (set directly); the others are
+    reached through their services by clients of ``client_node`` (the run
+    monitor), kept for the run; ``spin_until(predicate, timeout)`` waits
+    while the graph spins.
     """
 
-    def _client(self, srv_type, node: str, service: str):
+    def __init__(self, nodes: dict, client_node, spin_until: Callable) -> None:
+        self.nodes = nodes
+        self.client_node = client_node
+        self.spin_until = spin_until
+        self._clients: dict = {}
+
+    def client(self, srv_type, node: str, service: str):
         """A service client of a graph node, kept for the whole run.
 
         Created early (at start), so that discovery of the response path is
@@ -24,7 +32,7 @@ class NodeParameters:
         """
         key = (node, service)
         if key not in self._clients:
-            self._clients[key] = self.monitor.create_client(srv_type, f'{node}/{service}')
+            self._clients[key] = self.client_node.create_client(srv_type, f'{node}/{service}')
         return self._clients[key]
 
     def set_parameters(self, node: str, values: dict[str, Any],
@@ -33,7 +41,7 @@ class NodeParameters:
         params = [Parameter(k, value=v) for k, v in values.items()]
         if node in self.nodes:
             return [(r.successful, r.reason) for r in self.nodes[node].set_parameters(params)]
-        client = self._client(SetParameters, node, 'set_parameters')
+        client = self.client(SetParameters, node, 'set_parameters')
         if not self.spin_until(client.service_is_ready, timeout):
             return [(False, f'{client.service_name} not available')] * len(params)
         request = SetParameters.Request(parameters=[p.to_parameter_msg() for p in params])
@@ -49,7 +57,7 @@ class NodeParameters:
         if node in self.nodes:
             node_obj = self.nodes[node]
             return node_obj.get_parameter(name).value if node_obj.has_parameter(name) else None
-        client = self._client(GetParameters, node, 'get_parameters')
+        client = self.client(GetParameters, node, 'get_parameters')
         if not self.spin_until(client.service_is_ready, timeout):
             return None
         future = client.call_async(GetParameters.Request(names=[name]))

@@ -60,6 +60,7 @@ class RunMonitor(Node):
                  progress: bool = False, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.builder = SeriesBuilder()
+        self._collect = collect
         # The status is booked only where it is subscribed (collect): a ledger waiting for a
         # topic this node never takes would hold the progress back for good.
         booked = (state_topic, FORCE) + ((STATUS,) if collect else ())
@@ -93,7 +94,8 @@ class RunMonitor(Node):
     def _state_cb(self, topic: str) -> Callable[[JointState], None]:
         def callback(msg: JointState) -> None:
             stamp = _stamp_ns(msg.header.stamp)
-            self.builder.joint_state(topic, stamp, msg.position, msg.velocity, msg.effort)
+            if self._collect:  # else the bag holds the series: nothing grows here with the run
+                self.builder.joint_state(topic, stamp, msg.position, msg.velocity, msg.effort)
             if topic == TRUE_STATE and len(msg.effort) and abs(msg.effort[0]) < ZERO_FORCE_N:
                 self.zero_force_samples += 1
             if self.last_stamp_ns is None or stamp > self.last_stamp_ns:
@@ -115,7 +117,8 @@ class RunMonitor(Node):
 
     def _on_force(self, msg: JointState) -> None:
         stamp = _stamp_ns(msg.header.stamp)
-        self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
+        if self._collect:
+            self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
         self._book(FORCE, stamp)
         if len(msg.effort):
             self.forces += 1

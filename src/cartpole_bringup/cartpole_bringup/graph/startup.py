@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import time
+from typing import Callable
 
 from rclpy.parameter import Parameter
 from rcl_interfaces.srv import SetParameters
@@ -52,21 +53,43 @@ def command_line(spec: GraphSpec, name: str) -> list[str]:
 
 
 class GraphStartup:
-    """The start of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+    """The start of a :class:`cartpole_bringup.graph.graph.Graph`.
 
-    Uses the graph's ``spec``, ``context``, ``executor``, ``monitor``,
-    ``nodes``, ``processes``, ``warnings``, ``fault``, ``should_stop``,
-    ``spin_until`` and ``_client``.
+    Fills the graph's inventory (``nodes`` in this process, or ``processes``)
+    on its ``executor``, watched by its ``monitor``; uses its parts
+    (``parameters``' clients, the ``bridge``, the ``faults``). Holds this
+    process's real-time hygiene (one process) once the loop runs here.
     """
 
-    # -- start -----------------------------------------------------------------------------------
+    def __init__(self, spec, context, executor, monitor, nodes: dict, processes: dict,
+                 parameters, bridge, faults, spin_until: Callable,
+                 should_stop: Callable[[], bool], warn: Callable[[str], None]) -> None:
+        self.spec = spec
+        self.context = context
+        self.executor = executor
+        self.monitor = monitor
+        self.nodes = nodes
+        self.processes = processes
+        self.parameters = parameters
+        self.bridge = bridge
+        self.faults = faults
+        self.spin_until = spin_until
+        self.should_stop = should_stop
+        self.warn = warn
+        self.realtime: realtime.LoopHygiene | None = None
+        self.wall_start: float | None = None
+        """Wall time the run began: when the loop is wired (set again once it answers)."""
+
+    def _ending(self) -> bool:
+        return self.should_stop() or self.faults.fault is not None
+
     def start(self) -> None:
         """Start every node (plant last) and wait until the loop is wired."""
         rig = self.spec.plant == 'hw_bridge'
         if rig:
-            self._bridge_client()
+            self.bridge.client()
         if self.spec.processes:
-            self._client(SetParameters, 'controller_manager', 'set_parameters')
+            self.parameters.client(SetParameters, 'controller_manager', 'set_parameters')
             self._start_processes()
         else:
             self._start_in_process()
@@ -80,23 +103,23 @@ class GraphStartup:
             except ValueError as error:
                 raise GraphError(str(error)) from None
         if rig:   # a managed node: samples flow once it is configured
-            reason = self._configure_bridge()
-            if reason and not self.should_stop() and self.fault is None:
+            reason = self.bridge.configure()
+            if reason and not self._ending():
                 raise GraphError(f'{reason}; {self._process_report()}')
         self.wall_start = time.monotonic()
         if not self.spin_until(lambda: self.monitor.last_stamp_ns is not None, STARTUP_TIMEOUT):
             # Ctrl-C, or a node died once the plant had started (under load the monitor's
             # subscription can match seconds after the plant began to publish): the run
             # stops and its summary reports the fault, as for a death later on.
-            if self.should_stop() or self.fault is not None:
+            if self._ending():
                 return
             raise GraphError(f'no state arrived within {STARTUP_TIMEOUT:g} s; '
                              f'{self._process_report()}')
         if self.spec.lockstep:
             self._ensure_loop_started()
         if rig and self.spec.hw_arm:   # arm once the loop answers (cartpole run --hw-arm)
-            reason = self._activate_bridge()
-            if reason and not self.should_stop() and self.fault is None:
+            reason = self.bridge.activate()
+            if reason and not self._ending():
                 raise GraphError(reason)
         self.wall_start = time.monotonic()
 
@@ -113,17 +136,16 @@ class GraphStartup:
         first = self.monitor.last_stamp_ns
         moved = lambda: self.monitor.last_stamp_ns > first  # noqa: E731
         for _ in range(LOOP_START_ATTEMPTS):
-            if self.spin_until(moved, LOOP_START_TIMEOUT) or self.should_stop() or self.fault:
+            if self.spin_until(moved, LOOP_START_TIMEOUT) or self._ending():
                 return
-            self.warnings.append('lockstep loop did not answer the first sample; '
-                                 'reset the simulator (the run starts one period later)')
-            client = self._client(Trigger, 'sim', 'reset')
+            self.warn('lockstep loop did not answer the first sample; '
+                      'reset the simulator (the run starts one period later)')
+            client = self.parameters.client(Trigger, 'sim', 'reset')
             if self.spin_until(client.service_is_ready, 5.0):
                 future = client.call_async(Trigger.Request())
                 self.spin_until(future.done, 5.0)
             first = self.monitor.last_stamp_ns
-        if (not self.spin_until(moved, LOOP_START_TIMEOUT) and not self.should_stop()
-                and self.fault is None):
+        if not self.spin_until(moved, LOOP_START_TIMEOUT) and not self._ending():
             raise GraphError('the lockstep loop does not start; ' + self._process_report())
 
     def _start_in_process(self) -> None:
@@ -159,7 +181,7 @@ class GraphStartup:
                     and m.count_subscribers(relative(STATE)) >= 1 + rec
                     and m.count_publishers(relative(FORCE)) >= 2)
         if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
-            raise GraphError(self.fault or f'the nodes did not come up within '
+            raise GraphError(self.faults.fault or f'the nodes did not come up within '
                                            f'{STARTUP_TIMEOUT:g} s; {self._process_report()}')
 
     def _process_report(self) -> str:

@@ -34,12 +34,30 @@ executor would still run that callback of a destroyed node); nothing spins in be
 so nothing goes stale."""
 
 class StopSequence:
-    """The stop sequence of :class:`cartpole_bringup.graph.graph.Graph` (a mixin).
+    """The stop of a :class:`cartpole_bringup.graph.graph.Graph`: once, whatever went before.
 
-    Uses the graph's ``spec``, ``monitor``, ``nodes``, ``processes``,
-    ``executor``, ``fault``, ``set_parameters``, ``_bridge_to``, ``_alive`` and
-    ``_spin_once``.
+    Works on the graph's inventory (``nodes``, ``processes``, ``executor``,
+    ``monitor``) through its parts (``faults``, ``parameters``, ``bridge``);
+    ``alive(name)`` tells whether a node still runs, ``spin_once(timeout)`` spins
+    the graph. Holds whether it ran and the stamp where it began.
     """
+
+    def __init__(self, spec, executor, monitor, nodes: dict, processes: dict, faults,
+                 parameters, bridge, alive: Callable[[str], bool],
+                 spin_once: Callable[[float], None]) -> None:
+        self.spec = spec
+        self.executor = executor
+        self.monitor = monitor
+        self.nodes = nodes
+        self.processes = processes
+        self.faults = faults
+        self.parameters = parameters
+        self.bridge = bridge
+        self.alive = alive
+        self.spin_once = spin_once
+        self.stopped = False
+        self.stamp_ns: int | None = None
+        """Stamp of the latest state when the stop began (the fault's, after a fault)."""
 
     def stop(self) -> list[str]:
         """Zero force first, then stop the nodes in order (see the module docstring).
@@ -49,19 +67,20 @@ class StopSequence:
         """
         if self.stopped:
             return []
-        self._stopping = True
-        if self.stop_stamp_ns is None:
-            self.stop_stamp_ns = self.monitor.last_stamp_ns
+        self.faults.stopping = True
+        if self.stamp_ns is None:
+            fault_stamp = self.faults.fault_stamp_ns
+            self.stamp_ns = fault_stamp if fault_stamp is not None else self.monitor.last_stamp_ns
         warnings = self._command_zero_force()
         self.stopped = True
         if self.processes:
             for name in STOP_ORDER:
                 if name in self.processes:
                     if name == 'hw_bridge':
-                        warnings += self._bridge_to('cleanup', 'inactive')
+                        warnings += self.bridge.to('cleanup', 'inactive')
                     warnings += self._stop_process(name)
         else:
-            warnings += self._bridge_to('cleanup', 'inactive')
+            warnings += self.bridge.to('cleanup', 'inactive')
             self._destroy_in_order([n for n in IN_PROCESS_STOP_ORDER if n in self.nodes])
         return warnings
 
@@ -75,21 +94,22 @@ class StopSequence:
         warnings: list[str] = []
         m = self.monitor
         zeros_before, applied_before = m.zero_forces, m.zero_force_samples
-        plant_alive = self._alive(self.spec.plant)
-        if plant_alive and (self.fault is not None or not self._alive('controller_manager')):
+        plant_alive = self.alive(self.spec.plant)
+        if plant_alive and (self.faults.fault is not None or not self.alive('controller_manager')):
             m.publish_zero_force(sample_stamp=self.spec.lockstep)
-        if self._alive('controller_manager'):
-            for ok, reason in self.set_parameters('controller_manager', {'enabled': False}, 6.0):
+        if self.alive('controller_manager'):
+            for ok, reason in self.parameters.set_parameters('controller_manager',
+                                                             {'enabled': False}, 6.0):
                 if not ok:
                     warnings.append(f'controller_manager enabled:=false refused: {reason}')
         if not plant_alive:
             return warnings
-        warnings += self._bridge_to('deactivate', 'active')
-        if not self._wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
+        warnings += self.bridge.to('deactivate', 'active')
+        if not self.wait(lambda: m.zero_forces > zeros_before, ZERO_FORCE_TIMEOUT):
             warnings.append('no zero force command seen after disabling the controller '
                             '(the plant watchdog zeroes the force)')
         elif self.spec.plant == 'sim':
-            self._wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
+            self.wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
         return warnings
 
     def _destroy_in_order(self, order: list[str]) -> None:
@@ -104,7 +124,7 @@ class StopSequence:
         recorder = self.nodes.get('recorder')
         if recorder is not None:
             forces_seen = self.monitor.forces
-            self._wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
+            self.wait(lambda: recorder.counts.get(FORCE, 0) >= forces_seen, 1.0)
         for name in order:
             node = self.nodes.pop(name, None)
             if node is None:
@@ -112,18 +132,19 @@ class StopSequence:
             self.executor.remove_node(node)
             node.destroy_node()
 
-    def _wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
+    def wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        """Spin until ``predicate()`` or ``timeout`` [s]; not cut short by Ctrl-C or a fault."""
         deadline = time.monotonic() + timeout
         while not predicate():
             if time.monotonic() >= deadline:
                 return False
-            self._spin_once(0.02)
+            self.spin_once(0.02)
         return True
 
     def _stop_process(self, name: str) -> list[str]:
-        self._asked_to_stop.add(name)
+        self.faults.expect_exit(name)
         if self.processes[name].poll() is not None:
             return []  # it had died: that is the fault, reported already
         # Keep the monitor spinning while a node shuts down (it may still publish).
-        return stop_node_process(self.processes[name], name, self._wait,
+        return stop_node_process(self.processes[name], name, self.wait,
                                  RECORDER_EXIT_TIMEOUT if name == 'recorder' else EXIT_TIMEOUT)

@@ -1,40 +1,15 @@
-"""Loop latency of the real node graph against the bare rclpy floor
-(docs/realtime.md, "Benchmarks").
+"""Loop latency of the real node graph against the bare rclpy floor (``cartpole bench loop``).
 
-What is measured, the same way for the graph and for its floor:
-
-- the graph: ``cartpole run --sim`` in real time (one process, or one process a
-  node with ``--processes``); the simulator stamps each ``/joint_states``
-  sample with its clock at publication; the EKF and the controller manager copy
-  that stamp to ``/cartpole/state`` and ``/cartpole/force_command``. A probe
-  node in this process receives the force commands: latency = receipt time -
-  stamp, i.e. sample -> EKF -> controller -> command, plus one delivery to the
-  probe.
-- the floor: a chain of the same shape with no computation, ``source`` (a
-  200 Hz timer publishing stamped JointState) -> ``relay`` -> ``relay``, in one
-  process or in three, measured by the same probe, **spun the way the graph is
-  spun**: in one process by the same executor (:func:`cartpole_bringup.graph.graph.make_executor`,
-  ``spin_once`` every 0.05 s as :class:`~cartpole_bringup.graph.graph.Graph` does), one
-  process a node by rclpy's SingleThreadedExecutor as every node's ``main``
-  (:func:`cartpole_core.node_runner.run_node`). The ratio of the two isolates
-  what our nodes add to what rclpy and DDS cost on this machine.
-
-Executors (:data:`EXECUTORS`): the one-process graph runs on the C++
-EventsExecutor by default (``cartpole run --executor events``) or on rclpy's
-SingleThreadedExecutor; both are measured, each against its own floor. With
-one process a node every node spins a SingleThreadedExecutor.
-
-With ``view_rounds=N`` (``cartpole bench loop --view N``) each run also
-gets N alternating pairs: the graph alone, then the graph with its live view
-(``cartpole run --sim --view``) and a Foxglove WebSocket client subscribed to
-every viewer channel, the load a user watching the run puts on it
-(:mod:`cartpole_tools.bench.loop_view`).
-
-Missed cycles: samples (stamps on ``/joint_states``) more than 1.5 Ts after
-the previous one, and samples for which no command arrived. CPU: user +
-system time of each process from /proc over the run (``utime + stime``, not
-the children's), per node with one process a node (the graph's nodes are the
-children of ``cartpole run``, named by their executable).
+The graph (``cartpole run --sim`` in real time, one process or one process a node)
+and its floor (a chain of the same shape with no computation, ``source`` ->
+``relay`` -> ``relay``, spun the way the graph is spun: the same executor in one
+process, rclpy's SingleThreadedExecutor a node with ``processes``) are measured
+alike by :mod:`.loop_probe`: latency = receipt of each force command - the stamp of
+the sample it was computed from, missed and late cycles, CPU per process. The
+ratio graph / floor isolates what our nodes add to what rclpy and DDS cost on this
+machine; :mod:`.loop_view` adds the live view's cost. docs/realtime.md,
+"Benchmarks", describes the method; ``python -m cartpole_tools.bench.loop`` runs
+the floor's nodes.
 """
 from __future__ import annotations
 

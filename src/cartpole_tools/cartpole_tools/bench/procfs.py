@@ -50,3 +50,22 @@ def children(pid: int) -> list[int]:
             if fields is not None and int(fields[1]) == pid:
                 out.append(int(entry.name))
     return sorted(out)
+
+
+def rss_bytes(pid: int) -> int | None:
+    """Resident memory of the process (VmRSS of /proc/<pid>/status) [bytes], None if gone."""
+    try:
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def open_files(pid: int) -> int | None:
+    """Open file descriptors of the process (entries of /proc/<pid>/fd), None if gone."""
+    try:
+        return len(os.listdir(f'/proc/{pid}/fd'))
+    except OSError:
+        return None

@@ -5,28 +5,10 @@ the force pulses of a test and minimising the RMSE between the simulated and
 measured cart positions, summed per direction (4.22)-(4.26), and the pendulum
 friction c_p, v_p from the decay of free swings (section 4.3.2, Appendix E),
 then checks the whole model on the "Input" and "Oscillation" tests of
-section 4.6. This module does all of it in one fit:
-
-- every recording (:class:`Recording`: sample times, measured x and theta,
-  force command held over each sample period) is replayed open loop on
-  :class:`cartpole_sim.plant.Plant` (actuator (4.4), saturation, end stops,
-  mechanics (4.18) with the friction (4.20)/(4.21)/(4.27)) from its own
-  initial state;
-- the residuals are the simulated minus measured cart position and pendulum
-  angle, each recording normalised by the square root of its sample count,
-  so its share of the cost is its mean square error, as (4.22) gives every
-  direction's test the same say whatever its length;
-- :func:`scipy.optimize.least_squares` (trust-region reflective, bounded,
-  like the thesis's ``fmincon`` with bounds) varies any set of
-  :class:`~cartpole_core.model.CartPoleParameters` fields, all recordings
-  sharing one parameter set; optionally each recording's initial state too.
-
-:func:`load_recording` is the thin bag loader (rosbag2/MCAP, via
-``rosbags``); :func:`simulate_test` synthesises a recording of a test on
-the simulated plant, to rehearse the procedure or to test this module.
-:class:`PulsePlayer` plays a pulse test sample by sample with a rail guard
-(the node :mod:`cartpole_tools.identification.node` puts it on ROS), and
-:func:`rehearse` plays it on the simulated plant first.
+section 4.6. This package does all of it in one fit: every recording replayed open loop on
+:class:`cartpole_sim.plant.Plant`, the residuals of cart and pendulum of all
+recordings minimised together by :func:`scipy.optimize.least_squares` (bounded, as
+the thesis's ``fmincon``); docs/identification.md has the method and its figures.
 
 Modules, one concept each:
 
