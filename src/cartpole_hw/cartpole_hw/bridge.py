@@ -11,8 +11,9 @@ and disarm on every fault, the limit switches' directional inhibit, homing
 only on request. Each sample is stamped with the device's time of sampling
 (:class:`~cartpole_hw.device_clock.DeviceClock`), and with protocol version 2
 the device's report of the command in force becomes an :class:`AppliedCommand`.
-The rules one by one, and why: docs/rig.md ("Safety rules of the bridge",
-"The latency report"). Time ``now`` is ``time.monotonic()`` seconds.
+The rules one by one, and why: docs/rig.md ("Conversions, device-time stamps
+and the safety rules", "The latency report"). Time ``now`` is
+``time.monotonic()`` seconds.
 """
 from __future__ import annotations
 

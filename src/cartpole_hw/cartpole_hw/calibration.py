@@ -2,7 +2,7 @@
 
 One frozen record the bridge converts with and the emulator converts back
 with, so both sides of the Joint protocol use the same numbers
-(docs/rig.md, "Conversions"). No ROS import.
+(docs/rig.md, "Conversions, device-time stamps and the safety rules"). No ROS import.
 """
 from __future__ import annotations
 

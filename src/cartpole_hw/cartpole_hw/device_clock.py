@@ -11,7 +11,8 @@ observation per ``block`` (a lower envelope spikes never move), the drift
 applied to the stamps slewed by at most ``max_slew`` a sample (stepped beyond
 ``step_limit``), so the EKF sees the device's even 5 ms steps, not the host's
 jitter. A ``t_us`` going back means a restarted device: the mapping starts
-again. Figures and reasoning: docs/rig.md ("Stamps from device time"). No ROS.
+again. Figures and reasoning: docs/rig.md ("Conversions, device-time stamps
+and the safety rules"). No ROS.
 """
 from __future__ import annotations
 

@@ -11,7 +11,8 @@ queues them for its executor: nothing is published from this thread). Writes
 from this thread and the caller's hold ``lock``, the core's, so the lines on
 the wire are in the order of the core's decisions; a write fails only when the
 port stays unwritable for :data:`WRITE_TIMEOUT`. A failed read or write closes
-the port and the core disarms. docs/rig.md ("Safety rules of the bridge"). No ROS.
+the port and the core disarms. docs/rig.md ("Conversions, device-time stamps
+and the safety rules"). No ROS.
 """
 from __future__ import annotations
 
