@@ -1,16 +1,16 @@
 """The QP solvers behind the ``mpc`` stabiliser's :class:`~.mpc_qp.CondensedQp`.
 
-Each back-end is set up once with the QP's matrices (fixed sparsity) and each
-cycle gets the new row bounds only, warm-started from the previous solution
-(osqp-python's ``update_vectors`` pattern): DAQP's own wheel (``daqp.Model``:
-``update`` of the bounds, the last working set kept), OSQP's wheel
+Each back-end is set up once with the QP's matrices (fixed sparsity); each
+cycle gets the new cost vector and bounds only, warm-started from the
+previous solution (osqp-python's ``update_vectors`` pattern): DAQP's own
+wheel (``daqp.Model``, the last working set kept), OSQP's wheel
 (``update(q, l, u)``, warm-started ADMM), and the QP solvers bundled with
 CasADi (``casadi.conic``: DAQP, qpOASES, OSQP, ProxQP), which take the whole
-problem at each call. The QP's ``f`` and bounds change every cycle. ``solve()`` returns ``(w, ok, reason)``: the solution
-vector (None if there is none) and the solver's verdict; the caller checks it
-every time; after a failed one it calls ``failed()`` (a back-end decides whether
-its warm start is still worth keeping). CasADi's HPIPM is not one: its interface takes a multistage
-(OCP-structured) QP and refuses the dense condensed one. No ROS import.
+problem at each call. ``solve()`` returns ``(w, ok, reason)``, the solution
+(None if there is none) and the verdict, which the caller checks every time;
+after a failed one it calls ``failed()`` (the back-end decides whether its
+warm start is worth keeping). CasADi's HPIPM is not one: its interface takes
+a multistage (OCP-structured) QP and refuses the dense condensed one. No ROS.
 """
 from __future__ import annotations
 
