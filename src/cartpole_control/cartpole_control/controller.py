@@ -15,6 +15,7 @@ from .feedforward import FrictionFeedforward
 
 if TYPE_CHECKING:
     from .natural_frequency import NaturalFrequencyEstimator
+    from .plant_estimate import PlantEstimate
 
 API_VERSION = 2
 """Version of this contract. Bump on any incompatible change (2: activate/deactivate
@@ -146,6 +147,13 @@ class ControlContext:
     energy (7.3) and target (6.8) it gives (:mod:`cartpole_control.natural_frequency`);
     updated by the manager while the plugin runs. None outside a manager: the
     energy laws then use the nominal model."""
+    plant_estimate: 'PlantEstimate | None' = None
+    """The manager's estimate of the plant (:class:`~cartpole_control.plant_estimate.PlantEstimate`):
+    the actuator's gain, dead time and the force limits at the cart
+    (:meth:`~cartpole_control.plant_estimate.PlantEstimate.force_limits`), the
+    unmodelled force on the cart, the pendulum's omega_0^2 and the plant they give
+    (:meth:`~cartpole_control.plant_estimate.PlantEstimate.estimated_plant`);
+    updated by the manager every cycle. None outside a manager."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting

@@ -71,8 +71,7 @@ class ControllerManager:
             raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
         self.plant = plant
         self.sample_time = float(sample_time)
-        # Read once: the model (4.18) under the last force, the actuator's limits
-        # (Appendix C) and E* (6.8), which every cycle needs.
+        # Read once: the model (4.18), the actuator's limits (Appendix C), E* (6.8)
         self._acc = acceleration_function(plant)
         self._force_min = plant.force_min
         self._force_max = plant.force_max
@@ -87,7 +86,7 @@ class ControllerManager:
         self._gain = 1.0
         self._in_flight = self.plant_estimate.in_flight
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
-                              self.natural_frequency)
+                              self.natural_frequency, self.plant_estimate)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
         self._lock = threading.Lock()  # values, pending change, restart request: short holds
         self._staging = threading.RLock()  # serialises staging: each change on the one before
@@ -338,7 +337,7 @@ class ControllerManager:
         estimate = self.plant_estimate
         if estimate.reports or estimate.samples:
             estimate.take_reports(t, self.mode == STABILIZING)
-        guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
+        guard_x, guard_theta, guard_x_dot, guard_theta_dot = x, theta, x_dot, theta_dot
         values = self._values
         horizon = values['predict.horizon']
         if horizon == 'auto':
@@ -346,7 +345,9 @@ class ControllerManager:
         gain, delay = values['actuator.gain'], values['actuator.delay']
         actuator = self.actuator
         self._gain = gain = actuator.compensation if gain == 'auto' else gain
-        horizon += actuator.delay_compensation if delay == 'auto' else delay
+        delay = actuator.delay_compensation if delay == 'auto' else delay
+        estimate.used_gain, estimate.used_delay = gain, delay
+        horizon += delay
         self._horizon = horizon
         if horizon > 0.0:
             segments = self._in_flight.segments(t, horizon)
@@ -357,7 +358,7 @@ class ControllerManager:
             # The rail guard, too, judges the cart where this command will meet it (its
             # own rail.latency then covers the hold); not the plain estimate, which the
             # commands already in flight move on before this one acts.
-            guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
+            guard_x, guard_theta, guard_x_dot, guard_theta_dot = x, theta, x_dot, theta_dot
         x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
         state = ControllerState(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
 
@@ -402,15 +403,22 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    feedforward = (self._feedforward.stabilizing(x_dot, raw)
-                                   if self.mode == STABILIZING else self._feedforward(x_dot, raw))
+                    if self.mode == STABILIZING:
+                        feedforward = self._feedforward.stabilizing(x_dot, raw)
+                    else:  # (6.12) and, in swing-up, the unmodelled force cancelled
+                        disturbance = values['actuator.disturbance']
+                        if disturbance == 'auto':
+                            disturbance = self.plant_estimate.swingup_disturbance
+                        feedforward = self._feedforward(x_dot, raw) - disturbance
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
         guard = self._guard
+        guard.set_actuator(gain, estimate.disturbance)
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
-            force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force)
+            force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force,
+                                           guard_theta)
             if tripped:
                 self._fault('rail guard', events)
         if active is not None and active is self._active \

@@ -131,6 +131,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'command (a lag the plant cannot report) [s], added to the prediction '
                       'horizon; auto = estimated with the gain (0 until then); 0 = none',
                       low=0.0, high=0.1, auto=True),
+        ParameterSpec('actuator.disturbance', AUTO, 'Unmodelled force on the cart that the '
+                      'swing-up cancels [N, positive to the right]; auto = the estimate of the '
+                      'plant estimate (cartpole_control.plant_estimate) beyond a 1 N band, at '
+                      'most 10 N; 0 = none', low=-20.0, high=20.0, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
                       'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),

@@ -32,6 +32,19 @@ PRIOR_WEIGHT = 1.0e-4
 0.1 rad swing is about 1e-3 s^2, so the prior weighs about a hundred such windows)."""
 BOUNDS = (0.25, 4.0)
 """The estimate stays within these factors of the nominal omega_0^2."""
+PHI_MIN = 3.0e-4
+"""[s^2] Windows with less gravity in them (a swing below about 0.03 rad) are left out,
+and the past is not forgotten over them: a pendulum hanging still says nothing of
+omega_0^2 but the encoders' noise (10 minutes idle would otherwise make it noise)."""
+GATE = 0.5
+"""A window whose residual is beyond this fraction of the gravity term it measures (plus
+:data:`NOISE`) is left out: a push or a knock, not the pendulum's own swing."""
+NOISE = 0.01
+"""[rad] The encoders' noise in a window's second difference of theta."""
+GATE_AFTER = 40
+"""Windows taken before the gate applies (the first ones set the estimate)."""
+RATE = 0.02
+"""Largest change of omega_0^2 per window, as a fraction of the nominal (0.8 per second)."""
 
 
 class NaturalFrequencyEstimator:
@@ -72,6 +85,10 @@ class NaturalFrequencyEstimator:
         """The estimate of omega_0^2 [1/s^2]."""
         self.windows = 0
         """Windows taken into the estimate."""
+        self.skipped = 0
+        """Windows left out for too little swing (:data:`PHI_MIN`)."""
+        self.gated = 0
+        """Windows left out for their residual (:data:`GATE`)."""
         self.window.clear()
 
     @property
@@ -123,9 +140,18 @@ class NaturalFrequencyEstimator:
             phi_cart += -slope * cos(th_mid) * d_x + k_mid * s_mid * d_th * d_x / h
             friction += k_mid * self._friction(d_th / h) * h
         phi = phi_gravity + phi_cart / g
+        if abs(phi) < PHI_MIN:
+            self.skipped += 1
+            return
         y = ths[2 * m] - 2.0 * ths[m] + ths[0] + friction
+        predicted = self.omega_sq * phi
+        if self.windows >= GATE_AFTER and abs(y - predicted) > GATE * abs(predicted) + NOISE:
+            self.gated += 1
+            return
         lam = self.forgetting
         self._sum_pp = lam * self._sum_pp + phi * phi
         self._sum_py = lam * self._sum_py + phi * y
         self.windows += 1
-        self.omega_sq = min(max(self._sum_py / self._sum_pp, self._low), self._high)
+        rate = RATE * self.nominal
+        target = min(max(self._sum_py / self._sum_pp, self._low), self._high)
+        self.omega_sq = min(max(target, self.omega_sq - rate), self.omega_sq + rate)

@@ -12,6 +12,7 @@ No ROS import.
 """
 from __future__ import annotations
 
+import math
 from collections import deque
 
 from cartpole_core.model import CartPoleParameters
@@ -27,6 +28,13 @@ after their stamp: the previous sample's, published before this cycle's state co
 REPORT_LAG = 1.5
 """The applied-command reports are taken this many sample periods after the time they
 report: a plant reports a command with the sample after it took effect."""
+
+
+DISTURBANCE_BAND = 1.0
+"""[N] What the disturbance estimate cannot tell from the friction model's error at speed;
+the swing-up cancels only the part beyond it."""
+DISTURBANCE_CANCEL_MAX = 10.0
+"""[N] The most of the disturbance a swing-up cancels."""
 
 
 class PlantEstimate:
@@ -55,6 +63,55 @@ class PlantEstimate:
         """(applied, source) of the plant's reports not yet taken (:meth:`take_reports`)."""
         self.samples: deque[tuple[float, float, float]] = deque()
         """(t, x, theta) of the encoders' samples not yet taken."""
+        self.used_gain = 1.0
+        """The actuator gain G the manager divided the last command by (``actuator.gain``)."""
+        self.used_delay = 0.0
+        """The extra dead time the manager's last prediction covered [s] (``actuator.delay``)."""
+
+    @property
+    def disturbance(self) -> float:
+        """The estimated unmodelled force on the cart [N], positive to the right
+        (:attr:`ActuatorEstimator.disturbance`)."""
+        return self.actuator.disturbance
+
+    @property
+    def swingup_disturbance(self) -> float:
+        """The part of :attr:`disturbance` a swing-up cancels [N]: beyond :data:`DISTURBANCE_BAND`,
+        at most :data:`DISTURBANCE_CANCEL_MAX`.
+
+        A cart held by friction stronger than the model's (or pushed back by a
+        weak amplifier, or a cable) reads as a force against the push; the
+        swing-up's small first pushes then never move it.
+        """
+        d = self.actuator.disturbance
+        if abs(d) <= DISTURBANCE_BAND:
+            return 0.0
+        d -= math.copysign(DISTURBANCE_BAND, d)
+        return min(max(d, -DISTURBANCE_CANCEL_MAX), DISTURBANCE_CANCEL_MAX)
+
+    def force_limits(self) -> tuple[float, float]:
+        """``(low, high)`` [N]: the force the amplifier delivers at the cart, G times its
+        limits (Appendix C), with G the gain the manager divides the command by."""
+        gain = self.used_gain
+        return gain * self.plant.force_min, gain * self.plant.force_max
+
+    @property
+    def dead_time(self) -> float:
+        """The loop's latency plus the actuator's extra dead time the manager compensates [s]."""
+        return self.latency.latency + self.used_delay
+
+    @property
+    def omega_sq(self) -> float:
+        """The pendulum's omega_0^2 = m_p g l / J [1/s^2]."""
+        return self.natural_frequency.omega_sq
+
+    def estimated_plant(self) -> CartPoleParameters:
+        """The nominal plant with the pendulum length that gives :attr:`omega_sq` (l = g / omega_0^2)."""
+        p = self.plant
+        omega_sq = self.natural_frequency.omega_sq
+        if omega_sq == self.natural_frequency.nominal:
+            return p
+        return p.replace(l=p.g / omega_sq)
 
     def command_applied(self, source: float, applied: float) -> None:
         """The command computed from the sample stamped ``source`` took effect at ``applied`` [s]."""

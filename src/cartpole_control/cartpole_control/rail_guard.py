@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cartpole_core.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters, acceleration_function
 
 ARMED = 'armed'
 LIMITED = 'limited'
@@ -22,6 +22,9 @@ BRAKING = 'braking'
 STOPPED = 'stopped'
 LIMIT_ITERATIONS = 24
 """Bisection steps of the limited force (resolution ``(F + F_b) / 2**24``, micro-newtons)."""
+DISTURBANCE_MAX = 5.0
+"""[N] The guard counts the estimated unmodelled force up to this: a cable or a hand
+leaning on the cart; the estimate of a push lags it by a window and is left out."""
 HOLD_SPEED = 0.002
 """[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
 
@@ -99,6 +102,13 @@ class RailGuard:
         self._dead_time = self.dead_time
         self._high = params.travel - self.margin
         self._friction = 0.5 * min(params.c_c_right, params.c_c_left)
+        self.gain = 1.0
+        """The actuator's gain G: the force at the cart per newton commanded (:meth:`set_actuator`)."""
+        self.disturbance = 0.0
+        """The unmodelled force on the cart [N] the envelope counts where it lengthens a stop."""
+        self.predicted_stop = math.nan
+        """Where the guard expected the cart to stop when it last tripped [m] (:meth:`braked_stop`)."""
+        self._acc = None
         self._brake_pos = self.brake_force(1.0)
         self._brake_neg = self.brake_force(-1.0)
         self._min_deceleration = 0.05 * self._mass
@@ -118,10 +128,28 @@ class RailGuard:
         return self.latency + 1.0 / self.params.actuator_pole
 
     def brake_force(self, direction: float) -> float:
-        """Magnitude of the brake available against motion in ``direction`` (sign of x_dot) [N]."""
+        """Magnitude of the brake at the cart against motion in ``direction`` (sign of x_dot) [N]:
+        ``max_brake_force``, at most what the amplifier delivers (G times its limit, Appendix C)."""
         p = self.params
         actuator = -p.force_min if direction > 0.0 else p.force_max
-        return min(self.max_brake_force, actuator)
+        return min(self.max_brake_force, self.gain * actuator)
+
+    def set_actuator(self, gain: float, disturbance: float = 0.0) -> None:
+        """The plant estimate's actuator gain G and unmodelled force D on the cart [N].
+
+        The brake is what the amplifier can deliver at the cart (G times its
+        limits); a force D that pushes the cart on in its direction of motion
+        shortens the deceleration (one that helps is not counted).
+        """
+        if gain == self.gain and disturbance == self.disturbance:
+            return
+        if not (math.isfinite(gain) and gain > 0.0 and math.isfinite(disturbance)):
+            raise ValueError(f'gain must be > 0 and disturbance finite, got {gain!r}, '
+                             f'{disturbance!r}')
+        self.gain = float(gain)
+        self.disturbance = min(max(float(disturbance), -DISTURBANCE_MAX), DISTURBANCE_MAX)
+        self._brake_pos = self.brake_force(1.0)
+        self._brake_neg = self.brake_force(-1.0)
 
     def deceleration(self, direction: float, theta_dot, fmax=max):
         """a_b, a conservative braking deceleration [m/s^2] (module docstring).
@@ -132,7 +160,9 @@ class RailGuard:
         p = self.params
         pendulum_pull = p.m_p * (p.l * theta_dot * theta_dot + p.g)
         brake = self._brake_pos if direction > 0.0 else self._brake_neg  # brake_force(direction)
-        return fmax(brake + self._friction - pendulum_pull, self._min_deceleration) / self._mass
+        carried = max(self.disturbance * direction, 0.0)  # D pushing on in the motion's direction
+        return fmax(brake + self._friction - pendulum_pull - carried,
+                    self._min_deceleration) / self._mass
 
     def stopping_position(self, x: float, x_dot: float, theta_dot: float,
                           force: float) -> float:
@@ -147,6 +177,33 @@ class RailGuard:
         direction = math.copysign(1.0, v_1)
         return x_1 + direction * v_1 * v_1 / (2.0 * self.deceleration(direction, theta_dot))
 
+    def braked_stop(self, x: float, theta: float, x_dot: float, theta_dot: float) -> float:
+        """Where the cart comes to rest under the guard's brake from this state [m]: the model
+        (4.18) with the pendulum, the friction, the brake the amplifier delivers (G) and the
+        disturbance D, the brake held over each sample as :meth:`command` applies it.
+
+        The envelope (:meth:`stopping_position`) bounds this from the safe side for
+        every cycle's decision; this is the expected stop, simulated once at a trip.
+        """
+        p = self.params
+        acc = self._acc
+        if acc is None:
+            acc = self._acc = acceleration_function(p)
+        h = p.sample_time
+        direction = math.copysign(1.0, x_dot)
+        brake = self._brake_pos if direction > 0.0 else self._brake_neg
+        th, w = theta, theta_dot
+        for _ in range(int(round(3.0 / h))):
+            if x_dot * direction <= self.rest_speed:
+                break
+            force = -direction * min(brake, self._mass * abs(x_dot) / h) + self.disturbance
+            a1, b1 = acc(x, th, x_dot, w, force)
+            x_m, th_m = x + 0.5 * h * x_dot, th + 0.5 * h * w
+            v_m, w_m = x_dot + 0.5 * h * a1, w + 0.5 * h * b1
+            a2, b2 = acc(x_m, th_m, v_m, w_m, force)
+            x, th, x_dot, w = x + h * v_m, th + h * w_m, x_dot + h * a2, w + h * b2
+        return x
+
     # -- one cycle --------------------------------------------------------------------
     def check(self, x: float, x_dot: float, theta_dot: float, force: float) -> GuardAction:
         """Pass, withhold or override ``force`` for the state (x, x_dot, theta_dot)."""
@@ -154,7 +211,7 @@ class RailGuard:
         return GuardAction(force, self.status, tripped)
 
     def command(self, x: float, x_dot: float, theta_dot: float,
-                force: float) -> tuple[float, bool]:
+                force: float, theta: float = 0.0) -> tuple[float, bool]:
         """:meth:`check` as ``(force, tripped)``, the status left in :attr:`status`.
 
         The manager's per-cycle call (no GuardAction to build).
@@ -191,7 +248,9 @@ class RailGuard:
             self.status = LIMITED
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
-        return self._brake(x_dot), True
+        brake = self._brake(x_dot)
+        self.predicted_stop = self.braked_stop(x, theta, x_dot, theta_dot)
+        return brake, True
 
     def _in_margin(self, x: float) -> bool:
         """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""

@@ -61,6 +61,11 @@ def lqi_gain(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray,
     return lqr_gain(a_aug, b_aug, q_aug, r)
 
 
+RESOLVE_TOLERANCE = 0.01
+"""The estimated pendulum length differs from the model's by more than this fraction: the
+gain is solved again at the catch."""
+
+
 class LqgStabilizer(Controller):
     """LQR state feedback (8.16)-(8.18) with integral action on the cart position, on the EKF estimate."""
 
@@ -99,7 +104,14 @@ class LqgStabilizer(Controller):
         if len(weights) not in (4, 5):
             raise ValueError(f'lqg: q needs 4 entries (the plain LQR) or 5 (with the integral '
                              f'weight q_i), got {len(weights)}')
-        a, b = linearise_upright(self.context.plant)
+        self._solve(self.context.plant)
+        self._nominal = (self.gain, self.integral_gain, self._minus_gain)
+        self.solved_for = self.context.plant
+        """The plant model of the gain in use (the nominal one, or the estimate at the catch)."""
+
+    def _solve(self, plant) -> None:
+        weights = [float(v) for v in self.gains['q']]
+        a, b = linearise_upright(plant)
         q_i = weights[4] if len(weights) == 5 else 0.0
         r = np.array([[float(self.gains['r'])]])
         k_aug = lqi_gain(a, b, np.diag(weights[:4]), r, q_i)[0]
@@ -109,9 +121,26 @@ class LqgStabilizer(Controller):
         self._minus_gain = tuple(float(-k) for k in self.gain)
 
     def on_activate(self, state: ControllerState) -> None:
-        """Bumpless start: the integral starts from zero at this state."""
+        """Bumpless start: the integral starts from zero at this state.
+
+        At the catch the Riccati equation (8.18) is solved again for the plant
+        the manager has estimated (:attr:`ControlContext.plant_estimate`: the
+        pendulum's omega_0^2), if it differs from the model by more than
+        :data:`RESOLVE_TOLERANCE`; else the configured gain stays.
+        """
         self._integral.reset()
         self._clock.reset(state.t)
+        estimate = self.context.plant_estimate
+        plant = estimate.estimated_plant() if estimate is not None else self.context.plant
+        if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE:
+            try:
+                self._solve(plant)
+                self.solved_for = plant
+                return
+            except ValueError:
+                pass  # no stabilising solution for the estimate: the model's gain
+        self.gain, self.integral_gain, self._minus_gain = self._nominal
+        self.solved_for = self.context.plant
 
     def update(self, state: ControllerState) -> float:
         """u = -K (x - x*) - K_i int (x - x*) dt, with the wrapped angle."""
