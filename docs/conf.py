@@ -22,7 +22,7 @@ myst_enable_extensions = ['colon_fence', 'dollarmath', 'deflist']
 myst_heading_anchors = 4
 # Pages link to the sources (../src/...) for the reader on GitHub; on the site those links are
 # plain links to files outside the site, which MyST may not resolve: not a warning.
-suppress_warnings = ['myst.xref_missing', 'myst.header']
+suppress_warnings = ['myst.xref_missing', 'myst.header', 'ref.python']
 
 autodoc_default_options = {'members': True, 'undoc-members': False, 'show-inheritance': False}
 autodoc_member_order = 'bysource'
