@@ -63,6 +63,8 @@ DELAY_READY_WINDOWS = 10
 a swing-up): the candidates' residuals part long before the gain is known to 4 %."""
 GAIN_PRIOR_STD = 0.25
 """Prior standard deviation of G."""
+PGG_MAX = GAIN_PRIOR_STD ** 2
+"""G is never less certain than at the start (a reopened or cut step cannot make it wild)."""
 GAIN_WALK_STD = 0.0005
 """Random walk of G per window: an amplifier drifts slowly (0.01 in 10 s of windows)."""
 GAIN_READY_STD = 0.04
@@ -305,7 +307,7 @@ class ActuatorEstimator:
             jump = False
             if excited and abs(phi) >= PHI_MIN:
                 if runs[k] >= GATE_PERSISTENCE:
-                    pgg += GAIN_REOPEN_STD * GAIN_REOPEN_STD
+                    pgg = min(pgg + GAIN_REOPEN_STD * GAIN_REOPEN_STD, PGG_MAX)
                     runs[k] = 0
                 s = phi * phi * pgg + 2.0 * phi * w * pgd + w * w * pdd + r
                 z2 = nu * nu / s
@@ -320,8 +322,8 @@ class ActuatorEstimator:
                     d += k_d * nu
                     # P - K S K^T; a step cut short leaves G that much less certain
                     cut = k_g * nu - step
-                    pgg, pgd, pdd = (pgg - k_g * k_g * s + cut * cut, pgd - k_g * k_d * s,
-                                     pdd - k_d * k_d * s)
+                    pgg, pgd, pdd = (min(pgg - k_g * k_g * s + cut * cut, PGG_MAX),
+                                     pgd - k_g * k_d * s, pdd - k_d * k_d * s)
                     g_all[k], d_all[k] = g, min(max(d, -DISTURBANCE_MAX), DISTURBANCE_MAX)
                     pgg_all[k], pgd_all[k], pdd_all[k] = pgg, pgd, pdd
                     continue

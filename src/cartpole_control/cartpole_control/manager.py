@@ -25,6 +25,7 @@ from typing import Any, Callable, Mapping
 
 from cartpole_core.model import CartPoleParameters, acceleration_function, pendulum_energy
 
+from .catch_region import CatchRegion
 from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec
 from .manager_output import FAULT, IDLE, LOOP_FIGURES, MODES, STABILIZING, STATUS_KEYS, \
@@ -85,6 +86,8 @@ class ControllerManager:
         self.actuator = self.plant_estimate.actuator
         self._gain = 1.0
         self._in_flight = self.plant_estimate.in_flight
+        self.catch_region = CatchRegion(plant, self.sample_time)
+        """The stabiliser's region of attraction on the estimated plant (``catch.region``)."""
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
                               self.natural_frequency, self.plant_estimate)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
@@ -249,6 +252,7 @@ class ControllerManager:
         self._target = self._upright_energy
         self._horizon = 0.0
         self.plant_estimate.new_run()
+        self.catch_region.reset()
         self._guard.reset()
         with self._lock:
             self._restart_requested = False
@@ -374,9 +378,10 @@ class ControllerManager:
         self._energy = energy
         mode = self.mode
         trigger = self._trigger
-        # (6.4): CatchTrigger.should_catch with the energy (7.3) computed above.
+        # (6.4), then the region the stabiliser holds on the estimated plant (catch.region)
         if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._target) \
-                and trigger.angle_condition(theta):
+                and trigger.angle_condition(theta) and (not values['catch.region'] or (
+                    self.catch_region.admits(state, values['x_ref'], estimate.omega_sq, gain))):
             self._set_mode(STABILIZING, state)
             self.catch_count += 1
             if self.catch_time is None:
@@ -385,6 +390,7 @@ class ControllerManager:
         elif mode == STABILIZING and trigger.has_fallen(theta):
             self._set_mode(SWINGUP_MODE, state)
             self.fall_count += 1
+            self.catch_region.fell()
             events.append('fall')
         elif mode in _KIND_OF_MODE and self._active is None:
             self._set_mode(mode, state)  # first cycle: activate from this state

@@ -87,6 +87,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'stabiliser when |E* - E_p| <= this times E*', low=0.001, high=1.0),
         ParameterSpec('catch.angle_deg', 30.0, 'Catch trigger (6.4): and |theta_w| <= this '
                       '[deg]', low=1.0, high=90.0),
+        ParameterSpec('catch.region', True, 'Catch only where the stabiliser can hold it: '
+                      'inside the (6.4) window, wait until the LQR of the estimated plant, under '
+                      'the force the amplifier delivers, settles the pendulum from the state in '
+                      'a simulated catch (cartpole_control.catch_region); false: (6.4) alone'),
         ParameterSpec('fall.angle_deg', 45.0, 'Fall detector: while stabilising, |theta_w| '
                       'beyond this [deg] hands back to swing-up; larger than catch.angle_deg',
                       low=2.0, high=180.0),
