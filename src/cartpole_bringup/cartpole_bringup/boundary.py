@@ -26,6 +26,9 @@ MAX_DURATION_S = 3600.0
 """[s] Longest run a subcommand takes: the loops keep every 5 ms sample in memory
 (about 150 MB an hour offline)."""
 
+NAME_MAX = 255
+"""Longest file or directory name [bytes] (Linux's NAME_MAX)."""
+
 DEFAULT_FIGURE_SUFFIX = '.png'
 """A figure path without an extension is written (and printed) with this one."""
 
@@ -219,6 +222,7 @@ def output_file(path: Path | str, option: str, suffixes: Iterable[str] | None = 
     if allowed is not None and path.suffix.lower() not in allowed:
         raise InputError(f'{option} {shown}: must be one of {", ".join(allowed)} (cannot '
                          f'write {path.suffix!r} files)')
+    _short_names(path, option)
     if path.is_dir():
         raise InputError(f'{option} {path}: is a directory, a file name is needed')
     if path.exists() and not os.access(path, os.W_OK):
@@ -233,10 +237,19 @@ def figure_file(path: Path | str, option: str) -> Path:
                        DEFAULT_FIGURE_SUFFIX)
 
 
+def _short_names(path: Path, option: str) -> None:
+    """Refuse a path with a name longer than the file system takes (:data:`NAME_MAX`)."""
+    longest = max((len(part.encode()) for part in path.parts), default=0)
+    if longest > NAME_MAX:
+        raise InputError(f'{option} {str(path)[:60]}...: a name in it is {longest} bytes long, '
+                         f'the file system takes at most {NAME_MAX}')
+
+
 def output_directory(path: Path | str, option: str) -> Path:
     """A directory to write into (made if missing): refused when the path or one of its
     parents is a file, or it cannot be written."""
     path = Path(path)
+    _short_names(path, option)
     probe = path
     while not probe.exists():
         if probe.parent == probe:

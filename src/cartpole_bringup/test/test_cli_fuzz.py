@@ -437,7 +437,7 @@ def test_identify_refuses_bad_bounds_numbers_files_and_damaged_bags(data, good_b
         ).map(lambda lh: f'{name}={lh[0]}:{lh[1]}')),
         option_values({'--weight-cart': (0.0, 1e6, True, False),
                        '--weight-pendulum': (0.0, 1e6, True, False),
-                       '--integration-step': (0.0, 0.005, True, False),
+                       '--integration-step': (1e-4, 0.005, False, False),
                        '--t-start': (0.0, 3600.0, False, False)}),
         st.tuples(st.just('--max-nfev'), bad_number(1, 100_000, integer=True)),
         file_option(files, '--plant-params', PLANT_DEFECTS),

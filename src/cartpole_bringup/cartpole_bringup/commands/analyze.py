@@ -105,14 +105,14 @@ def check(args: argparse.Namespace):
     params = nominal_parameters(args)
     if args.x_ref is not None:
         boundary.number('--x-ref', args.x_ref, 0.0, params.travel, unit='m')
+    # the animation's options, checked with or without --animate (a bad value is never ignored)
+    # at least 0.1 (tenfold slow motion): a slower one makes a video of hours
+    boundary.number('--speed', args.speed, 0.1, 1000.0)
+    boundary.number('--fps', args.fps, 0.0, 100.0, low_open=True)
+    boundary.number('--width', args.width, 120, 3840)
     if args.animate is not None:
         if len(args.bags) != 1:
             raise InputError('--animate takes one bag')
-        if not (args.speed > 0 and args.fps > 0):  # (NaN fails too)
-            raise InputError(f'--speed and --fps must be > 0, got {args.speed:g}, {args.fps:g}')
-        boundary.number('--speed', args.speed, 0.0, 1000.0, low_open=True)
-        boundary.number('--fps', args.fps, 0.0, 100.0, low_open=True)
-        boundary.number('--width', args.width, 120, 3840)
         args.animate = boundary.output_file(args.animate, '--animate', ANIMATION_SUFFIXES)
         if args.animate.suffix.lower() == '.mp4':
             import shutil

@@ -61,11 +61,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_arguments(parser)
 
 
+def _check_push_options(args: argparse.Namespace, params) -> None:
+    """The push bounds' options, checked whether or not a push case is asked for."""
+    for m in args.margin or ():
+        boundary.number('--margin', m, 0.0, 0.5 * params.travel, high_open=True, unit='m')
+    boundary.number('--fall-angle', args.fall_angle, 0.0, 180.0, low_open=True, high_open=True,
+                    unit='deg')
+    boundary.number('--horizon', args.horizon, 0.5, 20.0, low_open=True, unit='s')
+    boundary.number('--tolerance', args.tolerance, 0.0, 0.5, low_open=True, high_open=True)
+    boundary.number('--reaction', args.reaction, 0.0, 0.5 * args.horizon, unit='s')
+
+
 def main(args: argparse.Namespace) -> int:
     from cartpole_control.trajectory_optimization import BOUND_CASES
     boundary.number('--intervals', args.intervals, 5, 2000)
     boundary.number('--refine', args.refine, 0, 4000)
     params = nominal_parameters(args)
+    _check_push_options(args, params)
     cases = tuple(dict.fromkeys(args.case)) if args.case else BOUND_CASES
     swingup_cases = tuple(c for c in cases if c not in PUSH_CASES)
     push_cases = tuple(c for c in cases if c in PUSH_CASES)
@@ -124,13 +136,6 @@ def _pushes(args: argparse.Namespace, params, cases, print_table: bool) -> tuple
 
     from ..options import progress_printer
     margins = tuple(args.margin) if args.margin else (0.0, 0.02)
-    for m in margins:
-        boundary.number('--margin', m, 0.0, 0.5 * params.travel, high_open=True, unit='m')
-    boundary.number('--fall-angle', args.fall_angle, 0.0, 180.0, low_open=True, high_open=True,
-                    unit='deg')
-    boundary.number('--horizon', args.horizon, 0.5, 20.0, low_open=True, unit='s')
-    boundary.number('--tolerance', args.tolerance, 0.0, 0.5, low_open=True, high_open=True)
-    boundary.number('--reaction', args.reaction, 0.0, 0.5 * args.horizon, unit='s')
     say = progress_printer('cartpole bound')
     angles = (None, math.radians(args.fall_angle))
     out, ok = {}, True

@@ -21,6 +21,7 @@ from .. import boundary, options
 DISCOVERY_RANGES = ('localhost', 'subnet', 'system_default')
 
 
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     plant = parser.add_mutually_exclusive_group(required=True)
     plant.add_argument('--sim', action='store_true', help='run on the simulated plant')
@@ -43,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument('--duration', type=float, default=None, metavar='S',
                    help='stop after S seconds (simulated in lockstep, wall otherwise); '
                         'default: until Ctrl-C')
-    g.add_argument('--window', type=float, default=10.0, metavar='S',
+    g.add_argument('--window', type=float, default=None, metavar='S',
                    help='the final window the run summary scores (amplitude, cart error, MSE, '
                         'force) [s]; default 10, the thesis\'s table 10.2; at most --duration')
     g.add_argument('--record', type=Path, default=None, metavar='DIR',
@@ -166,9 +167,10 @@ def check(args: argparse.Namespace) -> None:
         raise boundary.InputError('--lockstep needs --sim')
     if args.duration is not None:
         boundary.duration(args.duration)
-    boundary.number('--window', args.window, 0.0,
-                    boundary.MAX_DURATION_S if args.duration is None else args.duration,
-                    low_open=True, unit='s')
+    if args.window is not None:
+        boundary.number('--window', args.window, 0.0,
+                        boundary.MAX_DURATION_S if args.duration is None else args.duration,
+                        low_open=True, unit='s')
     if args.realtime is not None:
         from cartpole_core.realtime import ENVIRONMENT_SWITCH, priority_from_environment
         try:
@@ -221,6 +223,9 @@ class _StopRequest:
 
 def main(args: argparse.Namespace) -> int:
     check(args)  # InputError: `cartpole run: error: ...`, exit 2
+    if args.window is None:  # the thesis's table 10.2: the last 10 s
+        from cartpole_analysis.analysis.metrics import WINDOW_S
+        args.window = WINDOW_S
     if args.realtime is not None:  # read by every node of the run, in this process or its own
         from cartpole_core.realtime import ENVIRONMENT_SWITCH
         os.environ[ENVIRONMENT_SWITCH] = args.realtime

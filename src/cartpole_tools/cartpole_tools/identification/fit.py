@@ -124,7 +124,7 @@ def parse_free(text: str | Sequence[str]) -> tuple[str, ...]:
     names = [s.strip() for s in (text.split(',') if isinstance(text, str) else text)]
     names = [s for s in names if s]
     if not names:
-        raise IdentificationError('no free parameters given')
+        raise IdentificationError('--free: no free parameters given')
     known = [f for f in CartPoleParameters.__dataclass_fields__]
     fittable = [f for f in known if f not in NOT_FITTABLE]
     for name in names:
