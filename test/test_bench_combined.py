@@ -133,7 +133,7 @@ def test_combined_writes_the_report_and_every_failure_replays_to_the_same_summar
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     report = (tmp_path / 'combined.md').read_text()
-    assert '| pendulum_energy + lqg | 0 / 3 | **0.000** | 0.000-0.562 |' in report
+    assert '| pendulum_energy + lqg | 0 / 3 | **0.000** | 0.000-0.561 |' in report
     assert (tmp_path / 'combined_factors.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     raw = json.loads((tmp_path / 'combined.json').read_text())
     assert len(raw['runs']) == 3 and len(raw['failures']) == 3
