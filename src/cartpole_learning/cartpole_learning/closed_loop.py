@@ -15,7 +15,7 @@ trip, about 36 us here). Nothing of the manager is copied or bypassed.
 
 Messages from the loop: ``('state', obs, kind, true_state)`` at each plugin
 call, ``('end', reason, true_state)`` when the run cannot go on (``impact``:
-the cart hit a stop; ``fault:<reason>``: the manager faulted, e.g. the rail
+the cart hit a stop, :attr:`Plant.impacts`; ``fault:<reason>``: the manager faulted, e.g. the rail
 guard tripped), ``('aborted',)`` after :meth:`AgentLoop.abort`, ``('error',
 text)`` if the loop raised.
 """
@@ -36,10 +36,6 @@ from cartpole_sim.plant import Plant, Scenario
 
 from .observation import observation
 
-IMPACT_DEPTH = 1.0e-4
-"""[m] Penetration past a stop that counts as an impact: a cart resting against a stop
-and pressed by the amplifier's largest force (37 N at 1e6 N/m) goes 37 um in; one
-that arrives at 5 cm/s goes 0.11 mm in (v sqrt(m_c / k))."""
 _ABORT = object()
 _CLOSE = object()
 
@@ -165,7 +161,7 @@ class AgentLoop:
                     return
                 force = out.force
                 plant.step(force, None, t)
-            if abs(plant.contact_penetration) > IMPACT_DEPTH:
+            if plant.impacts:
                 self.to_env.put(('end', 'impact', self._true_state()))
                 return
         self.to_env.put(('end', 'time', self._true_state()))

@@ -1,6 +1,7 @@
 """``cartpole/SwingUp-v0``: the gymnasium environment of this rig, registered on import.
 
-Each episode draws a plant from the range table (:mod:`cartpole_learning.ranges`)
+Each episode draws a plant from the combined benchmark's range table
+(:mod:`cartpole_learning.ranges`)
 and runs the rig's closed loop (:mod:`cartpole_learning.closed_loop`: the
 project's plant with sample-and-hold, quantised 16-bit encoders, delay and
 jitter, amplifier gain, saturation and lag, force noise, pushes, lost samples
@@ -13,8 +14,10 @@ manager's plugin:
 - action: ``a`` in [-1, 1], the plugin's raw force ``a * action_scale`` [N]
   (``action_scale`` = the amplifier's positive limit, 34.2 N);
 - one step is one control cycle (5 ms); an episode ends (``terminated``) at an
-  impact on a stop, a manager fault (the rail guard tripped) or a fall after
-  the catch, each with ``-failure_penalty``; it is truncated after ``duration``.
+  impact on a stop (the plant's :attr:`~cartpole_sim.plant.Plant.impacts`: a cart
+  resting against a stop is none), a manager fault (the rail guard tripped) or
+  a fall after the catch, each with ``-failure_penalty``; it is truncated after
+  ``duration``.
 
 Reward per cycle, of the true state after the command acted (theta_w = 0 upright):
 ``(1 + cos theta_w) / 2 + exp(-(theta_w / 0.035)^2) - 0.5 ((x - x*) / 0.385)^2
@@ -37,6 +40,8 @@ import numpy as np
 from cartpole_control.controller import STABILIZER, SWINGUP
 from cartpole_core.model import CartPoleParameters, wrap_angle
 
+from cartpole_sim.scenario_ranges import RangeTable
+
 from . import ranges
 from .closed_loop import AgentLoop
 from .observation import OBSERVATION_BOUND, OBSERVATION_SIZE
@@ -53,8 +58,11 @@ class SwingUpEnv(gym.Env):
     nominal
         The controllers' (and the EKF's) model; the plant is each scenario applied to it.
     table
-        The range table (keys of :data:`cartpole_learning.ranges.DEFAULT_TABLE`;
-        missing keys keep the defaults); ``None``: the published ranges.
+        The range table (:class:`~cartpole_sim.scenario_ranges.RangeTable`, or a
+        mapping of its fields: the others keep the published ranges); ``None``: the
+        published ranges.
+    push_time
+        When a drawn push starts [s]; ``None`` keeps the table's (10-15 s, for 30 s runs).
     duration
         Simulated seconds of an episode.
     upright_start
@@ -66,12 +74,14 @@ class SwingUpEnv(gym.Env):
     metadata = {'render_modes': []}
 
     def __init__(self, nominal: CartPoleParameters | None = None,
-                 table: Mapping[str, Any] | None = None, duration: float = 8.0,
+                 table: RangeTable | Mapping[str, Any] | None = None, duration: float = 6.0,
+                 push_time: tuple[float, float] | None = (2.5, 5.0),
                  upright_start: float = 0.25, failure_penalty: float = 300.0,
                  manager_parameters: Mapping[str, Any] | None = None) -> None:
         super().__init__()
         self.nominal = nominal or CartPoleParameters()
-        self.table = ranges.checked_table(table or {})
+        self.table = table if isinstance(table, RangeTable) else RangeTable.from_dict(table)
+        self.push_time = None if push_time is None else tuple(push_time)
         if not (duration > 0.0 and math.isfinite(duration)):
             raise ValueError(f'duration must be > 0, got {duration!r}')
         self.steps = int(round(duration / self.nominal.sample_time))
@@ -111,8 +121,8 @@ class SwingUpEnv(gym.Env):
         return self._obs.copy(), {'scenario': self.scenario}
 
     def _draw(self):
-        return ranges.draw(self.table, self.np_random, self.nominal, self.x_ref,
-                           self.upright_start)
+        return ranges.draw(self.table, self.np_random, self.x_ref, self.upright_start,
+                           self.push_time)
 
     def step(self, action):
         if not self._running:
@@ -138,7 +148,7 @@ class SwingUpEnv(gym.Env):
         self._previous = a
         if terminated:
             reward -= self.failure_penalty
-        truncated = not terminated and (self._step >= self.steps or message[0] == 'end')
+        truncated = not terminated and message[0] == 'end'  # the duration is over
         if terminated or truncated:
             if self._running:
                 self._loop.abort()

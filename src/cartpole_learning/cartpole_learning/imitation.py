@@ -27,6 +27,7 @@ from cartpole_control.controller import STABILIZER, SWINGUP, CommandFeedback, Co
 from cartpole_control.controllers.energy_saturated import EnergySaturatedSwingUp
 from cartpole_control.controllers.lqg import LqgStabilizer
 from cartpole_core.model import CartPoleParameters
+from cartpole_sim.scenario_ranges import RangeTable
 
 from . import policy_file, ranges
 from .closed_loop import AgentLoop
@@ -84,16 +85,17 @@ class TeacherLoop(AgentLoop):
 
 def collect(job: dict[str, Any]) -> dict[str, Any]:
     """Run ``job['episodes']`` episodes (a worker's share of a round); returns the data."""
-    nominal = CartPoleParameters()
+    nominal = CartPoleParameters(**(job.get('nominal') or {}))
     loop = TeacherLoop(nominal)
     if job.get('student') is not None:
         loop.student = policy_file.Policy(**job['student'])
     rng = np.random.default_rng(job['seed'])
-    table = ranges.checked_table(job.get('table') or {})
+    table = RangeTable.from_dict(job.get('table') or {})
     steps = int(round(job['duration'] / nominal.sample_time))
     ends: dict[str, int] = {}
     for _ in range(job['episodes']):
-        scenario = ranges.draw(table, rng, nominal, nominal.x_middle, job['upright_start'])
+        scenario = ranges.draw(table, rng, nominal.x_middle, job['upright_start'],
+                               job['push_time'])
         loop.begin(rng.uniform() >= job['beta'])
         loop._episode(scenario, steps)
         message = loop.receive()

@@ -52,14 +52,18 @@ class Policy:
     path: str = ''
 
     def action(self, obs: np.ndarray) -> float:
-        """The network's mean action for one observation, clipped to [-1, 1]."""
+        """The network's mean action for one observation, clipped to [-1, 1] (a
+        non-finite one is returned as it is)."""
         h = np.clip((obs - self.obs_mean) * self.obs_scale, -self.obs_clip, self.obs_clip)
         last = len(self.weights) - 1
         for i, (w, b) in enumerate(zip(self.weights, self.biases)):
             h = w @ h + b
             if i < last:
                 h = np.tanh(h)
-        return min(1.0, max(-1.0, float(h[0])))
+        a = float(h[0])
+        if a != a or a in (math.inf, -math.inf):
+            return a  # non-finite: passed on for the caller to refuse, never clipped to +-1
+        return min(1.0, max(-1.0, a))
 
     def force(self, obs: np.ndarray) -> float:
         """The raw force [N] for one observation: ``clip(a, -1, 1) * action_scale``."""

@@ -23,7 +23,9 @@ import numpy as np
 
 from cartpole_core.model import CartPoleParameters
 
-from . import policy_file, ranges
+from cartpole_sim.scenario_ranges import RangeTable
+
+from . import policy_file
 from .env import SwingUpEnv
 from .observation import OBSERVATION_SIZE
 
@@ -53,13 +55,20 @@ class TrainConfig:
     net_arch: tuple[int, ...] = (64, 64)
     duration: float = 6.0
     upright_start: float = 0.25
+    push_time: tuple[float, float] = (2.5, 5.0)
+    """When a drawn push starts within an episode [s] (the table's own is for 30 s runs)."""
+    nominal: dict[str, Any] = field(default_factory=dict)
+    """Nominal plant parameters (fields of CartPoleParameters; empty: the thesis's)."""
     table: dict[str, Any] = field(default_factory=dict)
+    """Range table fields (:class:`~cartpole_sim.scenario_ranges.RangeTable`); the others
+    keep the published ranges."""
 
 
 def _make_env(config: TrainConfig, rank: int) -> Callable[[], SwingUpEnv]:
     def make() -> SwingUpEnv:
-        env = SwingUpEnv(table=config.table, duration=config.duration,
-                         upright_start=config.upright_start)
+        env = SwingUpEnv(CartPoleParameters(**config.nominal), table=config.table,
+                         duration=config.duration, upright_start=config.upright_start,
+                         push_time=config.push_time)
         env.reset(seed=config.seed * 1000 + rank)
         return env
     return make
@@ -113,7 +122,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
     torch.manual_seed(config.seed)
     start = time.perf_counter()
     load_before = os.getloadavg()
-    scale = CartPoleParameters().force_max
+    scale = CartPoleParameters(**config.nominal).force_max
     actor = build_actor(config.net_arch, OBSERVATION_SIZE)
     clip, eps = 10.0, 1e-8
     obs_all: list[np.ndarray] = []
@@ -130,7 +139,9 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
                      for w in range(config.workers)]
             jobs = [dict(seed=config.seed * 100_003 + r * 1009 + w, episodes=n, student=student,
                          beta=beta, table=config.table, duration=config.duration,
-                         upright_start=config.upright_start) for w, n in enumerate(share) if n]
+                         upright_start=config.upright_start, push_time=config.push_time,
+                         nominal=config.nominal)
+                    for w, n in enumerate(share) if n]
             results = pool.map(collect, jobs)
             ends: dict[str, int] = {}
             for res in results:
@@ -160,8 +171,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
         else ' '.join(sys.argv),
         'seed': config.seed, 'steps': int(sum(len(o) for o in obs_all)) + ppo.get('steps', 0),
         'wall_time_s': round(wall, 1), 'commit': commit(), 'config': asdict(config),
-        'ranges': {k: list(v) if isinstance(v, tuple) else v
-                   for k, v in ranges.checked_table(config.table).items()},
+        'ranges': RangeTable.from_dict(config.table).to_dict(),
         'algorithm': 'DAgger on energy_saturated + lqg' + (' then PPO' if ppo else ''),
         'rounds': history, 'ppo': ppo,
         'versions': {'torch': torch.__version__, 'gymnasium': gymnasium.__version__,

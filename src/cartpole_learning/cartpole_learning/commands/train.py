@@ -1,8 +1,8 @@
 """`cartpole train`: PPO on the rig's simulated loop, written as a policy file (docs/learning.md).
 
 Needs the training extra (``pip install -r requirements-train.txt``); without
-it the command says so and exits 2. The default budget (3 M steps, 8
-environments) takes about 25 minutes on 2 idle cores.
+it the command says so and exits 2. docs/learning.md has what it does and how
+long it takes.
 """
 from __future__ import annotations
 
@@ -30,8 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--ppo-steps', type=int, default=0, metavar='N',
                         help='then N steps of PPO from the imitated policy (default 0: none)')
     parser.add_argument('--ranges', default=None, metavar='FILE.yaml',
-                        help='range table of the randomised plant (keys of docs/learning.md; '
-                             'missing keys keep the published ranges)')
+                        help='range table of the randomised plant (the combined benchmark\'s '
+                             'format, docs/robustness.md; missing keys keep the published ranges)')
+    parser.add_argument('--plant-params', default=None, metavar='FILE.yaml',
+                        help='nominal plant parameters (CartPoleParameters YAML, e.g. from '
+                             '`cartpole identify`): the model of the EKF, the manager and the '
+                             'teacher, and the centre of the ranges; default: thesis values')
     parser.add_argument('--duration', type=float, default=6.0, metavar='S',
                         help='simulated seconds per episode (default 6)')
 
@@ -47,11 +51,21 @@ def main(args: argparse.Namespace) -> int:
     from cartpole_learning.training import TrainConfig, train
     table = {}
     if args.ranges:
-        import yaml
-        with open(args.ranges, encoding='utf-8') as f:
-            table = yaml.safe_load(f) or {}
-        if not isinstance(table, dict):
-            print(f'{args.ranges}: a range table is a mapping of keys to ranges', file=sys.stderr)
+        from cartpole_sim.scenario_ranges import load_ranges
+        try:
+            table = load_ranges(args.ranges).to_dict()
+        except (OSError, ValueError) as error:
+            print(f'cartpole train: {args.ranges}: {error}', file=sys.stderr)
+            return 2
+    nominal = {}
+    if args.plant_params:
+        import dataclasses
+
+        from cartpole_bringup.boundary import InputError, plant_parameters
+        try:
+            nominal = dataclasses.asdict(plant_parameters(args.plant_params))
+        except InputError as error:
+            print(f'cartpole train: {error}', file=sys.stderr)
             return 2
     if min(args.rounds, args.episodes, args.epochs, args.workers) <= 0 or args.ppo_steps < 0:
         print('--rounds, --episodes, --epochs and --workers must be > 0, --ppo-steps >= 0',
@@ -59,7 +73,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     config = TrainConfig(seed=args.seed, rounds=args.rounds, episodes=args.episodes,
                          epochs=args.epochs, workers=args.workers, ppo_steps=args.ppo_steps,
-                         duration=args.duration, table=table)
+                         duration=args.duration, table=table, nominal=nominal)
     try:
         provenance = train(config, os.path.abspath(args.out), log=lambda s: print(s, flush=True))
     except ValueError as error:
