@@ -122,6 +122,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
     torch.manual_seed(config.seed)
     start = time.perf_counter()
     load_before = os.getloadavg()
+    code = commit()  # the code this run trains with, before anything can change it
     scale = CartPoleParameters(**config.nominal).force_max
     actor = build_actor(config.net_arch, OBSERVATION_SIZE)
     clip, eps = 10.0, 1e-8
@@ -170,7 +171,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
         'command': ' '.join(['cartpole', 'train'] + sys.argv[2:]) if sys.argv[1:2] == ['train']
         else ' '.join(sys.argv),
         'seed': config.seed, 'steps': int(sum(len(o) for o in obs_all)) + ppo.get('steps', 0),
-        'wall_time_s': round(wall, 1), 'commit': commit(), 'config': asdict(config),
+        'wall_time_s': round(wall, 1), 'commit': code, 'config': asdict(config),
         'ranges': RangeTable.from_dict(config.table).to_dict(),
         'algorithm': 'DAgger on energy_saturated + lqg' + (' then PPO' if ppo else ''),
         'rounds': history, 'ppo': ppo,

@@ -15,8 +15,9 @@ from cartpole_learning.plugin import SHIPPED_POLICY, PolicyStabilizer, PolicySwi
 P = CartPoleParameters()
 
 
-def _context():
-    return ControlContext(plant=P, x_ref=P.x_middle, sample_time=P.sample_time)
+def _context(real_time=True):
+    return ControlContext(plant=P, x_ref=P.x_middle, sample_time=P.sample_time,
+                          real_time=real_time)
 
 
 def _upright(t=0.0):
@@ -100,6 +101,13 @@ def test_an_overrun_falls_back(tmp_path):
     plugin.update(_upright())
     assert plugin.law == 'policy:fallback(pendulum_energy)'
     assert plugin.status_values()['policy_fallbacks'] == 1
+    # A batch run waits for every cycle: no overrun there, and the run stays deterministic.
+    batch = PolicySwingUp()
+    batch.configure({'file': str(tmp_path / 'ok.npz')}, _context(real_time=False))
+    batch.activate(_upright())
+    batch.gains['max_inference_us'] = 1e-3
+    batch.update(_upright())
+    assert batch.law == 'policy' and batch.status_values()['policy_fallbacks'] == 0
 
 
 def test_a_scratch_validation_reads_no_file(tmp_path):
