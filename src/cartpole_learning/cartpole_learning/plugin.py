@@ -133,7 +133,8 @@ class _PolicyController(Controller):
     def on_deactivate(self) -> None:
         if self._fallback is not None and self._fallback.active:
             self._fallback.deactivate()
-        self._falling_back = False
+        # law keeps saying what ran until the next activation (the run summary reads it
+        # after the catch has deactivated the swing-up)
 
     def status_values(self) -> Mapping[str, float]:
         return {'policy_us': round(self.inference_us, 1), 'policy_fallbacks': self.fallbacks}
