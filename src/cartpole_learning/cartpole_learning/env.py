@@ -98,7 +98,6 @@ class SwingUpEnv(gym.Env):
         self._obs = np.zeros(OBSERVATION_SIZE, dtype=np.float32)
         self._kind = SWINGUP
         self._previous = 0.0
-        self._step = 0
         self.scenario = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -117,7 +116,6 @@ class SwingUpEnv(gym.Env):
         self._running = True
         _, self._obs, self._kind, _ = message
         self._previous = 0.0
-        self._step = 0
         return self._obs.copy(), {'scenario': self.scenario}
 
     def _draw(self):
@@ -131,7 +129,6 @@ class SwingUpEnv(gym.Env):
         self._loop.act(a * self.action_scale)
         message = self._loop.receive()
         self._check(message)
-        self._step += 1
         info: dict[str, Any] = {}
         terminated = False
         if message[0] == 'state':

@@ -1,13 +1,16 @@
-"""PPO on ``cartpole/SwingUp-v0`` and the export of the actor to a policy file.
+"""``cartpole train``'s work: DAgger on the teacher laws, optionally PPO, the policy file.
 
 Needs the training extra (``pip install -r requirements-train.txt``: torch
 CPU-only, stable-baselines3); nothing else of the package imports them.
-PPO (stable-baselines3) with one environment per process (``SubprocVecEnv``),
-running observation and reward normalisation (``VecNormalize``), a tanh
-[64, 64] actor and critic; torch uses one thread (the cores run the
-environments). :func:`export` writes the deterministic actor with the
-observation normalisation into the numpy policy file the plugin loads
-(:mod:`cartpole_learning.policy_file`).
+:func:`train` runs the rounds of :mod:`cartpole_learning.imitation` (episodes
+in ``workers`` processes, the fit in this one, torch on one thread), then
+with ``ppo_steps`` stable-baselines3's PPO from the imitated actor (one
+environment per process, ``VecNormalize`` starting from the imitation's
+normalisation), and writes the actor, the normalisation, the action scale
+and the provenance into the numpy policy file the plugin loads
+(:mod:`cartpole_learning.policy_file`). The actor has stable-baselines3's
+layout (Linear-Tanh-Linear-Tanh-Linear), so either stage's weights export
+the same way.
 """
 from __future__ import annotations
 
