@@ -52,7 +52,7 @@ SHIPPED_POLICY = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'polic
 PARAMETERS = (
     ParameterSpec('file', '', 'Policy file (.npz) written by `cartpole train`; empty: the '
                   'policy shipped with cartpole_learning'),
-    ParameterSpec('max_inference_us', 1000.0, 'In a real-time loop, an inference longer '
+    ParameterSpec('max_inference_us', 2000.0, 'In a real-time loop, an inference longer '
                   'than this [us] is an overrun: the rest of the activation runs the fallback '
                   'law (pendulum_energy swing-up, lqg stabiliser)', low=10.0, high=4000.0),
 )
