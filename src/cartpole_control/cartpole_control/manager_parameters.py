@@ -37,15 +37,17 @@ def checked_registry(registry: Mapping[str, Mapping[str, type[Controller]]] | No
     reserved = set(MANAGER_PREFIXES) | {'swingup', 'stabilizer', 'enabled', 'x_ref',
                                         'state_timeout'}
     out: dict[str, dict[str, type[Controller]]] = {}
-    taken: set[str] = set()
+    taken: dict[str, type[Controller]] = {}
     for kind in KINDS:
         found = load_controllers(kind) if registry is None else dict(registry.get(kind, {}))
         out[kind] = {}
         for name, cls in sorted(found.items()):
-            if name in reserved or name in taken:
+            # One name in both groups is one plugin in two roles (a learned policy): allowed
+            # when both declare the same parameters, the one set of `<name>.<param>`.
+            if name in reserved or (name in taken and taken[name].parameters != cls.parameters):
                 logger.warning('skipping %s controller %r: the name is taken', kind, name)
                 continue
-            taken.add(name)
+            taken[name] = cls
             out[kind][name] = cls
         if not out[kind]:
             raise ValueError(f'no {kind} controller is registered (entry-point group '
