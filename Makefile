@@ -9,7 +9,7 @@ STAMP_BUILD := install/.built
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
-.PHONY: run test test-fast docs build venv clean bench help firmware-deps
+.PHONY: run test test-fast docs train-deps build venv clean bench help firmware-deps
 
 help:
 	@echo "make run   - simulated swing-up with the default controllers, recorded and summarised"
@@ -47,6 +47,13 @@ test-fast: $(STAMP_BUILD)
 docs: $(STAMP_BUILD)
 	source ./env.sh && python -m sphinx -W --keep-going -q -b html docs build/docs/html
 	@echo "site: build/docs/html/index.html"
+
+# The training extra of cartpole_learning (`cartpole train`): torch (CPU-only wheel) and
+# stable-baselines3. torch declares setuptools>=77, which colcon's --symlink-install cannot use:
+# the venv's setuptools goes back to 65.5.0 afterwards.
+train-deps: $(STAMP_VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements-train.txt
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q setuptools==65.5.0
 
 firmware-deps:
 	@$(MAKE) -s -C firmware arm-deps

@@ -22,7 +22,7 @@ LAYER = {
     'cartpole_emulator': 2,
     'cartpole_analysis': 3,
     'cartpole_bringup': 4,
-    'cartpole_tools': 5,
+    'cartpole_tools': 5, 'cartpole_learning': 5,
 }
 """Package -> its layer; a package imports only packages of a lower layer (and itself)."""
 
@@ -35,10 +35,7 @@ KNOWN_CIRCLES: list[list[str]] = []
 
 MAX_LINES = 500
 
-TOO_LONG_KNOWN = {
-    'src/cartpole_bringup/test/test_cli_fuzz.py',
-    'src/cartpole_tools/test/test_identify.py',
-}
+TOO_LONG_KNOWN: set[str] = set()
 """Files over the limit that other work in progress splits; the merge that splits one
 removes it here. A listed file that is no longer too long fails the test too, so the
 list only shrinks."""

@@ -91,21 +91,6 @@ class Measurement:
     """Pendulum angle [rad] from the unwrapped count, pi hanging after reset."""
 
 
-def _measurement(t: float, cart_ticks: int, pendulum_ticks: int, x: float,
-                 theta: float) -> Measurement:
-    """``Measurement(t, cart_ticks, pendulum_ticks, x, theta)``, built directly.
-
-    The same object the frozen dataclass's ``__init__`` makes (it only sets
-    the fields) without its per-field ``object.__setattr__``; once per sample
-    of every offline run. A test checks both are equal.
-    """
-    m = object.__new__(Measurement)
-    object.__setattr__(m, '__dict__', {'t': t, 'cart_ticks': cart_ticks,
-                                       'pendulum_ticks': pendulum_ticks, 'x': x,
-                                       'theta': theta})
-    return m
-
-
 def _rk4_stage(acc, stop, travel: float, force: float, x: float, th: float, v: float,
                w: float, k: float, dx: float, dth: float, dv: float,
                dw: float) -> tuple[float, float, float, float]:
@@ -429,7 +414,7 @@ class Plant(DisturbedHold):
         """
         cart, pend = self._continuous_counts()
         bits = self.params.counter_bits
-        return _measurement(self.t, wrap_counter(cart, bits), wrap_counter(pend, bits),
+        return Measurement(self.t, wrap_counter(cart, bits), wrap_counter(pend, bits),
                             cart * self._cart_resolution,
                             math.pi + pend * self._pendulum_resolution)
 
