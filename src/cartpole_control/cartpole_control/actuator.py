@@ -53,9 +53,10 @@ GAIN_DEADBAND = 0.03
 """What the estimate cannot tell from the model's actuator: the friction, known only
 roughly, biases it by a few per cent. :meth:`ActuatorEstimator.compensation` acts only on
 the part of the estimate beyond this band around 1."""
-SWITCH_RATIO = 0.8
-"""Another dead-time candidate is chosen only when its residual sum is below this fraction
-of the chosen one's."""
+SWITCH_RATIO = 1.0
+"""Another dead-time candidate is chosen when its residual sum is below this fraction of
+the chosen one's: 1, the best at once (a hysteresis keeps a wrong early choice; the slew of
+the gain handed out, :data:`OUTPUT_RATE`, already stops jumps)."""
 OUTPUT_RATE = 0.02
 """Largest change per window of the gain handed out (:attr:`ActuatorEstimator.gain`)."""
 DELAY_READY_WINDOWS = 10
