@@ -9,12 +9,13 @@ STAMP_BUILD := install/.built
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
-.PHONY: run test test-fast build venv clean bench help firmware-deps
+.PHONY: run test test-fast docs train-deps build venv clean bench help firmware-deps
 
 help:
 	@echo "make run   - simulated swing-up with the default controllers, recorded and summarised"
 	@echo "make test  - build and run the whole test suite"
 	@echo "make test-fast - the tests that need neither a ROS graph nor real time (while working)"
+	@echo "make docs  - build the documentation site into build/docs/html (warnings are errors)"
 	@echo "make build - (re)build the colcon workspace"
 	@echo "make clean - remove build/, install/, log/ (keeps .venv)"
 
@@ -41,6 +42,18 @@ test: $(STAMP_BUILD) firmware-deps
 # The day-to-day loop: no rclpy/DDS (marker ros), no long closed-loop runs (marker slow).
 test-fast: $(STAMP_BUILD)
 	source ./env.sh && python -m pytest -q -m "not ros and not slow"
+
+# The documentation site (Sphinx, MyST Markdown, the API reference from the docstrings).
+docs: $(STAMP_BUILD)
+	source ./env.sh && python -m sphinx -W --keep-going -q -b html docs build/docs/html
+	@echo "site: build/docs/html/index.html"
+
+# The training extra of cartpole_learning (`cartpole train`): torch (CPU-only wheel) and
+# stable-baselines3. torch declares setuptools>=77, which colcon's --symlink-install cannot use:
+# the venv's setuptools goes back to 65.5.0 afterwards.
+train-deps: $(STAMP_VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements-train.txt
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q setuptools==65.5.0
 
 firmware-deps:
 	@$(MAKE) -s -C firmware arm-deps

@@ -72,10 +72,10 @@ def test_a_nominal_level_that_does_not_count_survives_nothing():
     assert sc['categories']['B']['score'] == pytest.approx(0.75)
 
 
-def test_a_push_run_that_falls_after_the_catch_does_not_succeed():
+def test_a_run_that_falls_after_the_catch_does_not_succeed_in_any_sweep():
     push, other = sweep('push', 'p', [0, 1], after_catch=True), sweep('x', 'x', [0, 1])
     summary = {'success': True, 'falls_after_catch': 1, 'faults': []}
-    assert not br.succeeded(push, summary) and br.succeeded(other, summary)
+    assert not br.succeeded(push, summary) and not br.succeeded(other, summary)
     assert br.succeeded(push, {'success': True, 'falls_after_catch': 0, 'faults': []})
     assert not br.succeeded(other, {'success': True, 'falls_after_catch': 0,
                                     'faults': ['fault:rail guard']})

@@ -106,7 +106,8 @@ def test_sigkill_at_the_first_sample_is_a_reported_fault(tmp_path, truth_stamps,
 
 def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, truth_stamps,
                                                                   spin_until):
-    code, out, err, killed_at = _run_and_kill(tmp_path, truth_stamps, spin_until, 'recorder')
+    code, out, err, killed_at = _run_and_kill(tmp_path, truth_stamps, spin_until,
+                                              'cartpole_recorder')
     result, bag = _assert_fault_reported(code, out, err, 'recorder died (SIGKILL)')
     assert 'truncated MCAP recovered' in err
     truth = sorted({s for s, _ in _read(bag)[TRUTH]})

@@ -73,7 +73,7 @@ def _run_with_a_frozen_recorder(args, truth_stamps, spin_until, timeout):
     try:
         assert spin_until(executor, lambda: seen and seen[-1] >= 3 * 10**9, 120.0), \
             'the graph did not run'
-        recorder = child_running(proc.pid, 'recorder')
+        recorder = child_running(proc.pid, 'cartpole_recorder')
         os.kill(recorder, signal.SIGSTOP)
         try:
             stopped_at = seen[-1]

@@ -22,7 +22,7 @@ LAYER = {
     'cartpole_emulator': 2,
     'cartpole_analysis': 3,
     'cartpole_bringup': 4,
-    'cartpole_tools': 5,
+    'cartpole_tools': 5, 'cartpole_learning': 5,
 }
 """Package -> its layer; a package imports only packages of a lower layer (and itself)."""
 
@@ -30,23 +30,12 @@ NEVER = {('cartpole_hw', 'cartpole_sim'), ('cartpole_estimation', 'cartpole_sim'
          ('cartpole_control', 'cartpole_sim')}
 """(importer, imported) pairs refused although the layers would allow them."""
 
-KNOWN_CIRCLES = [['cartpole_emulator.emulator', 'cartpole_emulator.qemu_device']]
+KNOWN_CIRCLES: list[list[str]] = []
 """Circles that other work in progress breaks; the merge that breaks one removes it here."""
 
 MAX_LINES = 500
 
-TOO_LONG_KNOWN = {
-    'src/cartpole_control/cartpole_control/manager.py',
-    'src/cartpole_control/cartpole_control/push_recovery.py',
-    'src/cartpole_control/cartpole_control/trajectory_optimization.py',
-    'src/cartpole_control/cartpole_control/manager_node.py',
-    'src/cartpole_estimation/cartpole_estimation/ekf.py',
-    'src/cartpole_emulator/cartpole_emulator/emulator.py',
-    'src/cartpole_sim/cartpole_sim/sim_node.py',
-    'src/cartpole_hw/cartpole_hw/hw_node.py',
-    'src/cartpole_hw/cartpole_hw/bridge.py',
-    'src/cartpole_hw/cartpole_hw/protocol.py',
-}
+TOO_LONG_KNOWN: set[str] = set()
 """Files over the limit that other work in progress splits; the merge that splits one
 removes it here. A listed file that is no longer too long fails the test too, so the
 list only shrinks."""

@@ -54,6 +54,9 @@ PIP_ONLY = {
     'mcap': 'mcap',
     'foxglove': 'foxglove-sdk',
     'distributed': 'distributed',
+    'gymnasium': 'gymnasium',
+    'stable_baselines3': 'stable-baselines3',
+    'torch': 'torch',
 }
 """Imported module -> its PyPI distribution, for libraries rosdep has no key for."""
 
@@ -207,7 +210,8 @@ def test_package_xml_declares_exactly_what_the_package_imports(package):
 
 def test_every_pip_only_library_is_pinned_in_requirements():
     pinned = {re.split(r'[=<>\[ ]', line, maxsplit=1)[0].lower()
-              for line in (ROOT / 'requirements.txt').read_text().splitlines()
+              for name in ('requirements.txt', 'requirements-train.txt')
+              for line in (ROOT / name).read_text().splitlines()
               if line.strip() and not line.startswith('#')}
     assert sorted((set(PIP_ONLY.values()) | {'casadi', 'rosbags'}) - pinned) == []
 

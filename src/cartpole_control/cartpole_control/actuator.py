@@ -8,35 +8,12 @@ robustness grid's "actuator gain") or act later (a slower current loop, a
 filter: "actuator lag"), and neither is something the plant can report: the
 device only knows when it wrote the setpoint. Both show in how the cart moves.
 
-The cart row of (4.17) is a momentum balance: with p = (m_c + m_p) x_dot -
-m_p l cos(theta) theta_dot,
+The cart row of (4.17) is a momentum balance, dp/dt = F - B_c(x_dot) with
+p = (m_c + m_p) x_dot - m_p l cos(theta) theta_dot; weighed over windows of
+the encoders' samples it gives the gain by recursive least squares for each
+candidate dead time.
 
-    dp/dt = F - B_c(x_dot)        (end stops aside).
-
-Weighed with the triangle ``k(s) = T - |s|`` over ``[t - T, t + T]`` and
-integrated by parts (k vanishes at both ends), only positions are needed::
-
-    Y   = -sum_i k'_i ((m_c + m_p) dx_i - m_p l cos(theta_i) dtheta_i) + int k B_c ds
-    Y   = int k F ds  =  G int k F*(s - d) ds  =  G Phi_d
-
-with F* the commanded force as the plant reported it applied (piecewise
-constant), ``G`` the actuator's gain and ``d`` its extra dead time (a
-first-order lag of time constant tau acts, at the frequencies a swing-up and
-a balanced pendulum excite, much like a dead time tau). For each candidate
-``d`` in ``0, 5, ..., 100 ms`` recursive least squares (with forgetting)
-fits ``G_d``; the candidate with the smallest residual is the estimate. It
-takes the windows where the commanded force is large against the cart's
-friction (the swing-up, a catch, a push: while balancing quietly the
-friction, known only roughly, would bias it) and away from the end stops;
-until enough of them (``min_excitation``) the estimate is the nominal ``G =
-1, d = 0``.
-
-The controller manager uses it (``actuator.gain``, ``actuator.delay``:
-``auto``): the command is divided by ``G`` (bounded to ``[GAIN_MIN,
-GAIN_MAX]``, less a band of :data:`GAIN_DEADBAND` around 1 that the
-estimate cannot resolve, :attr:`ActuatorEstimator.compensation`) and the
-prediction horizon grows by ``d`` less half a candidate step
-(:attr:`ActuatorEstimator.delay_compensation`).
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.actuator``).
 
 No ROS import.
 """
@@ -60,20 +37,61 @@ DELAY_MAX = 0.1
 DELAY_DEADBAND_STEPS = 0.5
 """Candidate steps taken off the dead-time estimate before it is compensated
 (:attr:`ActuatorEstimator.delay_compensation`)."""
-FORGETTING = 0.998
-"""Weight kept by the past per window (memory about 50 s of windows every 25 ms)."""
-MIN_EXCITATION = 0.1
-"""sum(Phi^2) [N^2 s^4] before the estimate is used: about thirty windows of a
-10 N force (Phi of a 10 N force over T = 0.1 s is 0.1 N s^2)."""
+RESIDUAL_FORGETTING = 0.998
+"""Weight kept per window by the candidates' residual sums (memory about 50 s of windows
+every 25 ms), which choose the dead time."""
 PHI_MIN = 0.05
-"""[N s^2] Windows whose commanded force averages less than about 5 N are left out:
-there the cart's friction, known only roughly, is as large as the force."""
+"""[N s^2] Windows whose commanded force averages less than about 5 N move only the
+disturbance: there the cart's friction, known only roughly, is as large as the force."""
+SPAN_MIN = 15.0
+"""[N] Windows whose commanded force varies by less than this move only the disturbance:
+a force held steady (the stabiliser leaning against a hand) cannot tell a weak amplifier
+from a force on the cart; a varying one (a swing-up, a catch) can."""
 GAIN_MIN, GAIN_MAX = 0.4, 2.5
 """The gain estimate is held inside these bounds."""
 GAIN_DEADBAND = 0.03
 """What the estimate cannot tell from the model's actuator: the friction, known only
-roughly, biases it by a few per cent (x1.5 friction: 0.93-0.96). :meth:`ActuatorEstimator.
-compensation` acts only on the part of the estimate beyond this band around 1."""
+roughly, biases it by a few per cent. :meth:`ActuatorEstimator.compensation` acts only on
+the part of the estimate beyond this band around 1."""
+SWITCH_RATIO = 1.0
+"""Another dead-time candidate is chosen when its residual sum is below this fraction of
+the chosen one's: 1, the best at once (a hysteresis keeps a wrong early choice; the slew of
+the gain handed out, :data:`OUTPUT_RATE`, already stops jumps)."""
+OUTPUT_RATE = 0.02
+"""Largest change per window of the gain handed out (:attr:`ActuatorEstimator.gain`)."""
+DELAY_READY_WINDOWS = 10
+"""Windows with a large varying command before the dead time is used (a quarter second of
+a swing-up): the candidates' residuals part long before the gain is known to 4 %."""
+GAIN_PRIOR_STD = 0.25
+"""Prior standard deviation of G."""
+PGG_MAX = GAIN_PRIOR_STD ** 2
+"""G is never less certain than at the start (a reopened or cut step cannot make it wild)."""
+GAIN_WALK_STD = 0.0005
+"""Random walk of G per window: an amplifier drifts slowly (0.01 in 10 s of windows)."""
+GAIN_READY_STD = 0.04
+"""The estimate is used once the standard deviation of G is below this."""
+GAIN_RATE = 0.02
+"""Largest change of G per window while G's standard deviation is 0.1, in proportion to
+it (at least :data:`GAIN_RATE_MIN`): a settled estimate moves slowly, so a burst of
+unmodelled force the gate lets through cannot throw it."""
+GAIN_RATE_MIN = 0.001
+DISTURBANCE_PRIOR_STD = 2.0
+"""[N] Prior standard deviation of the disturbance D."""
+DISTURBANCE_WALK_STD = 0.5
+"""[N] Random walk of D per window (3 N in a second): friction error, cable drag; a
+sudden change (a hand, a push) passes the gate (:data:`GATE`)."""
+DISTURBANCE_MAX = 40.0
+"""[N] The disturbance estimate is held inside +-this."""
+NOISE_STD = 0.004
+"""[N s^2] Standard deviation of Y's error: the friction model's error that a constant D
+does not take up, the encoders' noise (a 1 N error over the window is 0.01 N s^2)."""
+GATE = 4.0
+"""An innovation beyond this many standard deviations is a change of the disturbance (a
+push, a hand), not news of the gain: it moves D alone."""
+GATE_PERSISTENCE = 4
+"""So many gated windows in a row (0.1 s) with the disturbance moved each time: the model
+itself is off (the gain changed); G's uncertainty grows by :data:`GAIN_REOPEN_STD`."""
+GAIN_REOPEN_STD = 0.1
 
 
 def _triangle_integral(a: float, b: float, half: float) -> float:
@@ -82,7 +100,7 @@ def _triangle_integral(a: float, b: float, half: float) -> float:
 
 
 class ActuatorEstimator:
-    """Gain ``G`` and extra dead time ``d`` of the actuator, from the cart's motion; see the module docstring.
+    """Gain ``G``, extra dead time ``d`` and disturbance ``D`` of the actuator's force; see the module docstring.
 
     Parameters
     ----------
@@ -90,17 +108,16 @@ class ActuatorEstimator:
         The nominal model: masses, length, cart friction (4.20)/(4.27).
     sample_time
         Ts [s] of the encoders' samples.
+    half_window
+        T of the window, in samples.
     """
 
     def __init__(self, plant: CartPoleParameters, sample_time: float | None = None,
-                 half_window: int = HALF_WINDOW, forgetting: float = FORGETTING,
-                 min_excitation: float = MIN_EXCITATION) -> None:
+                 half_window: int = HALF_WINDOW) -> None:
         self.plant = plant
         self.sample_time = float(sample_time or plant.sample_time)
         self.window = PositionWindow(self.sample_time, half_window, EVERY)
         """The encoders' samples of the next window."""
-        self.forgetting = float(forgetting)
-        self.min_excitation = float(min_excitation)
         self._mass = plant.m_c + plant.m_p
         self._m_p_l = plant.m_p * plant.l
         self.delays = tuple(round(i * DELAY_STEP, 9)
@@ -108,16 +125,29 @@ class ActuatorEstimator:
         self.reset()
 
     def reset(self) -> None:
-        """Back to the nominal actuator, no data."""
+        """Back to the nominal actuator, no disturbance, no data."""
         n = len(self.delays)
-        self._s_py = [0.0] * n
-        self._s_pp = [0.0] * n
-        self._s_yy = 0.0
+        # Per dead-time candidate: the filter's mean (G, D) and covariance (gg, gd, dd).
+        self._g = [1.0] * n
+        self._d = [0.0] * n
+        self._pgg = [GAIN_PRIOR_STD ** 2] * n
+        self._pgd = [0.0] * n
+        self._pdd = [DISTURBANCE_PRIOR_STD ** 2] * n
+        self._residual = [0.0] * n
+        self._best = 0
         self.gain = 1.0
-        """The estimated gain G (1 until enough excitation)."""
+        """The estimated gain G (1 until :attr:`ready`)."""
         self.delay = 0.0
-        """The estimated extra dead time d [s] (0 until enough excitation)."""
+        """The estimated extra dead time d [s] (0 until :data:`DELAY_READY_WINDOWS`)."""
+        self.disturbance = 0.0
+        """The estimated unmodelled force D on the cart [N], positive to the right."""
         self.windows = 0
+        """Windows taken."""
+        self.excited_windows = 0
+        """Windows with a large varying command (the ones that tell the gain and dead time)."""
+        self.gated = 0
+        """Windows whose innovation, for the chosen dead time, was beyond :data:`GATE`."""
+        self._gated_run = [0] * n
         self.window.clear()
         horizon = 2 * self.window.half_window + 2 + int(math.ceil(DELAY_MAX / self.sample_time)) + 8
         self._applied: deque[tuple[float, float]] = deque(maxlen=4 * horizon)
@@ -142,20 +172,19 @@ class ActuatorEstimator:
         The commands are held over a sample, and a zero-order hold acts, on
         average, half a sample late; with candidates a sample apart a nominal
         actuator comes out at 0 or 5 ms by the noise of the windows. Half a
-        step off keeps the half sample the hold really costs: offline, default
-        pair, 8 seeds: nominal theta amplitude mean 0.254 deg (0.296 with the
-        whole estimate, 0.282 with a whole step off), and the pendulum 20-25 %
-        shorter than the model, which needs it, balanced in 2 of 3 seeds (0 of
-        3 with a whole step off). A 60 ms lag (estimate 50 ms) is compensated
-        over 47.5 ms.
+        step off keeps the half sample the hold really costs.
         """
         return max(self.delay - DELAY_DEADBAND_STEPS * DELAY_STEP, 0.0)
 
     @property
+    def gain_std(self) -> float:
+        """The standard deviation of the gain estimate of the chosen dead time."""
+        return math.sqrt(self._pgg[self._best])
+
+    @property
     def ready(self) -> bool:
-        """Enough excitation for the estimate to be used."""
-        best = self.delays.index(self.delay) if self.delay in self.delays else 0
-        return self._s_pp[best] >= self.min_excitation
+        """Enough excitation for the gain and dead time to be used."""
+        return self._pgg[self._best] <= GAIN_READY_STD ** 2
 
     def applied(self, t: float, force: float) -> None:
         """The force command ``force`` [N] took effect at ``t`` [s] (in order)."""
@@ -190,6 +219,19 @@ class ActuatorEstimator:
         total += force * _triangle_integral(a - shift, end - shift, half)
         return total
 
+    def _force_span(self, start: float, end: float) -> float:
+        """max - min of the commands that acted in ``[start, end]`` [N]."""
+        applied = self._applied
+        low = high = None
+        for i in range(len(applied) - 1, -1, -1):
+            t, force = applied[i]
+            if t < end:
+                low = force if low is None else min(low, force)
+                high = force if high is None else max(high, force)
+            if t <= start:
+                break
+        return 0.0 if low is None else high - low
+
     def forget_samples(self) -> None:
         """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
         self.window.clear()
@@ -209,12 +251,10 @@ class ActuatorEstimator:
         travel = self.plant.travel
         if min(xs) < 0.005 or max(xs) > travel - 0.005:
             return  # the end stops may push: not the actuator's force
-        # The commanded force first: most windows of a balanced pendulum stop here, before
-        # the positions' sums (the cost of an estimate in the 200 Hz loop).
         centre = times[m]
         phi_0 = self._force_integral(centre - half, centre, half)
-        if not abs(phi_0) >= PHI_MIN:  # also NaN: not enough commands known
-            return
+        if math.isnan(phi_0):
+            return  # not enough commands known
         p = self.plant
         mass, m_p_l = self._mass, self._m_p_l
         cos, tanh = math.cos, math.tanh
@@ -228,24 +268,94 @@ class ActuatorEstimator:
             friction = ((p.c_c_right if v >= 0.0 else p.c_c_left)
                         * tanh(p.friction_steepness_cart * v) + p.v_c * v)
             y += (m - abs(i + 0.5 - m)) * h * friction * h
+        if abs(phi_0) < PHI_MIN or self._force_span(centre - half - DELAY_MAX,
+                                                    centre + half) < SPAN_MIN:
+            # A small or steady command (a balanced pendulum): news of D only. The dead time hardly
+            # matters to it; the chosen candidate's integral stands for all (one integral
+            # instead of one per candidate: the cost of a window in the 200 Hz loop).
+            d = self.delays[self._best]
+            phi = self._force_integral(centre - d - half, centre - d, half)
+            if math.isnan(phi):
+                return
+            self._update(y, [phi] * len(self.delays), half * half, False)
+            return
         phis = []
         for d in self.delays:
             phi = self._force_integral(centre - d - half, centre - d, half)
             if math.isnan(phi):
                 return
             phis.append(phi)
-        lam = self.forgetting
-        self._s_yy = lam * self._s_yy + y * y
-        s_py, s_pp = self._s_py, self._s_pp
-        best, best_residual = 0, math.inf
+        self._update(y, phis, half * half, True)
+
+    def _update(self, y: float, phis: list[float], w: float, excited: bool) -> None:
+        """One window into every candidate's Kalman filter of (G, D); choose the dead time.
+
+        ``y = G phi_d + D w + e`` with ``w = T^2`` (the triangle's integral) and
+        ``e`` of standard deviation :data:`NOISE_STD`; G and D random walks. Unless
+        ``excited`` (a large, varying command) the window moves D alone.
+        """
+        r = NOISE_STD * NOISE_STD
+        q_g, q_d = GAIN_WALK_STD * GAIN_WALK_STD, DISTURBANCE_WALK_STD * DISTURBANCE_WALK_STD
+        lam = RESIDUAL_FORGETTING
+        g_all, d_all = self._g, self._d
+        pgg_all, pgd_all, pdd_all, res_all = self._pgg, self._pgd, self._pdd, self._residual
+        runs = self._gated_run
+        jumps = []
         for k, phi in enumerate(phis):
-            s_py[k] = lam * s_py[k] + phi * y
-            s_pp[k] = lam * s_pp[k] + phi * phi
-            if s_pp[k] > 0.0:
-                residual = self._s_yy - s_py[k] * s_py[k] / s_pp[k]
-                if residual < best_residual:
-                    best, best_residual = k, residual
+            g, d = g_all[k], d_all[k]
+            pgg, pgd, pdd = pgg_all[k] + q_g, pgd_all[k], pdd_all[k] + q_d
+            nu = y - g * phi - d * w
+            jump = False
+            if excited and abs(phi) >= PHI_MIN:
+                if runs[k] >= GATE_PERSISTENCE:
+                    pgg = min(pgg + GAIN_REOPEN_STD * GAIN_REOPEN_STD, PGG_MAX)
+                    runs[k] = 0
+                s = phi * phi * pgg + 2.0 * phi * w * pgd + w * w * pdd + r
+                z2 = nu * nu / s
+                if z2 <= GATE * GATE:
+                    runs[k] = 0
+                    res_all[k] = lam * res_all[k] + z2
+                    k_g = (pgg * phi + pgd * w) / s
+                    k_d = (pgd * phi + pdd * w) / s
+                    rate = max(GAIN_RATE * math.sqrt(pgg) / 0.1, GAIN_RATE_MIN)
+                    step = min(max(k_g * nu, -rate), rate)
+                    g = min(max(g + step, GAIN_MIN), GAIN_MAX)
+                    d += k_d * nu
+                    # P - K S K^T; a step cut short leaves G that much less certain
+                    cut = k_g * nu - step
+                    pgg, pgd, pdd = (min(pgg - k_g * k_g * s + cut * cut, PGG_MAX),
+                                     pgd - k_g * k_d * s, pdd - k_d * k_d * s)
+                    g_all[k], d_all[k] = g, min(max(d, -DISTURBANCE_MAX), DISTURBANCE_MAX)
+                    pgg_all[k], pgd_all[k], pdd_all[k] = pgg, pgd, pdd
+                    continue
+                res_all[k] = lam * res_all[k] + GATE * GATE
+                runs[k] += 1
+                jump = True
+            # D alone: a window without news of G, or a change of the disturbance.
+            s_d = w * w * pdd + r
+            k_d = pdd * w / s_d
+            d += k_d * nu
+            pgd *= 1.0 - k_d * w
+            pdd *= 1.0 - k_d * w
+            if jump:
+                jumps.append(k)
+                pdd += nu * nu / (w * w)  # a jump: D may move as far as this window says
+            d_all[k] = min(max(d, -DISTURBANCE_MAX), DISTURBANCE_MAX)
+            pgg_all[k], pgd_all[k], pdd_all[k] = pgg, pgd, pdd
         self.windows += 1
-        if s_pp[best] >= self.min_excitation:
+        if excited:
+            best = min(range(len(phis)), key=res_all.__getitem__)
+            if res_all[best] < SWITCH_RATIO * res_all[self._best]:
+                self._best = best  # hysteresis: a clearly better dead time only
+        best = self._best
+        if best in jumps:
+            self.gated += 1
+        self.disturbance = d_all[best]
+        if excited:
+            self.excited_windows += 1
+        if self.excited_windows >= DELAY_READY_WINDOWS:
             self.delay = self.delays[best]
-            self.gain = min(max(s_py[best] / s_pp[best], GAIN_MIN), GAIN_MAX)
+        if pgg_all[best] <= GAIN_READY_STD ** 2:
+            # the estimate handed out moves at most OUTPUT_RATE a window (a change of dead time
+            # candidate cannot make it jump)
+            self.gain += min(max(g_all[best] - self.gain, -OUTPUT_RATE), OUTPUT_RATE)

@@ -10,17 +10,7 @@ angle = 30 deg in the thesis, and theta_w the angle wrapped to (-pi, pi]
 (section 9.1: an unwrapped angle after a full revolution would make the
 stabiliser correct a 2 pi error).
 
-Semantics (the thesis is silent on them; this is the manager's choice):
-
-- one-shot, latched: the trigger fires once, on the first cycle both
-  conditions hold, and the stabiliser stays in charge while the energy
-  wanders outside the band (it does as soon as the stabiliser moves the
-  cart); only the fall detector hands back.
-- fall detector (beyond the thesis): while stabilising, |theta_w| > fall_angle
-  means the pendulum is lost; swing-up takes over again and the trigger is
-  re-armed. fall_angle > angle gives a hysteresis band (30 deg to 45 deg by
-  default), so a catch at the edge of the window cannot chatter between the
-  two controllers.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.catch``).
 
 No ROS import.
 """

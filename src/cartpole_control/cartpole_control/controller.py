@@ -1,28 +1,6 @@
 """The controller plugin contract: what a swing-up law or a stabiliser provides.
 
-A controller is loaded by its type string from a Python entry-point group
-(:mod:`cartpole_control.registry`), configured from parameters, activated from
-the current state (bumpless, like ros2_control's
-``set_current_state_as_first_setpoint``), updated once per control cycle and
-deactivated. It returns the *raw* force of its law; the controller manager adds
-the cart friction feedforward (6.12), saturates to what the actuator can give
-and guards the rail. After each update the manager tells the plugin what became
-of its force (:class:`CommandFeedback`, :meth:`Controller.command_applied`), so
-that a law with an integrator stops integrating while its command is not what
-reaches the cart (anti-windup). The hook has a default that does nothing: a
-plugin without integrators ignores it.
-
-Activation is a template method, as ros2_control's lifecycle transitions
-call ``on_activate``: :meth:`Controller.activate` and
-:meth:`Controller.deactivate` do the manager's bookkeeping (:attr:`Controller.active`)
-and call the plugin's hooks :meth:`Controller.on_activate` and
-:meth:`Controller.on_deactivate`. A plugin overrides the hooks only (there is
-no ``super()`` to forget); a class that overrides ``activate`` or
-``deactivate`` themselves is refused when it is defined (TypeError), so the
-registry skips it like any plugin that fails to import.
-
-The contract carries a version number (:data:`API_VERSION`); the registry
-refuses plugins written for another major version.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.controller``).
 """
 from __future__ import annotations
 
@@ -37,6 +15,7 @@ from .feedforward import FrictionFeedforward
 
 if TYPE_CHECKING:
     from .natural_frequency import NaturalFrequencyEstimator
+    from .plant_estimate import PlantEstimate
 
 API_VERSION = 2
 """Version of this contract. Bump on any incompatible change (2: activate/deactivate
@@ -168,6 +147,13 @@ class ControlContext:
     energy (7.3) and target (6.8) it gives (:mod:`cartpole_control.natural_frequency`);
     updated by the manager while the plugin runs. None outside a manager: the
     energy laws then use the nominal model."""
+    plant_estimate: 'PlantEstimate | None' = None
+    """The manager's estimate of the plant (:class:`~cartpole_control.plant_estimate.PlantEstimate`):
+    the actuator's gain, dead time and the force limits at the cart
+    (:meth:`~cartpole_control.plant_estimate.PlantEstimate.force_limits`), the
+    unmodelled force on the cart, the pendulum's omega_0^2 and the plant they give
+    (:meth:`~cartpole_control.plant_estimate.PlantEstimate.estimated_plant`);
+    updated by the manager every cycle. None outside a manager."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting

@@ -9,22 +9,7 @@ sample line, version 2): a report ``(source, applied)`` pairs the stamp of the s
 computed from with the time it reached the amplifier, so ``L = applied -
 source`` needs no synchronised clocks beyond the plant's own.
 
-:class:`LatencyEstimator` keeps the mean of the last ``window`` reports (a
-sliding window, O(1) a report): the delay the predictor of
-:mod:`cartpole_control.prediction` compensates when ``predict.horizon`` is
-``auto``. The mean, not the median: a delay with jitter acts on the loop
-with its mean phase lag.
-
-:class:`CommandsInFlight` remembers the commands the manager sent, by the
-stamp of the sample each was computed from. Over the horizon ``[t_k, t_k +
-L]`` the cart feels, in order, the commands computed from the samples in
-``[t_k - L, t_k)`` (each acting from its own ``t_j + L``), not the last
-command alone: with L = 40 ms that is eight commands, the last of which the
-cart has not felt yet. :meth:`CommandsInFlight.segments` gives that
-piecewise-constant force, and :func:`cartpole_control.prediction.
-predict_over_commands` integrates the model (4.18) under it (Smith's
-predictor, Manitius and Olbrot's finite spectrum assignment with the
-delayed input).
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.latency``).
 
 No ROS import.
 """

@@ -1,202 +1,48 @@
 """The controller manager: switching, catch trigger, feedforward, saturation, rail guard (chapter 6).
 
 One control cycle (Figure 6.1, section 9.1), :meth:`ControllerManager.update`:
+apply the changes queued since the last cycle (a bumpless switch, never in the
+middle of a cycle); predict the estimate over the loop's latency under the
+commands in flight (:mod:`cartpole_control.prediction`); the catch trigger
+(6.4) or the fall detector (:mod:`cartpole_control.catch`); the active plugin's
+raw force; the cart friction feedforward (6.12); the saturation (Appendix C);
+the rail guard (:mod:`cartpole_control.rail_guard`); and the plugin hears what
+became of its force (anti-windup). What the loop measures of the plant (latency,
+actuator, natural frequency) is :mod:`cartpole_control.plant_estimate`.
 
-1. apply the parameter changes and requests queued since the last cycle
-   (between two cycles, never in the middle of one, like ros2_control's
-   ``do_switch``): only a swap of objects built and configured when the
-   change was set (:mod:`cartpole_control.staging`); a switch is bumpless:
-   the new plugin is activated from the current state, the old one
-   deactivated; new gains of the running plugin take over its integrators;
-2. predict the estimate over the loop's latency under the commands still in
-   flight (:mod:`cartpole_control.prediction`; ``predict.horizon``: ``auto``
-   is the latency measured from the plant's reports of when each command
-   took effect, :meth:`ControllerManager.command_applied`,
-   :mod:`cartpole_control.latency`), and complete it with the model
-   accelerations under the last applied force (4.18), which (7.10) needs;
-3. catch trigger (6.4) in swing-up, fall detector in stabilisation
-   (:mod:`cartpole_control.catch`);
-4. the active plugin's raw force ``u``; only one controller runs (section 6.4);
-5. ``u + B_ff(x_dot, u)``, the cart friction feedforward (6.12);
-6. saturation to ``[force_min, force_max]`` (Appendix C);
-7. the rail guard (:mod:`cartpole_control.rail_guard`);
-8. the active plugin hears what became of its force
-   (:meth:`~cartpole_control.controller.Controller.command_applied`): cut by
-   the saturation or the rail guard, or held; its integrators stop then
-   (anti-windup).
-
-Beside the cycle, :meth:`ControllerManager.measured` takes the encoders'
-samples: while no stabiliser runs they feed the estimate of the pendulum's
-natural frequency (:mod:`cartpole_control.natural_frequency`), whose energy
-target the energy swing-up laws (with ``adaptive_target``) and then the catch
-trigger use.
-
-Modes: ``idle`` (disabled, zero force), ``swingup``, ``stabilizing`` and
-``fault`` (zero force until :meth:`~ControllerManager.restart`; the one
-exception is the rail guard's brake, which runs until the cart is at rest).
+Modes: ``idle``, ``swingup``, ``stabilizing`` and ``fault`` (zero force until
+:meth:`~ControllerManager.restart`, but for the rail guard's brake). The cycle
+step by step: docs/controller_manager.md.
 
 No ROS import: the offline closed loop and the ROS node use this class alike.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import threading
-from collections import deque
-from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from cartpole_core.model import CartPoleParameters, acceleration_function, pendulum_energy
 
+from .catch_region import CatchRegion
 from .controller import KINDS, STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState, ParameterSpec
-from .manager_parameters import manager_parameter_specs
-from .rail_guard import BRAKING, STOPPED
-from .actuator import ActuatorEstimator
-from .latency import CommandsInFlight, LatencyEstimator
-from .natural_frequency import NaturalFrequencyEstimator
+from .manager_output import FAULT, IDLE, LOOP_FIGURES, MODES, STABILIZING, STATUS_KEYS, \
+    SWINGUP_MODE, ManagerOutput, SetResult, restart_answer
+from .manager_parameters import DEFAULT_CONTROLLERS, checked_registry, parameter_specs
+from .plant_estimate import PlantEstimate
 from .prediction import predict_over_commands
-from .registry import load_controllers
+from .rail_guard import BRAKING, STOPPED
 from .staging import StagedChange, Stager, plugin_gains
+
+__all__ = ['ControllerManager', 'DEFAULT_CONTROLLERS', 'FAULT', 'IDLE', 'LOOP_FIGURES', 'MODES',
+           'STABILIZING', 'STATUS_KEYS', 'SWINGUP_MODE', 'ManagerOutput', 'SetResult']
 
 logger = logging.getLogger(__name__)
 
-IDLE = 'idle'
-SWINGUP_MODE = 'swingup'
-STABILIZING = 'stabilizing'
-FAULT = 'fault'
-MODES = (IDLE, SWINGUP_MODE, STABILIZING, FAULT)
-
-DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
-"""Default plugins (the thesis's pairing in section 9.2.1)."""
-
 _MODE_OF_KIND = {SWINGUP: SWINGUP_MODE, STABILIZER: STABILIZING}
 _KIND_OF_MODE = {SWINGUP_MODE: SWINGUP, STABILIZING: STABILIZER}
-
-STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_error', 'raw_force',
-               'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
-               'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s',
-               'latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
-               'actuator_delay_s')
-"""The KeyValues of the controller status, in this order (docs/architecture.md), published by the node as
-``/cartpole/controller_status``; the
-active plugin's own figures (:meth:`Controller.status_values`, e.g. ``mpc_solve_us``)
-follow them."""
-SAMPLE_LAG = 0.5
-"""The encoders' samples are taken by the first cycle at least this many sample periods
-after their stamp: the previous sample's, published before this cycle's state could be
-(:meth:`ControllerManager._take_reports`)."""
-REPORT_LAG = 1.5
-"""The applied-command reports are taken this many sample periods after the time they
-report: a plant reports a command with the sample after it took effect."""
-
-LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
-                'actuator_delay_s')
-"""What the manager learns of the loop and reports in the status and the run summary."""
-
-MANAGER_PREFIXES = ('actuator', 'catch', 'fall', 'feedforward', 'predict', 'rail')
-"""Parameter groups of the manager itself; a plugin cannot take these names."""
-
-
-@dataclass(frozen=True)
-class SetResult:
-    """Outcome of :meth:`ControllerManager.set_parameters` (like rcl's SetParametersResult)."""
-
-    successful: bool
-    reason: str = ''
-
-
-@dataclass(frozen=True)
-class ManagerOutput:
-    """Everything one control cycle decided (the controller status of docs/architecture.md,
-    "ROS interfaces")."""
-
-    t: float
-    force: float
-    """The force command [N] after feedforward, saturation and rail guard."""
-    mode: str
-    swingup: str
-    stabilizer: str
-    enabled: bool
-    energy: float
-    """E_p, the pendulum energy (7.3) [J]."""
-    energy_error: float
-    """E* - E_p [J]."""
-    raw_force: float
-    """The active plugin's output u [N] (0 when none runs)."""
-    feedforward: float
-    """B_ff(x_dot, u) of (6.12) [N]."""
-    event: str
-    """'' or 'catch', 'fall', 'restart', 'fault:<reason>', 'switch:<kind>=<name>'
-    (several in one cycle joined by ';')."""
-    catch_count: int
-    fall_count: int
-    catch_time: float | None
-    """Time of the first catch since :meth:`ControllerManager.reset`, or None."""
-    fault_reason: str
-    swingup_law: str = ''
-    """What the swing-up plugin runs (:attr:`Controller.law`): its name, or e.g.
-    ``time_optimal:plan`` / ``time_optimal:fallback(no plan)``; the last one
-    that ran while another mode is active."""
-    latency: float = 0.0
-    """The loop's measured sensor-to-actuator latency [s] (0 before enough reports)."""
-    horizon: float = 0.0
-    """The prediction horizon this cycle used [s]: the latency with ``predict.horizon``
-    ``auto``, else the fixed value."""
-    omega_sq: float = 0.0
-    """The estimate of the pendulum's omega_0^2 = m_p g l / J [1/s^2]."""
-    actuator_gain: float = 1.0
-    """The actuator gain G the command was divided by (``actuator.gain``)."""
-    actuator_delay: float = 0.0
-    """The estimate of the actuator's extra dead time [s] (used with ``actuator.delay`` auto)."""
-    plugin_status: Mapping[str, float] = dataclasses.field(default_factory=dict)
-    """The active plugin's :meth:`Controller.status_values` (e.g. ``mpc_solve_us``)."""
-
-
-_new_object = object.__new__
-_set_attribute = object.__setattr__
-
-
-def _controller_state(t: float, x: float, theta: float, x_dot: float, theta_dot: float,
-                      x_ddot: float, theta_ddot: float) -> ControllerState:
-    """``ControllerState(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)``, built directly.
-
-    The same object the frozen dataclass's ``__init__`` makes (it only sets
-    the fields), without its per-field ``object.__setattr__`` calls: about
-    0.8 us instead of 1.7 us, once per cycle. A test checks both are equal.
-    """
-    state = _new_object(ControllerState)
-    _set_attribute(state, '__dict__', {'t': t, 'x': x, 'theta': theta, 'x_dot': x_dot,
-                                       'theta_dot': theta_dot, 'x_ddot': x_ddot,
-                                       'theta_ddot': theta_ddot})
-    return state
-
-
-def _command_feedback(raw: float, force: float, limited: int, held: bool) -> CommandFeedback:
-    """``CommandFeedback(raw, force, limited, held)``, built directly (see :func:`_controller_state`)."""
-    feedback = _new_object(CommandFeedback)
-    _set_attribute(feedback, '__dict__', {'raw': raw, 'force': force, 'limited': limited,
-                                          'held': held})
-    return feedback
-
-
-def _manager_output(t, force, mode, swingup, stabilizer, enabled, energy, energy_error,
-                    raw_force, feedforward, event, catch_count, fall_count, catch_time,
-                    fault_reason, swingup_law, latency, horizon, omega_sq, actuator_gain,
-                    actuator_delay, plugin_status) -> ManagerOutput:
-    """``ManagerOutput(...)`` with every field positional, built directly (see
-    :func:`_controller_state`); a test checks it equals the dataclass's own."""
-    out = _new_object(ManagerOutput)
-    _set_attribute(out, '__dict__', {
-        't': t, 'force': force, 'mode': mode, 'swingup': swingup, 'stabilizer': stabilizer,
-        'enabled': enabled, 'energy': energy, 'energy_error': energy_error,
-        'raw_force': raw_force, 'feedforward': feedforward, 'event': event,
-        'catch_count': catch_count, 'fall_count': fall_count, 'catch_time': catch_time,
-        'fault_reason': fault_reason, 'swingup_law': swingup_law, 'latency': latency,
-        'horizon': horizon, 'omega_sq': omega_sq, 'actuator_gain': actuator_gain,
-        'actuator_delay': actuator_delay, 'plugin_status': plugin_status})
-    return out
 
 
 class ControllerManager:
@@ -226,28 +72,24 @@ class ControllerManager:
             raise ValueError(f'sample_time must be > 0, got {sample_time!r}')
         self.plant = plant
         self.sample_time = float(sample_time)
-        # Read once: the model (4.18) under the last force, the actuator's limits
-        # (Appendix C) and E* (6.8), which every cycle needs.
+        # Read once: the model (4.18), the actuator's limits (Appendix C), E* (6.8)
         self._acc = acceleration_function(plant)
         self._force_min = plant.force_min
         self._force_max = plant.force_max
         self._upright_energy = plant.upright_energy
-        self._registry = self._checked_registry(registry)
-        self._specs = self._build_specs()
-        self.latency = LatencyEstimator()
-        """The loop's latency from the plant's reports (:meth:`command_applied`)."""
-        self.natural_frequency = NaturalFrequencyEstimator(plant, self.sample_time)
-        """omega_0^2 of the pendulum on the rig, from the encoders (:meth:`measured`)."""
-        self.actuator = ActuatorEstimator(plant, self.sample_time)
-        """The actuator's gain and extra dead time, from the cart's motion (:meth:`measured`)."""
+        self._registry = checked_registry(registry)
+        self._specs = parameter_specs(plant, self.sample_time, self._registry)
+        self.plant_estimate = PlantEstimate(plant, self.sample_time)
+        """What the loop has measured of the plant (:mod:`cartpole_control.plant_estimate`)."""
+        self.latency = self.plant_estimate.latency
+        self.natural_frequency = self.plant_estimate.natural_frequency
+        self.actuator = self.plant_estimate.actuator
         self._gain = 1.0
-        self._in_flight = CommandsInFlight()
-        self._reports: deque[tuple[float, float]] = deque()
-        """(applied, source) of the plant's reports not yet taken (:meth:`_take_reports`)."""
-        self._samples: deque[tuple[float, float, float]] = deque()
-        """(t, x, theta) of the encoders' samples not yet taken."""
+        self._in_flight = self.plant_estimate.in_flight
+        self.catch_region = CatchRegion(plant, self.sample_time)
+        """The stabiliser's region of attraction on the estimated plant (``catch.region``)."""
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
-                              self.natural_frequency)
+                              self.natural_frequency, self.plant_estimate)
         self._values: dict[str, Any] = {name: spec.default for name, spec in self._specs.items()}
         self._lock = threading.Lock()  # values, pending change, restart request: short holds
         self._staging = threading.RLock()  # serialises staging: each change on the one before
@@ -267,46 +109,6 @@ class ControllerManager:
         """The change :meth:`check_parameters` staged last, for :meth:`set_parameters` to take."""
         self._restart_requested = False
         self.reset()
-
-    # -- set-up -----------------------------------------------------------------------
-    @staticmethod
-    def _checked_registry(registry) -> dict[str, dict[str, type[Controller]]]:
-        reserved = set(MANAGER_PREFIXES) | {'swingup', 'stabilizer', 'enabled', 'x_ref',
-                                            'state_timeout'}
-        out: dict[str, dict[str, type[Controller]]] = {}
-        taken: set[str] = set()
-        for kind in KINDS:
-            found = load_controllers(kind) if registry is None else dict(registry.get(kind, {}))
-            out[kind] = {}
-            for name, cls in sorted(found.items()):
-                if name in reserved or name in taken:
-                    logger.warning('skipping %s controller %r: the name is taken', kind, name)
-                    continue
-                taken.add(name)
-                out[kind][name] = cls
-            if not out[kind]:
-                raise ValueError(f'no {kind} controller is registered (entry-point group '
-                                 f'cartpole_control.{kind}); run `make build`?')
-        return out
-
-    def _build_specs(self) -> dict[str, ParameterSpec]:
-        p, ts = self.plant, self.sample_time
-        specs: list[ParameterSpec] = []
-        for kind, title in ((SWINGUP, 'Swing-up law (chapter 7)'),
-                            (STABILIZER, 'Stabiliser (chapter 8)')):
-            names = tuple(self._registry[kind])
-            default = DEFAULT_CONTROLLERS[kind] if DEFAULT_CONTROLLERS[kind] in names else names[0]
-            specs.append(ParameterSpec(kind, default, f'{title}: one of the registered plugins '
-                                       f'{list(names)}; switched bumplessly between two cycles',
-                                       choices=names))
-        specs += manager_parameter_specs(p, ts)
-        out = {spec.name: spec for spec in specs}
-        for kind in KINDS:
-            for name, cls in self._registry[kind].items():
-                for spec in cls.parameters:
-                    full = f'{name}.{spec.name}'
-                    out[full] = dataclasses.replace(spec, name=full)
-        return out
 
     # -- parameters -------------------------------------------------------------------
     def parameter_specs(self) -> dict[str, ParameterSpec]:
@@ -402,44 +204,17 @@ class ControllerManager:
 
         The plant's report (the simulator's sample-and-hold, the rig's device
         clock): one sample of the loop's latency. Queued; the control cycle
-        takes it (see :meth:`_take_reports`).
+        takes it (:meth:`PlantEstimate.take_reports`).
         """
-        self._reports.append((applied, source))
+        self.plant_estimate.command_applied(source, applied)
 
     def measured(self, t: float, x: float, theta: float) -> None:
         """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped).
 
-        Feeds the natural-frequency estimate while no stabiliser runs (a
-        balanced pendulum says little about how it swings) and the actuator's.
-        Queued; the control cycle takes it (see :meth:`_take_reports`).
+        Feeds the natural-frequency estimate while no stabiliser runs and the
+        actuator's. Queued; the control cycle takes it.
         """
-        self._samples.append((t, x, theta))
-
-    def _take_reports(self, t: float) -> None:
-        """Feed the estimators what the plant reported before the cycle at ``t``.
-
-        The reports come on their own topics, and a cycle may run before the
-        newest of them has arrived; taking only those published before the
-        previous command was sent (:data:`SAMPLE_LAG`, :data:`REPORT_LAG`), in
-        stamp order, makes every cycle's estimates depend on the samples alone,
-        not on the order of arrival (a lockstep run stays the same run however
-        its processes are scheduled). Called at the start of the cycle.
-        """
-        cutoff = t - REPORT_LAG * self.sample_time
-        reports, samples = self._reports, self._samples
-        while reports and reports[0][0] <= cutoff:
-            applied, source = reports.popleft()
-            self.latency.report(source, applied)
-            force = self._in_flight.force_at(source)
-            if force is not None:
-                self.actuator.applied(applied, force)
-        stabilizing = self.mode == STABILIZING
-        cutoff = t - SAMPLE_LAG * self.sample_time
-        while samples and samples[0][0] <= cutoff:
-            ts, x, theta = samples.popleft()
-            if not stabilizing:
-                self.natural_frequency.update(ts, x, theta)
-            self.actuator.update(ts, x, theta)
+        self.plant_estimate.measured(t, x, theta)
 
     # -- requests -----------------------------------------------------------------------
     def restart(self) -> SetResult:
@@ -456,25 +231,7 @@ class ControllerManager:
             enabled = bool(self._values['enabled'])
             if mode == FAULT or (mode == IDLE and enabled):
                 self._restart_requested = True
-        if mode == FAULT:
-            cleared = f'fault ({self.fault_reason}) cleared' if self.fault_reason \
-                else 'fault cleared'
-            if not enabled:
-                return SetResult(True, f'{cleared}; control is disabled (enabled = false), '
-                                       'staying idle')
-            if self._guard.status == BRAKING:
-                return SetResult(True, f'{cleared}; swing-up restarts once the rail guard has '
-                                       'braked the cart to rest')
-            return SetResult(True, f'{cleared}; swing-up restarts at the next control cycle')
-        if mode == IDLE:
-            if not enabled:
-                return SetResult(False, 'nothing to restart: control is disabled (enabled = '
-                                        'false); set enabled to true to start a swing-up')
-            return SetResult(True, 'swing-up starts at the next control cycle')
-        if not enabled:
-            return SetResult(False, f'nothing to restart: control ({mode}) is being disabled '
-                                    '(enabled = false)')
-        return SetResult(False, f'already running ({mode}); nothing to restart')
+        return restart_answer(mode, enabled, self.fault_reason, self._guard.status == BRAKING)
 
     def reset(self) -> None:
         """Back to the start of a run: counters cleared, guard re-armed, swing-up (or idle) next.
@@ -494,13 +251,8 @@ class ControllerManager:
         self._energy = math.nan
         self._target = self._upright_energy
         self._horizon = 0.0
-        self._in_flight.reset()
-        # A new run (a plant reset, a homing): the reports and windows of before end here;
-        # what was learnt of the loop, the actuator and the pendulum stays.
-        self._reports.clear()
-        self._samples.clear()
-        self.natural_frequency.forget_samples()
-        self.actuator.forget_samples()
+        self.plant_estimate.new_run()
+        self.catch_region.reset()
         self._guard.reset()
         with self._lock:
             self._restart_requested = False
@@ -586,9 +338,10 @@ class ControllerManager:
             self._last_force = 0.0
             self._energy = math.nan
             return self._output(t, 0.0, 0.0, 0.0, events)
-        if self._reports or self._samples:
-            self._take_reports(t)
-        guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
+        estimate = self.plant_estimate
+        if estimate.reports or estimate.samples:
+            estimate.take_reports(t, self.mode == STABILIZING)
+        guard_x, guard_theta, guard_x_dot, guard_theta_dot = x, theta, x_dot, theta_dot
         values = self._values
         horizon = values['predict.horizon']
         if horizon == 'auto':
@@ -596,7 +349,9 @@ class ControllerManager:
         gain, delay = values['actuator.gain'], values['actuator.delay']
         actuator = self.actuator
         self._gain = gain = actuator.compensation if gain == 'auto' else gain
-        horizon += actuator.delay_compensation if delay == 'auto' else delay
+        delay = actuator.delay_compensation if delay == 'auto' else delay
+        estimate.used_gain, estimate.used_delay = gain, delay
+        horizon += delay
         self._horizon = horizon
         if horizon > 0.0:
             segments = self._in_flight.segments(t, horizon)
@@ -607,9 +362,9 @@ class ControllerManager:
             # The rail guard, too, judges the cart where this command will meet it (its
             # own rail.latency then covers the hold); not the plain estimate, which the
             # commands already in flight move on before this one acts.
-            guard_x, guard_x_dot, guard_theta_dot = x, x_dot, theta_dot
+            guard_x, guard_theta, guard_x_dot, guard_theta_dot = x, theta, x_dot, theta_dot
         x_ddot, theta_ddot = self._acc(x, theta, x_dot, theta_dot, self._last_force)
-        state = _controller_state(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
+        state = ControllerState(t, x, theta, x_dot, theta_dot, x_ddot, theta_ddot)
 
         self._apply_pending(state, events)
 
@@ -623,9 +378,10 @@ class ControllerManager:
         self._energy = energy
         mode = self.mode
         trigger = self._trigger
-        # (6.4): CatchTrigger.should_catch with the energy (7.3) computed above.
+        # (6.4), then the region the stabiliser holds on the estimated plant (catch.region)
         if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._target) \
-                and trigger.angle_condition(theta):
+                and trigger.angle_condition(theta) and (not values['catch.region'] or (
+                    self.catch_region.admits(state, values['x_ref'], estimate.omega_sq, gain))):
             self._set_mode(STABILIZING, state)
             self.catch_count += 1
             if self.catch_time is None:
@@ -634,6 +390,7 @@ class ControllerManager:
         elif mode == STABILIZING and trigger.has_fallen(theta):
             self._set_mode(SWINGUP_MODE, state)
             self.fall_count += 1
+            self.catch_region.fell()
             events.append('fall')
         elif mode in _KIND_OF_MODE and self._active is None:
             self._set_mode(mode, state)  # first cycle: activate from this state
@@ -652,15 +409,22 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    feedforward = (self._feedforward.stabilizing(x_dot, raw)
-                                   if self.mode == STABILIZING else self._feedforward(x_dot, raw))
+                    if self.mode == STABILIZING:
+                        feedforward = self._feedforward.stabilizing(x_dot, raw)
+                    else:  # (6.12) and, in swing-up, the unmodelled force cancelled
+                        disturbance = values['actuator.disturbance']
+                        if disturbance == 'auto':
+                            disturbance = self.plant_estimate.swingup_disturbance
+                        feedforward = self._feedforward(x_dot, raw) - disturbance
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
         guard = self._guard
+        guard.set_actuator(gain, estimate.disturbance)
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
-            force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force)
+            force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force,
+                                           guard_theta)
             if tripped:
                 self._fault('rail guard', events)
         if active is not None and active is self._active \
@@ -678,7 +442,7 @@ class ControllerManager:
         limited = 1 if wanted > force else (-1 if wanted < force else 0)
         held = self._guard.status == BRAKING or self._guard.status == STOPPED
         try:
-            plugin.command_applied(_command_feedback(raw, force, limited, held))
+            plugin.command_applied(CommandFeedback(raw, force, limited, held))
         except Exception as error:  # a plugin bug: fail safe, say why
             logger.exception('controller %s failed', plugin.name)
             self._fault(f'{plugin.name} failed: {type(error).__name__}: {error}', events)
@@ -724,7 +488,7 @@ class ControllerManager:
         energy = self._energy
         names = self._names
         active = self._active
-        return _manager_output(t, force, self.mode, names[SWINGUP], names[STABILIZER],
+        return ManagerOutput(t, force, self.mode, names[SWINGUP], names[STABILIZER],
                                self._enabled, energy, self._target - energy, raw,
                                feedforward, ';'.join(events) if events else '',
                                self.catch_count, self.fall_count, self.catch_time,

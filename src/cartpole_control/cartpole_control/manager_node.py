@@ -1,73 +1,30 @@
 """The ``controller_manager`` node: :class:`~cartpole_control.manager.ControllerManager` on ROS.
 
-Wiring only; every decision is the manager's.
-
-- subscribes ``/cartpole/state`` (sensor_msgs/JointState, joints found by
-  name ``cart``/``pendulum``); each message runs one control cycle at once and
-  publishes ``/cartpole/force_command`` (JointState ``name=['cart']``,
-  ``effort=[F]``, ``header.stamp`` = the state's stamp) -- this callback is
-  the loop's latency path -- and then ``/cartpole/controller_status``
-  (diagnostic_msgs/DiagnosticArray, one DiagnosticStatus ``controller_manager``).
-  A state with the stamp of the previous one (the lockstep simulator re-publishes
-  its first sample until it is answered) is answered with the same command
-  again, not with a second control cycle. With ``lockstep:=true`` (``cartpole
-  run --lockstep`` sets it) a state's cycle waits until the encoders' sample it
-  was estimated from has arrived on ``joint_states`` (at most ``lockstep_wait``
-  wall seconds, then it runs and ``lockstep_timeouts`` counts it), so the cycle
-  takes the same reports and samples whatever the delivery order;
-- parameters: every entry of :meth:`ControllerManager.parameter_specs` (the
-  manager's and every plugin's as ``<plugin>.<param>``) with a descriptor;
-  validated in the on-set callback (a refused value keeps the old one and says
-  why), handed to the manager in the post-set callback, applied by it between
-  two control cycles; plus the read-only ``plant_params_file`` and
-  ``sample_time``;
-- a stale-state timer on the node clock (the ROS clock: with
-  ``use_sim_time`` it follows ``/clock``, so a lockstep simulation slower than
-  real time is not "stale"): no state for ``state_timeout`` -> zero force and
-  fault ``stale state``. Only time this process ran counts: of each interval
-  between two checks at most ``STALE_CHECK_SLACK`` (two check periods) is
-  counted, the rest is a stall of this process, not silence of the EKF (the
-  states may be waiting in the subscription). So after a stall of the whole
-  graph the states have ``state_timeout`` of running time to arrive, and a
-  process that keeps running late still faults within a few checks;
-- service ``~/restart_swingup`` (std_srvs/Trigger): a new swing-up from idle or
-  fault; ``success`` false and the reason when there is nothing to restart;
-- subscribes ``/cartpole/plant_reset`` (std_msgs/Header, published by the
-  simulator's ``~/reset`` and the bridge's homing): the plant (or the
-  position reference) is new from ``stamp`` on, so the first state stamped at
-  or after it starts a new run (:meth:`ControllerManager.reset`: swing-up, or
-  idle when disabled; event
-  ``plant_reset``) instead of the running controller (and the rail guard)
-  seeing the jump;
-- ``longest_cycle_gap_s`` in the status: the longest wall-clock gap between
-  two control cycles since start (a stall figure, :mod:`cartpole_core.realtime`);
-  ``cycle_compute_s`` / ``max_cycle_compute_s``: the compute time of the
-  control cycle (:meth:`ControllerManager.update`, the swap of a staged
-  parameter change included), the last one and the longest since start;
-- a parameter change is staged in the on-set callback (validated, and the
-  new plugin instance built and configured there, :mod:`cartpole_control.staging`);
-  the post-set callback queues that same instance, the cycle swaps it in;
-- its health on ``/diagnostics`` once a second of the node clock
-  (:meth:`health`, status ``controller_manager: control``);
-- the Python loggers of ``cartpole_control`` (the manager, the registry, the
-  plan cache, the plugins) go to this node's logger, so ``/rosout``, while the
-  node lives (:mod:`cartpole_core.ros_logging`); a refused parameter change is
-  logged too;
-- zero force on shutdown (:meth:`publish_zero`, also called by
-  :meth:`destroy_node`).
+Wiring only; every decision is the manager's. Each ``cartpole/state``
+(JointState, joints ``cart``/``pendulum``) runs one control cycle at once and
+publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp) and
+``cartpole/controller_status``; a repeated stamp gets the same answer again.
+With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``) for
+the encoders' sample it was estimated from, so lockstep runs are the same run
+whatever the delivery order. The plugins' parameters are ROS parameters:
+validated (and the new plugin staged) in the on-set callback, queued in the
+post-set callback, swapped in between two cycles. A stale-state timer on the
+node clock faults with zero force when the states stop for ``state_timeout``
+of this process's running time. ``~/restart_swingup`` starts a new swing-up;
+``cartpole/plant_reset`` starts one from the first state after the reset.
+Health on ``/diagnostics`` (``controller_manager: control``); the package's
+Python loggers go to ``/rosout`` while the node lives; zero force on shutdown.
+Topics, parameters and guards in detail: docs/controller_manager.md.
 """
 from __future__ import annotations
 
-import array
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -76,18 +33,23 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics, plain
+from cartpole_core.diagnostics import ERROR, OK, STALE, Health, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import SAMPLE, STATE, RigLimits
 from cartpole_core.model import CartPoleParameters
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter, collect_when_idle
 from cartpole_core.ros_logging import route_to_node
 
-from .controller import ControllerState, ParameterSpec
+from .controller import ControllerState
 from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
-from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from .parameter_descriptors import descriptor_for, manager_value, ros_value
+from .status_message import NODE_NAME, status_message
+
+__all__ = ['ControllerManagerNode', 'STATUS_KEYS', 'descriptor_for', 'main', 'status_message']
 
 CART_JOINT = 'cart'
 PENDULUM_JOINT = 'pendulum'
-NODE_NAME = 'controller_manager'
 STALE_CHECK_PERIOD = 0.01
 """Period of the stale-state check on the node clock [s]."""
 STALE_CHECK_SLACK = 2 * STALE_CHECK_PERIOD
@@ -105,59 +67,6 @@ def load_plant_parameters(path: str) -> CartPoleParameters:
     if not Path(path).is_file():
         raise ValueError(f'plant_params_file {path!r} does not exist')
     return CartPoleParameters.from_yaml(path)
-
-
-def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
-    """A ROS parameter descriptor from a :class:`ParameterSpec` (ranges, constraints text)."""
-    d = ParameterDescriptor(description=spec.description, dynamic_typing=spec.auto)
-    default = spec.default
-    constraints = []
-    if spec.auto:  # a string or a double: the range is checked by the manager
-        d.additional_constraints = f"'auto' or a number in [{_fmt(spec.low)}, {_fmt(spec.high)}]"
-        return d
-    if spec.choices is not None:
-        constraints.append('one of: ' + ', '.join(spec.choices))
-    if isinstance(default, bool) or isinstance(default, str):
-        pass
-    elif isinstance(default, (tuple, list)):
-        count = f'{spec.length} numbers' if spec.length is not None else 'numbers'
-        bounds = f' in [{_fmt(spec.low)}, {_fmt(spec.high)}]' if (
-            spec.low is not None or spec.high is not None) else ''
-        constraints.append(count + (' each' + bounds if bounds else ''))
-    elif isinstance(default, int):
-        if spec.low is not None and spec.high is not None:
-            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
-                                            step=1)]
-    elif spec.low is not None or spec.high is not None:
-        low = -sys.float_info.max if spec.low is None else float(spec.low)
-        high = sys.float_info.max if spec.high is None else float(spec.high)
-        d.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
-    d.additional_constraints = '; '.join(constraints)
-    return d
-
-
-def _fmt(value: float | None) -> str:
-    return '-inf' if value is None else f'{value:g}'
-
-
-def ros_value(spec: ParameterSpec, value: Any) -> Any:
-    """A manager value as the ROS parameter type fixed by the spec's default."""
-    if spec.auto:
-        return value if isinstance(value, str) else float(value)
-    if isinstance(spec.default, (tuple, list)):
-        return [float(v) for v in value]
-    if isinstance(spec.default, bool) or isinstance(spec.default, str):
-        return value
-    if isinstance(spec.default, int):
-        return int(value)
-    return float(value)
-
-
-def manager_value(value: Any) -> Any:
-    """A ROS parameter value as the manager takes it (arrays as tuples)."""
-    if isinstance(value, (array.array, list, tuple)):
-        return tuple(value)
-    return value
 
 
 def _stamp_ns(stamp) -> int:
@@ -179,6 +88,7 @@ class ControllerManagerNode(Node):
             self._start()
         except BaseException:  # refused to start: the loggers are no longer routed here
             self._log_route.remove()
+            Node.destroy_node(self)   # and nothing of the node stays in the graph
             raise
 
     def _start(self) -> None:
@@ -200,6 +110,10 @@ class ControllerManagerNode(Node):
             floating_point_range=[FloatingPointRange(from_value=1e-4, to_value=0.1, step=0.0)]))
         plant = load_plant_parameters(self.get_parameter('plant_params_file').value)
         self.manager = ControllerManager(plant, self.get_parameter('sample_time').value)
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            plant, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/state', 'joint_states', 'cartpole/plant_reset', 'cartpole/command_applied'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._specs = self.manager.parameter_specs()
         for name, spec in self._specs.items():
             self.declare_parameter(name, ros_value(spec, spec.default), descriptor_for(spec))
@@ -301,6 +215,9 @@ class ControllerManagerNode(Node):
         two lockstep runs are the same run however the processes are scheduled.
         In real time the cycle runs at once: the latency path does not wait.
         """
+        if not self.inputs.accept(msg, STATE, 'cartpole/state'):
+            self.bad_states += 1
+            return
         if self._lockstep:
             newest = self._newest_sample_ns
             if newest is None or newest < _stamp_ns(msg.header.stamp):
@@ -373,9 +290,14 @@ class ControllerManagerNode(Node):
         collect_when_idle()  # the command is out: the loop has time until the next sample
 
     def _on_command_applied(self, msg: TimeReference) -> None:
+        if not self.inputs.accept_stamps('cartpole/command_applied', msg.header.stamp,
+                                         msg.time_ref):
+            return
         self.manager.command_applied(_stamp_seconds(msg.time_ref), _stamp_seconds(msg.header.stamp))
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
+            return
         stamp_ns = _stamp_ns(msg.header.stamp)
         if self._newest_sample_ns is None or stamp_ns > self._newest_sample_ns:
             self._newest_sample_ns = stamp_ns
@@ -397,6 +319,8 @@ class ControllerManagerNode(Node):
             self.manager.measured(_stamp_seconds(msg.header.stamp), x, theta)
 
     def _on_plant_reset(self, msg: Header) -> None:
+        if not self.inputs.accept_stamps('cartpole/plant_reset', msg.stamp):
+            return
         self._reset_from = _stamp_seconds(msg.stamp)
         self.get_logger().info(f'plant reset at t = {self._reset_from:.3f} s: a new swing-up '
                                'starts from the first state after it')
@@ -432,6 +356,11 @@ class ControllerManagerNode(Node):
 
     # -- health ------------------------------------------------------------------------------
     def health(self) -> Health:
+        """The manager's health for ``/diagnostics`` with the input checks' counts
+        (:meth:`_own_health`; WARN once an input was refused)."""
+        return self.inputs.health(self._own_health())
+
+    def _own_health(self) -> Health:
         """The manager's health for ``/diagnostics`` (``controller_manager: control``): OK
         while it controls or idles (no state yet, control disabled), ERROR in a fault, STALE
         while the states have stopped (the stale-state fault); WARN when states were ignored
@@ -496,54 +425,6 @@ class ControllerManagerNode(Node):
             pass
         self._log_route.remove()
         super().destroy_node()
-
-
-def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
-                   extra_event: str = '', cycle_compute: float = 0.0,
-                   max_cycle_compute: float = 0.0) -> DiagnosticArray:
-    """The ``/cartpole/controller_status`` message of one cycle (counts as integers, other
-    numbers as repr(float)).
-
-    ``extra_event`` (the node's own, e.g. ``plant_reset``) goes before the
-    manager's events in ``event``.
-    """
-    event = ';'.join(e for e in (extra_event, out.event) if e)
-    if out.mode == FAULT:
-        level = DiagnosticStatus.ERROR
-    else:  # idle (control disabled, or the run stopped) is no trouble
-        level = DiagnosticStatus.OK
-    values = {
-        'mode': out.mode,
-        'swingup': out.swingup,
-        'stabilizer': out.stabilizer,
-        'enabled': 'true' if out.enabled else 'false',
-        'energy': repr(float(out.energy)),
-        'energy_error': repr(float(out.energy_error)),
-        'raw_force': repr(float(out.raw_force)),
-        'feedforward': repr(float(out.feedforward)),
-        'force': repr(float(out.force)),
-        'catch_count': plain(out.catch_count),
-        'fall_count': plain(out.fall_count),
-        'event': event,
-        'state_stamp': repr(_stamp_seconds(stamp)),
-        'swingup_law': out.swingup_law,
-        'longest_cycle_gap_s': repr(float(longest_cycle_gap)),
-        'cycle_compute_s': repr(float(cycle_compute)),
-        'max_cycle_compute_s': repr(float(max_cycle_compute)),
-        'latency_s': repr(float(out.latency)),
-        'predict_horizon_s': repr(float(out.horizon)),
-        'omega0_sq': repr(float(out.omega_sq)),
-        'actuator_gain': repr(float(out.actuator_gain)),
-        'actuator_delay_s': repr(float(out.actuator_delay)),
-    }
-    status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
-                              hardware_id='cartpole',
-                              values=[KeyValue(key=k, value=values[k]) for k in STATUS_KEYS]
-                              + [KeyValue(key=k, value=repr(float(v)))
-                                 for k, v in out.plugin_status.items()])
-    array_msg = DiagnosticArray(status=[status])
-    array_msg.header.stamp = stamp
-    return array_msg
 
 
 def main(args=None) -> None:

@@ -9,9 +9,72 @@ No ROS import.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
+from typing import Mapping
+
 from cartpole_core.model import CartPoleParameters
 
-from .controller import AUTO, ParameterSpec
+from .controller import AUTO, KINDS, STABILIZER, SWINGUP, Controller, ParameterSpec
+from .registry import load_controllers
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
+"""Default plugins (the thesis's pairing in section 9.2.1)."""
+
+MANAGER_PREFIXES = ('actuator', 'catch', 'fall', 'feedforward', 'predict', 'rail')
+"""Parameter groups of the manager itself; a plugin cannot take these names."""
+
+
+def checked_registry(registry: Mapping[str, Mapping[str, type[Controller]]] | None
+                     ) -> dict[str, dict[str, type[Controller]]]:
+    """The plugins by kind and name; None discovers the installed ones (their entry points).
+
+    A plugin named like a manager parameter or like a plugin of the other kind
+    is skipped with a warning; ValueError if a kind has none left.
+    """
+    reserved = set(MANAGER_PREFIXES) | {'swingup', 'stabilizer', 'enabled', 'x_ref',
+                                        'state_timeout'}
+    out: dict[str, dict[str, type[Controller]]] = {}
+    taken: dict[str, type[Controller]] = {}
+    for kind in KINDS:
+        found = load_controllers(kind) if registry is None else dict(registry.get(kind, {}))
+        out[kind] = {}
+        for name, cls in sorted(found.items()):
+            # One name in both groups is one plugin in two roles (a learned policy): allowed
+            # when both declare the same parameters, the one set of `<name>.<param>`.
+            if name in reserved or (name in taken and taken[name].parameters != cls.parameters):
+                logger.warning('skipping %s controller %r: the name is taken', kind, name)
+                continue
+            taken[name] = cls
+            out[kind][name] = cls
+        if not out[kind]:
+            raise ValueError(f'no {kind} controller is registered (entry-point group '
+                             f'cartpole_control.{kind}); run `make build`?')
+    return out
+
+
+def parameter_specs(p: CartPoleParameters, ts: float,
+                    registry: Mapping[str, Mapping[str, type[Controller]]]
+                    ) -> dict[str, ParameterSpec]:
+    """Every parameter by full name: the plugin choice, the manager's own, each plugin's."""
+    specs: list[ParameterSpec] = []
+    for kind, title in ((SWINGUP, 'Swing-up law (chapter 7)'),
+                        (STABILIZER, 'Stabiliser (chapter 8)')):
+        names = tuple(registry[kind])
+        default = DEFAULT_CONTROLLERS[kind] if DEFAULT_CONTROLLERS[kind] in names else names[0]
+        specs.append(ParameterSpec(kind, default, f'{title}: one of the registered plugins '
+                                   f'{list(names)}; switched bumplessly between two cycles',
+                                   choices=names))
+    specs += manager_parameter_specs(p, ts)
+    out = {spec.name: spec for spec in specs}
+    for kind in KINDS:
+        for name, cls in registry[kind].items():
+            for spec in cls.parameters:
+                full = f'{name}.{spec.name}'
+                out[full] = dataclasses.replace(spec, name=full)
+    return out
 
 
 def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterSpec]:
@@ -26,6 +89,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'stabiliser when |E* - E_p| <= this times E*', low=0.001, high=1.0),
         ParameterSpec('catch.angle_deg', 30.0, 'Catch trigger (6.4): and |theta_w| <= this '
                       '[deg]', low=1.0, high=90.0),
+        ParameterSpec('catch.region', True, 'Catch only where the stabiliser can hold it: '
+                      'inside the (6.4) window, wait until the LQR of the estimated plant, under '
+                      'the force the amplifier delivers, settles the pendulum from the state in '
+                      'a simulated catch (cartpole_control.catch_region); false: (6.4) alone'),
         ParameterSpec('fall.angle_deg', 45.0, 'Fall detector: while stabilising, |theta_w| '
                       'beyond this [deg] hands back to swing-up; larger than catch.angle_deg',
                       low=2.0, high=180.0),
@@ -70,6 +137,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'command (a lag the plant cannot report) [s], added to the prediction '
                       'horizon; auto = estimated with the gain (0 until then); 0 = none',
                       low=0.0, high=0.1, auto=True),
+        ParameterSpec('actuator.disturbance', AUTO, 'Unmodelled force on the cart that the '
+                      'swing-up cancels [N, positive to the right]; auto = the estimate of the '
+                      'plant estimate (cartpole_control.plant_estimate) beyond a 1 N band, at '
+                      'most 10 N; 0 = none', low=-20.0, high=20.0, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
                       'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),

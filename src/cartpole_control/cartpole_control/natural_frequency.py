@@ -4,55 +4,12 @@ The energy laws of chapter 7 bring the pendulum energy (7.3)
 
     E_p = 1/2 J theta_dot^2 + m_p g l (cos theta + 1),   J = m_p l^2
 
-to E* = 2 m_p g l (6.8), the energy of the upright pendulum at rest. Computed
-with the *nominal* m_p and l, that target belongs to the nominal pendulum: a
-pendulum 10 % longer than the model reaches the top with the nominal E* to
-spare (it arrives with 3.5 rad/s and falls through), one 20 % shorter never
-gets there. What the target really depends on is one number, the square of
-the natural frequency of the hanging pendulum,
+to E* = 2 m_p g l (6.8). Computed with the *nominal* m_p and l, that target
+belongs to the nominal pendulum; what it really depends on is the square of
+the natural frequency of the hanging pendulum, omega_0^2 = m_p g l / J, which
+this module estimates from the encoders while the pendulum swings.
 
-    omega_0^2 = m_p g l / J  (= g / l for the tip mass of (7.3)),
-
-because E_p / J = 1/2 theta_dot^2 + omega_0^2 (cos theta + 1): the pendulum
-swings over the top exactly when 1/2 theta_dot^2 + omega_0^2 (cos theta + 1)
-reaches 2 omega_0^2, whatever its mass.
-
-Estimating omega_0^2. The pendulum row of (4.17)/(4.18),
-``J theta_ddot - m_p l cos(theta) x_ddot - m_p g l sin(theta) + B_p(theta_dot) = 0``,
-divided by J is linear in the one unknown (m_p l / J = omega_0^2 / g)::
-
-    theta_ddot = omega_0^2 (sin theta + cos(theta) x_ddot / g) - B_p(theta_dot) / J.
-
-Accelerations are not measured, and the EKF's velocities are not to be
-trusted here: its model is the nominal pendulum, so its theta_dot leans
-towards the nominal dynamics (the estimate from them came out 10 % short
-for a pendulum 25 % shorter). Only positions are used: the second difference
-of the angle over a window ``[t - T, t + T]`` is the acceleration weighed by
-the triangle ``k(s) = T - |s|``, and by parts (k vanishes at both ends) the
-cart's acceleration turns into its displacements::
-
-    y   = theta(t + T) - 2 theta(t) + theta(t - T) + int k B_p / J ds
-    phi = int k sin(theta) ds
-          + (1/g) (- int k'(s) cos(theta) dx + int k sin(theta) dtheta dx / ds)
-    y   = omega_0^2 phi
-
-(sums over the samples of the window; k' = +1 before t, -1 after; B_p with
-the nominal friction (4.21), a small correction). Each window of
-``window`` seconds gives one (phi, y); recursive least squares with a prior
-(the nominal omega_0^2, worth ``prior_weight`` windows of a small swing) and
-exponential forgetting gives ``omega_0^2 = sum(phi y) / sum(phi^2)``. The
-hanging pendulum at rest gives phi = 0 and changes nothing; the first
-oscillations the swing-up excites, and every swing after them, do. The
-estimate is held inside ``[1/4, 4]`` times the nominal (a pendulum between
-four times shorter and four times longer).
-
-:class:`NaturalFrequencyEstimator` runs in the controller manager, fed while
-no stabiliser runs (idle and swing-up: a balanced pendulum barely moves
-around it); the energy laws with ``adaptive_target`` (the default) and the
-catch trigger (6.4) use its :meth:`energy` and :attr:`upright_energy`,
-which equal (7.3) and (6.8) of the nominal model while the estimate is the
-nominal omega_0^2. ``adaptive_target: false`` gives back the thesis's fixed
-target.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.natural_frequency``).
 
 No ROS import.
 """
@@ -75,6 +32,19 @@ PRIOR_WEIGHT = 1.0e-4
 0.1 rad swing is about 1e-3 s^2, so the prior weighs about a hundred such windows)."""
 BOUNDS = (0.25, 4.0)
 """The estimate stays within these factors of the nominal omega_0^2."""
+PHI_MIN = 3.0e-4
+"""[s^2] Windows with less gravity in them (a swing below about 0.03 rad) are left out,
+and the past is not forgotten over them: a pendulum hanging still says nothing of
+omega_0^2 but the encoders' noise (10 minutes idle would otherwise make it noise)."""
+GATE = 0.5
+"""A window whose residual is beyond this fraction of the gravity term it measures (plus
+:data:`NOISE`) is left out: a push or a knock, not the pendulum's own swing."""
+NOISE = 0.01
+"""[rad] The encoders' noise in a window's second difference of theta."""
+GATE_AFTER = 40
+"""Windows taken before the gate applies (the first ones set the estimate)."""
+RATE = 0.02
+"""Largest change of omega_0^2 per window, as a fraction of the nominal (0.8 per second)."""
 
 
 class NaturalFrequencyEstimator:
@@ -115,6 +85,10 @@ class NaturalFrequencyEstimator:
         """The estimate of omega_0^2 [1/s^2]."""
         self.windows = 0
         """Windows taken into the estimate."""
+        self.skipped = 0
+        """Windows left out for too little swing (:data:`PHI_MIN`)."""
+        self.gated = 0
+        """Windows left out for their residual (:data:`GATE`)."""
         self.window.clear()
 
     @property
@@ -166,9 +140,18 @@ class NaturalFrequencyEstimator:
             phi_cart += -slope * cos(th_mid) * d_x + k_mid * s_mid * d_th * d_x / h
             friction += k_mid * self._friction(d_th / h) * h
         phi = phi_gravity + phi_cart / g
+        if abs(phi) < PHI_MIN:
+            self.skipped += 1
+            return
         y = ths[2 * m] - 2.0 * ths[m] + ths[0] + friction
+        predicted = self.omega_sq * phi
+        if self.windows >= GATE_AFTER and abs(y - predicted) > GATE * abs(predicted) + NOISE:
+            self.gated += 1
+            return
         lam = self.forgetting
         self._sum_pp = lam * self._sum_pp + phi * phi
         self._sum_py = lam * self._sum_py + phi * y
         self.windows += 1
-        self.omega_sq = min(max(self._sum_py / self._sum_pp, self._low), self._high)
+        rate = RATE * self.nominal
+        target = min(max(self._sum_py / self._sum_pp, self._low), self._high)
+        self.omega_sq = min(max(target, self.omega_sq - rate), self.omega_sq + rate)

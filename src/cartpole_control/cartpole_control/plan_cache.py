@@ -6,31 +6,7 @@ SHA-256 of the problem and the control grid
 (:meth:`~cartpole_control.trajectory_optimization.MinimumTimeProblem.key`), so
 a repeated start costs one file read.
 
-Who solves, and when, is explicit. A solve takes seconds of CPU (IPOPT):
-
-- :func:`solve_cached` blocks: the cached plan, or solved now and stored
-  (``cartpole plan``; ``cartpole offline`` and lockstep runs before they start);
-- :func:`start_background_solve` never blocks: it starts a detached worker
-  process (``python -m cartpole_control.plan_cache``) that solves into the
-  cache and exits (a real-time controller that finds no plan; it uses its
-  fall-back meanwhile). A process, not a thread: it outlives a short-lived
-  parent, takes no GIL from the control loop, runs at nice 10, and no
-  CasADi/IPOPT thread is left running when the parent's interpreter exits (a
-  daemon solver thread there aborted the process with "pure virtual method
-  called" or a segmentation fault).
-
-Lock: ``<key>.lock``, held with ``flock`` by the solving process and naming
-its PID. The kernel drops the lock when its holder dies, however it dies, so
-a lock file left by a dead process (killed, crashed, or an older version's
-empty file) never blocks: whoever comes next takes it over at once. Only a
-live holder makes :func:`solve_cached` wait (it says for which PID) and
-:func:`start_background_solve` leave the solve to it. The cache directory
-must be on a local file system (``flock`` across NFS is not relied on).
-
-Failures say why: IPOPT finding no feasible plan is stored as an
-unsuccessful plan (``success`` false; not solved again for the same key); an
-exception (no CasADi, a bad problem) is raised as :class:`PlanError`, logged,
-and written to ``<key>.failed``; a background worker's log is ``<key>.log``.
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.plan_cache``).
 """
 from __future__ import annotations
 
@@ -50,8 +26,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .trajectory_optimization import (MinimumTimeProblem, Trajectory, solve_minimum_time,
-                                      tracking_gains)
+from .tracking import tracking_gains
+from .trajectory_optimization import MinimumTimeProblem, Trajectory, solve_minimum_time
 
 logger = logging.getLogger(__name__)
 
@@ -315,7 +291,7 @@ def _solve_and_store(problem: MinimumTimeProblem, grid: float | None, cache: Tra
 def cached_tracking_gains(problem: MinimumTimeProblem, plan: Trajectory, key: str,
                           q: Sequence[float], r: float, cache: TrajectoryCache) -> np.ndarray:
     """The TV-LQR gains of ``plan`` (cached as ``key``) for (q, r): a file read, else built
-    (:func:`~cartpole_control.trajectory_optimization.tracking_gains`: CasADi's import
+    (:func:`~cartpole_control.tracking.tracking_gains`: CasADi's import
     and about 10 ms) and stored next to the plan, so that the next load needs no CasADi."""
     gains = cache.get_gains(key, q, r)
     if gains is None or gains.shape != (len(plan.forces), 4):

@@ -5,59 +5,7 @@ Zero force alone does not stop the cart: with only Coulomb friction (about
 3 N on 5 kg) a cart at 2 m/s rolls almost 3 m. The guard therefore knows the
 cart's stopping distance and brakes *before* it is too late.
 
-Each cycle, for the force ``F`` the controllers want, the guard predicts the
-cart after the command has acted for the dead time ``T_d`` (the loop latency
-plus the current loop's time constant 1/a of (4.4)), with the conservative
-acceleration ``F / (m_c + m_p)`` (friction ignored)::
-
-    v_1 = v + F T_d / (m_c + m_p),   x_1 = x + v T_d + F T_d^2 / (2 (m_c + m_p))
-
-and from there the distance a full brake needs::
-
-    d = v_1^2 / (2 a_b),   a_b = (F_b + c_c/2 - m_p (l theta_dot^2 + g)) / (m_c + m_p)
-
-where ``F_b`` is the braking force (``max_brake_force``, limited by what the
-amplifier gives in that direction: ``force_max`` to push right, ``-force_min``
-to push left), ``c_c/2`` credits only half the smaller Coulomb friction of the
-model (friction helps braking but is uncertain), and ``m_p (l theta_dot^2 + g)``
-bounds the pull of a swinging pendulum on the cart (rod tension: centripetal
-plus gravity). If ``x_1 +- d`` would leave ``[margin, travel - margin]`` while
-the cart moves towards that side:
-
-- a cart at rest (``|x_dot| <= rest_speed``, e.g. sitting at the left stop
-  after reset) is not braked; only the force pushing it towards that stop is
-  withheld (set to zero). Pushing away from a stop is always allowed. Inside
-  a margin a push towards that stop is withheld whatever the velocity
-  estimate says (a noisy estimate of a resting cart may show it moving
-  away), and a cart slower than ``creep_speed`` (0.1 m/s) counts as at
-  rest there: a hysteresis band for the noisy velocity of a cart resting at
-  a stop, which the trip would otherwise kick with the full brake and drop
-  the pendulum for. It is safe because the braking envelope admits a cart
-  into the margin only slowly (its stop was kept outside the margin), and
-  the cart's own Coulomb friction (2.45-3.4 N) stops 0.1 m/s within 1 cm
-  with no push towards the stop.
-- before that test, a moving cart (``limit`` on, the default) whose stop
-  would leave ``[margin + r, travel - margin - r]`` (``r`` =
-  ``limit_reserve``, 5 cm) gets its command **limited**: the force becomes
-  the one nearest the command whose stopping position stays on that inner
-  boundary, found by bisection on ``[-F_b, F]`` (the stopping position
-  grows monotonically with F); if even the full brake F_b does not keep it
-  there, the full brake (a cart at rest there only has a push further in
-  withheld). This is the braking-distance envelope used as a
-  control barrier (the safe set ``{stop(x, F) inside}`` is kept invariant
-  by the least intervention on the command, Ames et al., "Control barrier
-  functions: theory and applications", ECC 2019, section III): a swing-up or
-  a catch transient that would reach the envelope is bent back by it
-  instead of losing the pendulum to a trip. The limited force then goes
-  through the trip test below, so the guard brakes at least as early as
-  without the limiter; the reserve ``r`` is what an unmodelled delay or a
-  mismatched plant may use up before the trip test fails.
-- a moving cart whose (limited) command still leaves
-  ``[margin, travel - margin]`` trips the guard:
-  it brakes with the full opposing force (the last step proportional,
-  ``(m_c + m_p) |v| / Ts``, so it does not reverse the cart) until
-  ``|x_dot| <= rest_speed``, then holds zero force. The guard stays tripped
-  until :meth:`reset`; the manager reports the fault ``rail guard``.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.rail_guard``).
 
 No ROS import.
 """
@@ -66,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cartpole_core.model import CartPoleParameters
+from cartpole_core.model import CartPoleParameters, acceleration_function
 
 ARMED = 'armed'
 LIMITED = 'limited'
@@ -74,6 +22,9 @@ BRAKING = 'braking'
 STOPPED = 'stopped'
 LIMIT_ITERATIONS = 24
 """Bisection steps of the limited force (resolution ``(F + F_b) / 2**24``, micro-newtons)."""
+DISTURBANCE_MAX = 5.0
+"""[N] The guard counts the estimated unmodelled force up to this: a cable or a hand
+leaning on the cart; the estimate of a push lags it by a window and is left out."""
 HOLD_SPEED = 0.002
 """[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
 
@@ -151,6 +102,13 @@ class RailGuard:
         self._dead_time = self.dead_time
         self._high = params.travel - self.margin
         self._friction = 0.5 * min(params.c_c_right, params.c_c_left)
+        self.gain = 1.0
+        """The actuator's gain G: the force at the cart per newton commanded (:meth:`set_actuator`)."""
+        self.disturbance = 0.0
+        """The unmodelled force on the cart [N] the envelope counts where it lengthens a stop."""
+        self.predicted_stop = math.nan
+        """Where the guard expected the cart to stop when it last tripped [m] (:meth:`braked_stop`)."""
+        self._acc = None
         self._brake_pos = self.brake_force(1.0)
         self._brake_neg = self.brake_force(-1.0)
         self._min_deceleration = 0.05 * self._mass
@@ -170,10 +128,28 @@ class RailGuard:
         return self.latency + 1.0 / self.params.actuator_pole
 
     def brake_force(self, direction: float) -> float:
-        """Magnitude of the brake available against motion in ``direction`` (sign of x_dot) [N]."""
+        """Magnitude of the brake at the cart against motion in ``direction`` (sign of x_dot) [N]:
+        ``max_brake_force``, at most what the amplifier delivers (G times its limit, Appendix C)."""
         p = self.params
         actuator = -p.force_min if direction > 0.0 else p.force_max
-        return min(self.max_brake_force, actuator)
+        return min(self.max_brake_force, self.gain * actuator)
+
+    def set_actuator(self, gain: float, disturbance: float = 0.0) -> None:
+        """The plant estimate's actuator gain G and unmodelled force D on the cart [N].
+
+        The brake is what the amplifier can deliver at the cart (G times its
+        limits); a force D that pushes the cart on in its direction of motion
+        shortens the deceleration (one that helps is not counted).
+        """
+        if gain == self.gain and disturbance == self.disturbance:
+            return
+        if not (math.isfinite(gain) and gain > 0.0 and math.isfinite(disturbance)):
+            raise ValueError(f'gain must be > 0 and disturbance finite, got {gain!r}, '
+                             f'{disturbance!r}')
+        self.gain = float(gain)
+        self.disturbance = min(max(float(disturbance), -DISTURBANCE_MAX), DISTURBANCE_MAX)
+        self._brake_pos = self.brake_force(1.0)
+        self._brake_neg = self.brake_force(-1.0)
 
     def deceleration(self, direction: float, theta_dot, fmax=max):
         """a_b, a conservative braking deceleration [m/s^2] (module docstring).
@@ -184,7 +160,9 @@ class RailGuard:
         p = self.params
         pendulum_pull = p.m_p * (p.l * theta_dot * theta_dot + p.g)
         brake = self._brake_pos if direction > 0.0 else self._brake_neg  # brake_force(direction)
-        return fmax(brake + self._friction - pendulum_pull, self._min_deceleration) / self._mass
+        carried = max(self.disturbance * direction, 0.0)  # D pushing on in the motion's direction
+        return fmax(brake + self._friction - pendulum_pull - carried,
+                    self._min_deceleration) / self._mass
 
     def stopping_position(self, x: float, x_dot: float, theta_dot: float,
                           force: float) -> float:
@@ -199,6 +177,33 @@ class RailGuard:
         direction = math.copysign(1.0, v_1)
         return x_1 + direction * v_1 * v_1 / (2.0 * self.deceleration(direction, theta_dot))
 
+    def braked_stop(self, x: float, theta: float, x_dot: float, theta_dot: float) -> float:
+        """Where the cart comes to rest under the guard's brake from this state [m]: the model
+        (4.18) with the pendulum, the friction, the brake the amplifier delivers (G) and the
+        disturbance D, the brake held over each sample as :meth:`command` applies it.
+
+        The envelope (:meth:`stopping_position`) bounds this from the safe side for
+        every cycle's decision; this is the expected stop, simulated once at a trip.
+        """
+        p = self.params
+        acc = self._acc
+        if acc is None:
+            acc = self._acc = acceleration_function(p)
+        h = p.sample_time
+        direction = math.copysign(1.0, x_dot)
+        brake = self._brake_pos if direction > 0.0 else self._brake_neg
+        th, w = theta, theta_dot
+        for _ in range(int(round(3.0 / h))):
+            if x_dot * direction <= self.rest_speed:
+                break
+            force = -direction * min(brake, self._mass * abs(x_dot) / h) + self.disturbance
+            a1, b1 = acc(x, th, x_dot, w, force)
+            x_m, th_m = x + 0.5 * h * x_dot, th + 0.5 * h * w
+            v_m, w_m = x_dot + 0.5 * h * a1, w + 0.5 * h * b1
+            a2, b2 = acc(x_m, th_m, v_m, w_m, force)
+            x, th, x_dot, w = x + h * v_m, th + h * w_m, x_dot + h * a2, w + h * b2
+        return x
+
     # -- one cycle --------------------------------------------------------------------
     def check(self, x: float, x_dot: float, theta_dot: float, force: float) -> GuardAction:
         """Pass, withhold or override ``force`` for the state (x, x_dot, theta_dot)."""
@@ -206,7 +211,7 @@ class RailGuard:
         return GuardAction(force, self.status, tripped)
 
     def command(self, x: float, x_dot: float, theta_dot: float,
-                force: float) -> tuple[float, bool]:
+                force: float, theta: float = 0.0) -> tuple[float, bool]:
         """:meth:`check` as ``(force, tripped)``, the status left in :attr:`status`.
 
         The manager's per-cycle call (no GuardAction to build).
@@ -243,7 +248,9 @@ class RailGuard:
             self.status = LIMITED
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
-        return self._brake(x_dot), True
+        brake = self._brake(x_dot)
+        self.predicted_stop = self.braked_stop(x, theta, x_dot, theta_dot)
+        return brake, True
 
     def _in_margin(self, x: float) -> bool:
         """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""

@@ -10,17 +10,7 @@ the real context (an LQR's Riccati solve, a time-optimal plan read from the
 cache with its TV-LQR gains). The instance that validated the change is the
 one that runs: there is no scratch copy built and thrown away.
 
-The cycle (:meth:`ControllerManager._apply_pending`) then only swaps the ready
-objects in between two updates, like ros2_control's ``do_switch``: a new
-plugin of a running kind is activated from the current state (bumpless); the
-same plugin with new gains takes over the running one's integrators
-(:meth:`Controller.take_over`), as a reconfiguration in place would have kept
-them.
-
-Plugins that are registered but not selected are still checked when their
-gains (or the context) change, on a scratch instance with
-``validation_only`` set (no plan loading, no files), so that a bad gain is
-refused when it is set, not when the plugin is switched to later.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.staging``).
 
 No ROS import.
 """
@@ -37,6 +27,7 @@ from .catch import CatchTrigger
 from .controller import KINDS, ControlContext, Controller, ParameterSpec
 from .feedforward import FrictionFeedforward
 from .natural_frequency import NaturalFrequencyEstimator
+from .plant_estimate import PlantEstimate
 from .rail_guard import RailGuard
 
 CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
@@ -92,14 +83,18 @@ class Stager:
         :attr:`ControlContext.real_time` of the contexts built.
     pendulum
         :attr:`ControlContext.pendulum` of the contexts built (the manager's estimate).
+    plant_estimate
+        :attr:`ControlContext.plant_estimate` of the contexts built.
     """
 
     def __init__(self, plant: CartPoleParameters, sample_time: float,
                  registry: Mapping[str, Mapping[str, type[Controller]]],
                  specs: Mapping[str, ParameterSpec], real_time: bool = True,
-                 pendulum: NaturalFrequencyEstimator | None = None) -> None:
+                 pendulum: NaturalFrequencyEstimator | None = None,
+                 plant_estimate: PlantEstimate | None = None) -> None:
         self.plant = plant
         self.pendulum = pendulum
+        self.plant_estimate = plant_estimate
         self.real_time = real_time
         self.sample_time = sample_time
         self.registry = registry
@@ -113,7 +108,7 @@ class Stager:
                               feedforward=friction_feedforward(values), real_time=self.real_time,
                               rail_margin=float(values['rail.margin']),
                               rail_reserve=float(values['rail.limit_reserve']),
-                              pendulum=self.pendulum)
+                              pendulum=self.pendulum, plant_estimate=self.plant_estimate)
 
     def blocks(self, v: Mapping[str, Any]) -> tuple[CatchTrigger, FrictionFeedforward, RailGuard]:
         """Catch trigger (6.4), feedforward (6.12), rail guard; ValueError on a bad combination."""

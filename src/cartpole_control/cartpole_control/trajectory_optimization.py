@@ -1,46 +1,15 @@
-"""Minimum-time swing-up: the optimal control problem, its bounds and a plan cache (no ROS).
+"""Minimum-time swing-up: the optimal control problem and its bounds (no ROS).
 
-The problem. From a start state x_0, find the force
-F(t) and the final time T that solve
-
-    minimise    T
-    subject to  x_dot = f(x, F)                       the model (4.18)/(4.34), see below
-                x(0) = x_0
-                F_min s <= F(t) <= F_max s            amplifier limits (Appendix C), s = force_scale
-                m <= x(t) <= travel - m               the rail (section 2.3), m = rail_margin
-                x(T) in the catch region:
-                    |theta_w(T)| <= 10 deg and |E_p(T) - E*| <= 0.05 E*     (6.4), (7.3)
-                or, "upright at rest": theta_w(T) = 0, theta_dot(T) = 0, x_dot(T) = 0
-
-solved by direct multiple shooting: N intervals of length h = T / N with
-piecewise-constant force, one RK4 integration per interval (split into
-``substeps``), the states at the N + 1 nodes as decision variables with
-continuity constraints, and IPOPT (through CasADi) on the resulting NLP.
-Minimum-time problems of this kind have many local minima (which way the
-cart moves first, how many pendulum reversals); the solver is started from
-several energy-pumping guesses and the best solution is kept.
-
-Model. The rigid-body dynamics are those of :func:`cartpole_core.model.accelerations`
-(4.18), restated with CasADi symbols (a test checks both agree). The cart
-and pendulum friction (4.20)/(4.21) are kept, with the discontinuous Coulomb
-term smoothed to ``tanh(k v)`` with k = :data:`SMOOTH_FRICTION_STEEPNESS`
-(100 s/m instead of the plant's 1000, which makes IPOPT stall) and the
-direction-dependent level c_c(x_dot) of (4.27) blended the same way. The
-actuator lag (4.4) (time constant 0.1 ms) is left out. With friction the
-thesis parameters give 1.35 s from the middle, 1.16 s from the left stop and
-1.52 s to upright at rest (the reference bounds :data:`ISSUE_BOUNDS`: 1.36, 1.17,
-1.53 s); without friction 1.29, 1.12 and 1.47 s, 4-5 % below them. Assumptions: no
-stiction beyond the Coulomb model, the force limits of Appendix C,
-parameters known exactly.
-
-Control grid. The plan a controller tracks lives on the 5 ms sample grid
-with zero-order hold: after the free-time solve, the problem is solved again
-with h = Ts fixed and N = ceil(T / Ts) intervals (a feasibility problem whose
-cost is a small force-smoothness term), warm-started from the first.
-
-Cache. :mod:`cartpole_control.plan_cache` stores plans as ``.npz`` files
-named by :meth:`MinimumTimeProblem.key`, the SHA-256 of the problem (plant
-parameters, start, region, limits, grid), with a lock per plan.
+From a start state, find the force F(t) and the final time T that reach the
+catch region (|theta_w(T)| <= 10 deg and |E_p(T) - E*| <= 0.05 E*, (6.4),
+(7.3)), or upright at rest, in minimum time, under the model (4.18) with
+smoothed friction (4.20)/(4.21), the amplifier limits (Appendix C) and the
+rail (section 2.3). Solved by direct multiple shooting (RK4 per interval,
+IPOPT through CasADi) from several energy-pumping guesses, then again on the
+5 ms sample grid with zero-order hold for a controller to track. The
+problem, the model's assumptions and the bounds: docs/fast_swingup.md. Plans
+are cached by :mod:`cartpole_control.plan_cache`; the tracking gains are
+:mod:`cartpole_control.tracking`.
 """
 from __future__ import annotations
 
@@ -516,38 +485,3 @@ def swingup_bounds(params: CartPoleParameters, cases: Sequence[str] = BOUND_CASE
     return {case: solve_minimum_time(bound_problem(case, params, friction), n_intervals,
                                      refine_intervals)
             for case in cases}
-
-
-# -- tracking -----------------------------------------------------------------------------------------
-def tracking_gains(problem: MinimumTimeProblem, trajectory: Trajectory, q: Sequence[float],
-                   r: float, q_final: Sequence[float] | None = None) -> np.ndarray:
-    """Time-varying LQR gains K_k (N, 4) along ``trajectory`` (u_k = F_k - K_k (x_k - xbar_k)).
-
-    The discrete model is the Jacobian of the RK4 step over h = ``trajectory.dt`` at
-    (xbar_k, Fbar_k): dx_{k+1} = A_k dx_k + B_k du_k; the gains come from the backward
-    Riccati recursion with stage cost dx' Q dx + r du^2 and terminal cost ``q_final``.
-    """
-    import casadi as ca
-    f = casadi_dynamics(problem.params, problem.friction)
-    step = casadi_step(f, 1)
-    s = ca.SX.sym('s', 4)
-    u = ca.SX.sym('u')
-    y = step(s, u, trajectory.dt)
-    jac = ca.Function('linearised_step', [s, u], [ca.jacobian(y, s), ca.jacobian(y, u)])
-    n = len(trajectory.forces)
-    jm = jac.map(n)
-    a_all, b_all = jm(trajectory.states[:-1].T, trajectory.forces.reshape(1, -1))
-    a_all = np.array(a_all).reshape(4, n, 4)  # [i, k, j] = A_k[i, j]
-    b_all = np.array(b_all)
-    qm = np.diag(np.asarray(q, dtype=float))
-    p_mat = np.diag(np.asarray(q_final if q_final is not None else q, dtype=float))
-    gains = np.zeros((n, 4))
-    for k in range(n - 1, -1, -1):
-        a = a_all[:, k, :]
-        b = b_all[:, k].reshape(4, 1)
-        s_mat = r + (b.T @ p_mat @ b).item()
-        kk = (b.T @ p_mat @ a) / s_mat
-        gains[k] = kk.ravel()
-        p_mat = qm + a.T @ p_mat @ (a - b @ kk)
-        p_mat = 0.5 * (p_mat + p_mat.T)
-    return gains

@@ -5,8 +5,7 @@ import math
 import pytest
 
 from cartpole_control.controller import ControllerState
-from cartpole_control.manager import (FAULT, STABILIZING, SWINGUP_MODE, ControllerManager,
-                                      ManagerOutput)
+from cartpole_control.manager import FAULT, STABILIZING, SWINGUP_MODE, ControllerManager
 from cartpole_control.rail_guard import LIMITED
 from cartpole_core.model import wrap_angle
 from cartpole_sim.plant import Plant, Scenario
@@ -148,29 +147,3 @@ def test_update_values_gives_the_same_cycle_as_update():
         assert out_a == out_b
         plant.step(out_a.force)
     assert out_a.mode == STABILIZING and out_a.catch_count == 1
-
-
-def test_states_and_outputs_built_directly_equal_the_dataclass_constructors():
-    from cartpole_control.manager import _controller_state, _manager_output
-    values = (1.0, 0.3, 3.0, 0.1, -0.2, 0.5, -0.6)
-    s = _controller_state(*values)
-    assert type(s) is ControllerState and s == ControllerState(*values)
-    assert hash(s) == hash(ControllerState(*values)) and s.theta_w == wrap_angle(3.0)
-    names = list(ManagerOutput.__dataclass_fields__)
-    values = (0.1, 2.0, 'stabilizing', 'pendulum_energy', 'lqg', True, 1.5, 0.1, 1.9, 0.1,
-              'catch', 1, 0, 0.1, '', 'pendulum_energy', 0.02, 0.02, 29.3, 0.9, 0.01,
-              {'mpc_solve_us': 210.0})
-    assert len(names) == len(values)
-    out = _manager_output(*values)
-    assert type(out) is ManagerOutput and out == ManagerOutput(*values)
-    assert [getattr(out, n) for n in names] == list(values)
-    for obj in (s, out):
-        with pytest.raises(Exception):
-            obj.t = 5.0  # still frozen
-    from cartpole_control.controller import CommandFeedback
-    from cartpole_control.manager import _command_feedback
-    fb = _command_feedback(40.0, 34.25, 1, False)
-    assert type(fb) is CommandFeedback and fb == CommandFeedback(40.0, 34.25, 1, False)
-    assert fb.blocks(0.1) and not fb.blocks(-0.1) and not fb.blocks(0.0)
-    with pytest.raises(Exception):
-        fb.force = 0.0

@@ -24,11 +24,13 @@ def test_the_same_stamp_twice_gets_the_same_command_once_computed(ros_context, s
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
+    from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
     from cartpole_control.manager_node import ControllerManagerNode
 
-    manager = ControllerManagerNode(context=ros_context)
+    manager = ControllerManagerNode(context=ros_context, parameter_overrides=[
+        Parameter('stamp_tolerance', value=0.0)])   # synthetic stamps from t = 0
     node = Node('repeat_test', context=ros_context)
     commands, statuses = [], []
     node.create_subscription(JointState, '/cartpole/force_command', commands.append, 100)
@@ -73,7 +75,8 @@ def test_in_lockstep_a_state_waits_for_its_own_sample(ros_context, spin_until):
 
     manager = ControllerManagerNode(context=ros_context, parameter_overrides=[
         Parameter('lockstep', value=True), Parameter('lockstep_wait', value=0.5),
-        Parameter('state_timeout', value=1.0)])  # on the wall clock here: longer than the wait
+        Parameter('state_timeout', value=1.0),  # on the wall clock here: longer than the wait
+        Parameter('stamp_tolerance', value=0.0)])  # synthetic stamps from t = 0
     node = Node('hold_test', context=ros_context)
     commands = []
     node.create_subscription(JointState, '/cartpole/force_command', commands.append, 100)

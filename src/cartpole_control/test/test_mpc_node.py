@@ -98,7 +98,9 @@ class LockstepLoop:
 
 @pytest.fixture
 def loop(ros_context, spin_until):
-    manager = ControllerManagerNode(context=ros_context)
+    from rclpy.parameter import Parameter
+    manager = ControllerManagerNode(context=ros_context, parameter_overrides=[
+        Parameter('stamp_tolerance', value=0.0)])   # synthetic stamps from t = 0
     loop = LockstepLoop(ros_context, spin_until, manager)
     try:
         yield loop

@@ -260,3 +260,64 @@ def test_after_a_trip_the_guard_holds_a_creeping_cart_off_the_nearer_stop():
     assert guard.command(near_right, -0.01, 0.0, 0.0)[0] == 0.0
     assert guard.command(near_left, 0.0, 0.0, 5.0)[0] == 0.0  # a controller's push is not passed
     assert guard.status == STOPPED
+
+
+@pytest.mark.parametrize('gain', [0.4, 0.6, 0.8, 1.0])
+@pytest.mark.parametrize('theta0', [0.0, math.pi], ids=['upright', 'hanging'])
+def test_with_the_estimated_gain_the_braked_cart_stops_where_the_guard_predicts(gain, theta0):
+    """A weak amplifier (the plant's gain G, known to the guard as the estimate) brakes with
+    G times its limits: the guard's expected stop at the trip is within 1 cm of where the
+    cart comes to rest, no end stop is touched, and the envelope is on the safe side."""
+    plant = Plant(P, Scenario(x0=0.3, x_dot0=1.2, theta0=theta0, actuator_gain=gain))
+    guard = RailGuard(P, limit=False)  # the trip and its brake, not the limiter
+    guard.set_actuator(gain)
+    tripped_at = None
+    for _ in range(int(2.0 / P.sample_time)):
+        x, theta, x_dot, theta_dot = plant.true_state()
+        envelope = guard.stopping_position(x, x_dot, theta_dot, 20.0)
+        force, tripped = guard.command(x, x_dot, theta_dot, 20.0, theta)  # keeps pushing right
+        if tripped:
+            tripped_at = (guard.predicted_stop, envelope)
+        plant.step(force / gain)  # the manager divides the cart's force by G
+        if guard.status == STOPPED:
+            break
+    assert tripped_at is not None and guard.status == STOPPED
+    predicted, envelope = tripped_at
+    x_rest = plant.true_state()[0]
+    assert x_rest == pytest.approx(predicted, abs=0.01)
+    assert x_rest < envelope and x_rest < P.travel - guard.margin
+    assert not plant.end_stop_contact
+
+
+def test_without_the_estimated_gain_the_guard_brakes_too_late():
+    """The same weak amplifier unknown to the guard: the cart stops beyond its expectation."""
+    plant = Plant(P, Scenario(x0=0.3, x_dot0=1.2, theta0=math.pi, actuator_gain=0.4))
+    guard = RailGuard(P, limit=False)
+    predicted = None
+    for _ in range(int(2.0 / P.sample_time)):
+        x, theta, x_dot, theta_dot = plant.true_state()
+        force, tripped = guard.command(x, x_dot, theta_dot, 20.0, theta)
+        if tripped:
+            predicted = guard.predicted_stop
+        plant.step(force)
+        if guard.status == STOPPED:
+            break
+    assert predicted is not None
+    assert plant.true_state()[0] > predicted + 0.05 or plant.end_stop_contact
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('gain', [0.4, 0.7, 1.0])
+@pytest.mark.parametrize('impulse', [5.0, -5.0])
+def test_a_5_n_s_cart_push_on_a_weak_amplifier_never_reaches_an_end_stop(gain, impulse):
+    """Closed loop (noise, EKF, manager, estimated gain): a 5 N s push on the balanced cart
+    (beyond what a pendulum survives at gain 0.4) ends anywhere but on an end stop."""
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
+    from cartpole_sim.scenario import Push
+
+    run = run_closed_loop(P, Scenario(noise=True, seed=2, actuator_gain=gain,
+                                      pushes=(Push(8.0, 'cart', impulse / 0.1, 0.1),)),
+                          duration=12.0)
+    if gain >= 0.7:  # at 0.4 the catch waits for a region the weak amplifier holds
+        assert run.catch_time is not None and run.catch_time < 8.0
+    assert not run.end_stop_contact

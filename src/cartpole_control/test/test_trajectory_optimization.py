@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cartpole_control import trajectory_optimization as to
+from cartpole_control.tracking import tracking_gains
 from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
 
 P = CartPoleParameters()
@@ -106,7 +107,7 @@ def test_tracking_gains_stabilise_the_linearised_error(bounds):
     """TV-LQR along a bound solution: a perturbed start converges to the plan on the model."""
     problem = to.bound_problem('middle', P)
     plan = bounds['middle']
-    gains = to.tracking_gains(problem, plan, (300.0, 300.0, 10.0, 10.0), 0.02)
+    gains = tracking_gains(problem, plan, (300.0, 300.0, 10.0, 10.0), 0.02)
     assert gains.shape == (len(plan.forces), 4)
     step = to.casadi_step(to.casadi_dynamics(P), 2)
     s = np.array(problem.start) + np.array([0.02, 0.03, 0.0, 0.0])

@@ -46,7 +46,7 @@ def reap(proc: subprocess.Popen, *, drain: bool = True) -> None:
 
 def child_running(pid: int, executable: str) -> int:
     """PID of the child process of ``pid`` whose command line runs ``executable`` (by name:
-    ``controller_manager``, ``recorder``, ...), for a test or tool that signals one node of
+    ``controller_manager``, ``cartpole_recorder``, ...), for a test or tool that signals one node of
     ``cartpole run --processes``; LookupError if there is none (Linux /proc)."""
     from pathlib import Path
     for child in Path(f'/proc/{pid}/task/{pid}/children').read_text().split():

@@ -1,29 +1,14 @@
 """The bridge firmware compiled for the Cortex-M3, running in ``qemu-system-arm``.
 
 ``firmware/qemu_lm3s6965/`` is the firmware's board layer for QEMU's
-``lm3s6965evb`` machine (a Stellaris Cortex-M3 with PL011 UARTs, whose
-16-byte receive FIFOs take a line in a few hand-overs between QEMU's
-threads, and general-purpose timers). This
-module starts QEMU with that image and hands out its two serial channels as
-connected Unix sockets:
-
-- :attr:`QemuBoard.host`: UART0, the host link (Joint protocol lines, as the
-  Due's USB serial carries them);
-- :attr:`QemuBoard.plant`: UART1, the plant channel, standing in for the
-  Due's pins. Once the plant is served it sends ``G,<limits>`` (the firmware
-  starts its clock then); the firmware sends ``T,<t_us>`` at every 5 ms
-  deadline (sample the plant at device time ``t_us``), ``O,<t_us>,<dac>,<enable>,<cause>`` when it
-  writes its output, ``R,<t_us>`` when it resets the decoders' counters and
-  ``M,...`` (its statistics, :class:`FirmwareStatistics`) once a second or
-  when asked with ``Q``; the plant answers every ``T`` with
-  ``C,<HHLLHHLLm>``, the HCTL-2021 bus bytes and the limit switches in hex
-  (:func:`format_counts`; short, for the host's pace).
-
-QEMU runs with ``-icount shift=N,sleep=on``: the guest's clock advances by
-2**N ns per instruction while it computes and with the host's clock while
-it sleeps (``wfi``), so the device keeps real time and the firmware's own
-SysTick measures its work in instructions (QEMU counts instructions, not the
-SAM3X's cycles and flash wait states).
+``lm3s6965evb`` machine. :class:`QemuBoard` starts QEMU with that image and
+hands out its two serial channels as connected Unix sockets: UART0, the host
+link (Joint protocol lines, as the Due's USB serial carries them), and UART1,
+the plant channel standing in for the Due's pins (``T`` ticks answered with
+the HCTL-2021 bus bytes, ``O`` outputs, ``R`` counter resets, ``M``
+statistics, :class:`FirmwareStatistics`). With ``-icount`` the firmware's own
+SysTick measures its work in instructions. The plant channel's lines in
+detail: docs/rig.md ("Firmware in QEMU").
 
 Only the standard library: ``firmware/tools/firmware_report.py`` loads this
 file by path for ``make -C firmware arm``.

@@ -1,37 +1,20 @@
 """Hardware in the loop: the bridge firmware on an emulated Cortex-M3 behind the pty.
 
-``cartpole emulate --firmware qemu``: the firmware itself
-(``firmware/cartpole_bridge/`` compiled for the Cortex-M3 with the
-``firmware/qemu_lm3s6965/`` board layer) runs in ``qemu-system-arm``
-(:mod:`cartpole_emulator.qemu_board`) instead of its Python mirror
-(:class:`cartpole_hw.device.DeviceLogic`). :class:`QemuDevice` is the
-:class:`~cartpole_emulator.emulator.Emulator` with the firmware swapped in:
-
-- the host link: the emulator's pseudo-terminal (``--link``, disconnects,
-  stalls and the link faults work unchanged) is relayed byte for byte to
-  and from the firmware's UART0, so ``cartpole run --hw --port`` and
-  ``hw_bridge`` talk to the compiled firmware;
-- the pins: the firmware's UART1 is the plant channel. Every ``O`` line (the
-  "DAC" and the amplifier enable the firmware wrote, with its ``micros()``)
-  brings the same :class:`cartpole_sim.plant.Plant` (scenario, disturbances,
-  end stops) up to that device time under the output in force, then changes
-  the output; every ``T`` (the firmware's 5 ms tick) brings it up to the tick
-  and answers with the HCTL-2021 counters and the limit switches. The plant
-  therefore advances in the firmware's device time, at its own tick.
-
-QEMU runs without ``-icount`` here: the guest clock is the host's, so the
-device keeps real time like the rig. (``make -C firmware arm`` measures the
-firmware's work per tick with ``-icount``, :mod:`firmware.tools.firmware_report`.)
-
-A scenario's ``drop`` loses the ``S`` line of the period it is drawn for (one
-draw per tick, as the Python emulator draws one per period). The latency
-report of protocol version 2 is the firmware's own: it reports its DAC write,
-so a scenario ``delay`` acts on the plant but is not in the report (as on
-the rig, where the amplifier's lag is not either).
+``cartpole emulate --firmware qemu``: :class:`QemuDevice` is the
+:class:`~cartpole_emulator.emulated_rig.Emulator` with the compiled firmware
+(:mod:`cartpole_emulator.qemu_board`) in place of its Python mirror. The
+emulator's pseudo-terminal (``--link``, disconnects, stalls, link faults
+unchanged) is relayed byte for byte to the firmware's UART0; the firmware's
+UART1 is the plant channel: every ``O`` line (its DAC write, at its
+``micros()``) brings the same :class:`cartpole_sim.plant.Plant` up to that
+device time and changes the output, every ``T`` tick is answered with the
+counters and limit switches. QEMU runs without ``-icount`` here, so the
+device keeps real time like the rig. A scenario's ``drop`` loses the ``S``
+line of its tick; the latency report is the firmware's own (its DAC write,
+without a scenario ``delay``). docs/rig.md ("Firmware in QEMU").
 """
 from __future__ import annotations
 
-import re
 import select
 import time
 from collections import deque
@@ -42,8 +25,9 @@ from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Scenario
 
 from cartpole_hw import protocol as jp
-from .emulator import Emulator, FaultConfig
-from .qemu_board import FirmwareStatistics, QemuBoard, format_counts
+from .emulated_rig import Emulator, FaultConfig
+from .qemu_board import (FirmwareStatistics, QemuBoard, build_image, format_counts,
+                         missing_message, missing_packages)
 
 HOST_BACKLOG = 1 << 16
 """Host bytes waiting for the firmware's UART before the pty is no longer read [bytes]."""
@@ -193,7 +177,6 @@ class QemuDevice(Emulator):
     def power_on(self) -> None:
         """Start QEMU with the image (built by ``make -C firmware arm-image`` if not given)."""
         if self.board is None:
-            from .qemu_board import build_image
             self.board = QemuBoard(build_image(), icount_shift=None)
         if not self.board.running:
             self.board.start()
@@ -251,7 +234,6 @@ class QemuDevice(Emulator):
 
 def firmware_available() -> tuple[bool, str]:
     """Whether the ARM toolchain and QEMU are installed; else the message naming the packages."""
-    from .qemu_board import missing_message, missing_packages
     missing = missing_packages()
     return (not missing, missing_message(missing) if missing else '')
 

@@ -17,7 +17,9 @@ import pytest
 import serial
 
 from cartpole_hw import protocol as jp
-from cartpole_emulator.emulator import Emulator, FaultConfig, main
+from cartpole_hw.line_splitter import LineSplitter
+from cartpole_emulator.emulated_rig import Emulator, FaultConfig
+from cartpole_emulator.emulator import main
 from cartpole_sim.plant import Scenario
 
 
@@ -26,7 +28,7 @@ class Client:
 
     def __init__(self, path):
         self.port = serial.Serial(path, 115200, timeout=0.01)
-        self.splitter = jp.LineSplitter()
+        self.splitter = LineSplitter()
         self.messages = []
         self.errors = []
 
@@ -292,3 +294,40 @@ def test_an_untagged_setpoint_ends_the_report():
     em.sample_period()
     s = [m for m in map(jp.decode_line, sent) if isinstance(m, jp.Sample)]
     assert [(m.applied_seq, m.applied_t_us) for m in s] == [(None, None), (0, 1000), (None, None)]
+
+
+@pytest.mark.parametrize('argv,words', [
+    (['--duration', 'nan'], '--duration: must be a finite number'),
+    (['--duration', 'inf'], '--duration: must be a finite number'),
+    (['--duration', '1e9'], '(0, 3600] s'),
+    (['--duration', '0'], '(0, 3600] s'),
+    (['--limit-margin', '1'], '[0, 0.1] m'),
+    (['--usb-jitter', '5'], '[0, 1] s'),
+    (['--stall', '1:1e9'], '(0, 60000] ms'),
+    (['--disconnect', '1e9:1'], 'AT in [0, 3600] s'),
+    (['--drop-lines', 'nan'], '--drop-lines: must be a finite number'),
+    (['--name', 'a*b'], '--name: must be 1 to 80'),
+    (['--image', '/no/such.elf'], 'no such file'),
+    (['--link', '/no/such/dir/emu'], 'does not exist'),
+    (['--params', '/no/such.yaml'], 'no such file'),
+    (['--params', 'NOT_YAML'], 'not a CartPoleParameters YAML'),
+    (['--x0', 'nan'], '--x0'),
+    (['--no-such-option'], 'unrecognized arguments'),
+])
+def test_every_option_is_refused_in_one_line(argv, words, tmp_path, capsys):
+    """``cartpole emulate`` refuses like every ``cartpole`` command: one line, exit 2, the
+    bound in the message; options that size the work are bounded (nothing runs for ever)."""
+    if 'NOT_YAML' in argv:
+        garbled = tmp_path / 'garbled.yaml'
+        garbled.write_text('m_c: [1, 2\n')
+        argv = [str(garbled) if a == 'NOT_YAML' else a for a in argv]
+    try:
+        code = main(argv)
+    except SystemExit as exit_:
+        code = exit_.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('cartpole emulate: error: '), err
+    assert words in lines[0], lines[0]
+    assert 'Traceback' not in err

@@ -20,6 +20,7 @@ import pytest
 import serial
 
 from cartpole_hw import protocol as jp
+from cartpole_hw.line_splitter import LineSplitter
 from cartpole_emulator.qemu_board import firmware_dir
 from cartpole_emulator.qemu_device import QemuDevice
 
@@ -68,7 +69,7 @@ def device(tmp_path, firmware_image):
         d.stop()
 
 
-def read_lines(port: serial.Serial, splitter: jp.LineSplitter, until, timeout: float = 10.0):
+def read_lines(port: serial.Serial, splitter: LineSplitter, until, timeout: float = 10.0):
     """Decoded device lines until ``until(messages)`` holds (or the timeout)."""
     messages = []
     deadline = time.monotonic() + timeout
@@ -110,7 +111,7 @@ def test_fuzzed_input_never_crashes_hangs_or_moves_the_setpoint(device):
     disabled = [noise(rng, 8192) for _ in range(2)]    # made first: the device's thread
     armed = [noise(rng, 512) for _ in range(16)]        # shares this process
     port = serial.Serial(device.link, 115200, timeout=0.01, write_timeout=30)
-    splitter = jp.LineSplitter()
+    splitter = LineSplitter()
     port.write(jp.encode(jp.Stream(True)))
     first = read_lines(port, splitter, lambda m: any(isinstance(x, jp.Sample) for x in m))
     start_seq = next(x for x in first if isinstance(x, jp.Sample)).seq
@@ -163,7 +164,7 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
     force was written before its sample. (Whether the watchdog trips here depends on how
     the host runs QEMU and this process, so it is not asserted.)"""
     port = serial.Serial(device.link, 115200, timeout=0.002, write_timeout=0)
-    splitter = jp.LineSplitter()
+    splitter = LineSplitter()
     port.write(jp.encode(jp.Stream(True)) + jp.encode(jp.Enable(True)))
     samples, pending = [], b''
     deadline = time.monotonic() + 30.0
@@ -186,8 +187,9 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
 HOST = r'''
 import sys, serial
 from cartpole_hw import protocol as jp
+from cartpole_hw.line_splitter import LineSplitter
 port = serial.Serial(sys.argv[1], 115200, timeout=0.01)
-splitter = jp.LineSplitter()
+splitter = LineSplitter()
 port.write(jp.encode(jp.Stream(True)) + jp.encode(jp.Enable(True)))
 answered = 0
 while True:

@@ -6,55 +6,12 @@ pendulum angle, with the model of :mod:`cartpole_core.model` discretised
 (5.6)-(5.9) by the explicit midpoint rule (forward Euler, the thesis's (5.8),
 one parameter away), a numerical Jacobian (5.20)/(5.21), the Kalman gain
 (5.12) and the Joseph form of the covariance update (5.14)
-(:mod:`cartpole_estimation.covariance`).
-
-One call of :meth:`ExtendedKalmanFilter.update` per sample does the time
-update from the previous sample to this one under the force applied in that
-interval, (5.15)/(5.16), then the measurement update, (5.10)-(5.14). The
-thesis writes the same two steps in the other order (correction, then
-prediction for the next sample, (5.17)); the result is identical.
-
-Noise covariances. The thesis tuned, on the rig, ``R = diag(0.01, 0.1)``
-(9.1) and ``Q = diag(1, 1, 50, 50)`` (9.2), and uses them as the discrete
-``Q_k``/``R_k`` of (5.6)/(5.7), added once per sample period (5.16). Here Q
-is exactly that: the covariance added per nominal period ``Ts``; a step of
-another length ``h`` (a missed sample, jitter) adds ``Q h / Ts``, i.e. Q is
-treated as a random walk whose intensity is ``Q / Ts`` per second. R is the
-covariance of one measurement; it stays the thesis's, and Q is tuned on its
-scale (only the ratios set the gains). The thesis's Q trusts the model so
-little that the velocities follow every encoder tick (0.02 rad/s of
-theta_dot per tick of theta), which the stabilisers turn into force. The
-default Q is the model's real uncertainty instead: small and diagonal,
-``diag(1e-5, 1e-5, 0.01, 0.01)``, plus a random *force* on the cart,
-``q_force b b^T`` with ``b = h g(x)`` (4.40), since what the model gets wrong
-is mostly a force (the Coulomb friction of the cart, +-20 % of 3 N): it moves
-the cart and swings the pendulum together as the model couples them, so that
-the cart encoder corrects the pendulum's rate too. With a diagonal Q only,
-an EKF that trusts its model goes wrong with the friction (friction x1.2:
-the pendulum estimate 2 mrad off and a 4 cm limit cycle of the cart).
-
-The encoder's offset. The encoders are zeroed with the pendulum hanging; if
-it was not hanging still (Appendix H), the measured angle is the pendulum's
-minus a constant b. The filter carries b as a fifth state (its prior
-``angle_offset_p0``, a slow random walk ``angle_offset_q``) and measures
-``theta - b``. The model's gravity makes b observable: a pendulum at rest
-hangs at pi, and a swinging one swings about pi (0.1 rad is found within
-about 0.3 s). The angle the filter hands out is the pendulum's own; the
-controllers never see the offset. ``angle_offset_p0 = 0`` leaves the state
-out: the thesis's four-state filter.
-
-Friction in the filter's model. The plant's Coulomb friction uses
-``tanh(k v)`` with ``k = 1000`` (a near step). Its slope at rest,
-``c_c k / m_c`` = 716 1/s for the cart, makes the forward-Euler prediction
-at ``Ts`` = 5 ms unstable (|1 - Ts 716| > 1; the limit is
-k < 2 m_c / (c_c Ts) = 559; the midpoint rule has the same limit). The filter uses its own steepness
-(:attr:`EkfConfig.friction_steepness`, 200 s/m and s/rad by default: Euler
-factor 1 - 0.72 = 0.28 at rest, still stable for sub-steps up to 2.8 Ts and
-+20 % friction). Smaller values (10-50) are stable too but let the modelled
-cart slide under forces below the stiction level (a 2 N push gives a
-0.03 m/s velocity bias at k = 20); 200 gave the smallest velocity errors on
-the free-swing, forced-cart and stuck-cart tests (see
-the README, "State estimation").
+(:mod:`cartpole_estimation.covariance`). One call of
+:meth:`ExtendedKalmanFilter.update` per sample: the time update (5.15)/(5.16)
+under the force applied in the interval, then the measurement update
+(5.10)-(5.14). Q as a random walk per sample period with a random force on
+the cart, the offset state, the filter's friction steepness and the fault
+handling: docs/estimation.md.
 
 No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline
 closed loop both use this module. Deterministic: the same inputs give the
@@ -71,7 +28,7 @@ from cartpole_core.model import CartPoleParameters, acceleration_function, wrap_
 
 from .covariance import correct, predict_covariance
 from .ekf_config import EkfConfig
-from .state_estimate import StateEstimate, _new_estimate
+from .state_estimate import StateEstimate
 
 __all__ = ['EkfConfig', 'StateEstimate', 'ExtendedKalmanFilter']
 
@@ -367,7 +324,7 @@ class ExtendedKalmanFilter:
         th = m + off
         x_ddot, theta_ddot = self._acc(x, th, xd, thd, force)
         pc = self._pc
-        est = _new_estimate(t, x, th, xd, thd, wrap_angle(th), x_ddot, theta_ddot,
+        est = StateEstimate(t, x, th, xd, thd, wrap_angle(th), x_ddot, theta_ddot,
                             (pc[0], pc[5] + 2.0 * pc[8] + pc[14], pc[9], pc[12]), innovation,
                             dt, missed, self.missed_samples_total, reset, reason, self.resets,
                             '', warning, True, off)

@@ -1,30 +1,16 @@
 """ROS 2 node ``ekf``: the EKF of chapter 5 between the encoders and the controllers.
 
-Subscribes ``/joint_states`` (the quantised positions of ``cart`` and
-``pendulum``) and ``/cartpole/force_command`` (``cart`` effort), publishes
-``/cartpole/state`` (estimated positions and velocities, stamp copied from
-the sample) at once in the sample's callback, and ``/cartpole/ekf/health``
-(diagnostic_msgs/DiagnosticArray) every ``health_period``, and the same health as
-``ekf: estimation`` on ``/diagnostics`` once a second (:mod:`cartpole_core.diagnostics`:
-OK, idle before the first sample; WARN when a :data:`DEGRADED` counter grew; STALE when
-the samples stopped). The numerical work
-is :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only
-wires it to ROS.
-
-With ``lockstep:=true`` (``cartpole run --lockstep`` sets it) a sample is
-estimated only once the force command computed from the previous sample has
-arrived: the simulator published the sample only after it received that
-command, so it exists, and waiting for it makes the estimate independent of
-the order in which DDS delivers the two (with one process a node the sample
-can overtake the command). A command that does not come within
-``lockstep_wait`` wall seconds (the simulator stepped on its own timeout) is
-not waited for any longer.
-
-A ``/cartpole/plant_reset`` (std_msgs/Header, the simulator's ``~/reset``)
-re-initialises the filter from the first sample stamped at or after its
-``stamp`` (reset reason ``plant reset``): the jump of the plant back to its
-initial state is not an innovation to filter. The health reports the
-longest wall-clock gap between two samples (``longest_cycle_gap_s``).
+Subscribes ``joint_states`` (the quantised positions of ``cart`` and
+``pendulum``) and ``cartpole/force_command`` (``cart`` effort), publishes
+``cartpole/state`` (positions and velocities, the sample's stamp) at once in
+the sample's callback, ``cartpole/ekf/health`` every ``health_period`` and
+``ekf: estimation`` on ``/diagnostics``. The numerical work is
+:class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only wires
+it. With ``lockstep:=true`` a sample is estimated only once the command
+computed from the previous sample has arrived (at most ``lockstep_wait``), so
+the estimate does not depend on DDS's delivery order. A ``cartpole/plant_reset``
+re-initialises the filter from the first sample stamped at or after it.
+docs/estimation.md.
 """
 from __future__ import annotations
 
@@ -41,6 +27,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_core.diagnostics import OK, Health, HealthReport, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, SAMPLE, RigLimits
 from cartpole_core.model import CartPoleParameters
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter
@@ -88,15 +76,18 @@ class EkfNode(Node):
 
     Keyword arguments go to :class:`rclpy.node.Node` (``context``,
     ``parameter_overrides``, ``namespace``, ...).
-
-    Why one class of about 330 lines: a node adapter, most of it the declaration of
-    its parameters and their validation (``__init__``) and the three callbacks that
-    share the pending sample and the held force; the filter itself is
-    :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`.
     """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('ekf', **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the filter, topics, services, timers."""
         defaults = EkfConfig()
         self.declare_parameter('q', q_parameter(defaults), ParameterDescriptor(
             description='Process covariance Q_k added per sample period: its diagonal for '
@@ -154,6 +145,10 @@ class EkfNode(Node):
             else CartPoleParameters()
         self.filter = ExtendedKalmanFilter(params, EkfConfig(**changes_from_parameters(
             {n: self.get_parameter(n).value for n in names})))
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            params, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('joint_states', 'cartpole/force_command'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._command_timeout = self.get_parameter('command_timeout').value
 
         # Force command held as the plant holds it: value and the measurement
@@ -247,6 +242,9 @@ class EkfNode(Node):
 
     # -- inputs -------------------------------------------------------------------------
     def _on_force_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command'):
+            self.counts.bad_commands += 1
+            return
         try:
             force = float(msg.effort[list(msg.name).index('cart')])
         except (ValueError, IndexError):
@@ -300,6 +298,9 @@ class EkfNode(Node):
         return self._force
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
+            self.counts.bad_messages += 1
+            return
         names = msg.name
         try:
             i_cart = names.index('cart')
@@ -402,7 +403,7 @@ class EkfNode(Node):
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,
         }
-        return Health(OK, message, values)
+        return self.inputs.health(Health(OK, message, values))
 
     def health_status(self) -> DiagnosticStatus:
         """The DiagnosticStatus ``ekf`` of ``/cartpole/ekf/health`` (see the README, "State

@@ -1,10 +1,10 @@
-"""The EKF's output for one sample: :class:`StateEstimate` and its fast constructor.
+"""The EKF's output for one sample: :class:`StateEstimate`.
 
 No ROS import.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -65,58 +65,3 @@ class StateEstimate:
     def as_array(self) -> np.ndarray:
         """The state [x, theta, x_dot, theta_dot] (4.34)."""
         return np.array([self.x, self.theta, self.x_dot, self.theta_dot])
-
-
-_ESTIMATE_FIELDS = ('t', 'x', 'theta', 'x_dot', 'theta_dot', 'theta_w', 'x_ddot', 'theta_ddot',
-                    'covariance_diagonal', 'innovation', 'dt', 'missed_samples',
-                    'missed_samples_total', 'reset', 'reset_reason', 'resets', 'rejected',
-                    'warning', 'valid', 'angle_offset')
-
-
-def _estimate_factory():
-    """A positional constructor of :class:`StateEstimate`, all 20 fields in order.
-
-    The same object the dataclass ``__init__`` makes (no ``__post_init__``,
-    no defaults involved), built by the slots' own descriptors: a frozen
-    dataclass's generated ``__init__`` goes through ``object.__setattr__``
-    once per field and costs about 4 us, this about 1.5 us, once per sample.
-    A test checks both give equal objects.
-    """
-    names = tuple(f.name for f in fields(StateEstimate))
-    if names != _ESTIMATE_FIELDS:  # the signature below must list every field, in order
-        raise RuntimeError(f'StateEstimate fields changed: {names}')
-    setters = [getattr(StateEstimate, name).__set__ for name in names]
-    (s0, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11, s12, s13, s14, s15, s16, s17,
-     s18, s19) = setters
-    new = object.__new__
-
-    def make(t, x, theta, x_dot, theta_dot, theta_w, x_ddot, theta_ddot, covariance_diagonal,
-             innovation, dt, missed_samples, missed_samples_total, reset, reset_reason, resets,
-             rejected, warning, valid, angle_offset) -> StateEstimate:
-        est = new(StateEstimate)
-        s0(est, t)
-        s1(est, x)
-        s2(est, theta)
-        s3(est, x_dot)
-        s4(est, theta_dot)
-        s5(est, theta_w)
-        s6(est, x_ddot)
-        s7(est, theta_ddot)
-        s8(est, covariance_diagonal)
-        s9(est, innovation)
-        s10(est, dt)
-        s11(est, missed_samples)
-        s12(est, missed_samples_total)
-        s13(est, reset)
-        s14(est, reset_reason)
-        s15(est, resets)
-        s16(est, rejected)
-        s17(est, warning)
-        s18(est, valid)
-        s19(est, angle_offset)
-        return est
-
-    return make
-
-
-_new_estimate = _estimate_factory()

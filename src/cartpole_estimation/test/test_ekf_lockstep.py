@@ -36,7 +36,8 @@ def test_a_sample_waits_for_the_previous_command(ros_context, spin_until):
     from cartpole_estimation.ekf_node import EkfNode
 
     lockstep = EkfNode(context=ros_context, parameter_overrides=[
-        Parameter('lockstep', value=True), Parameter('lockstep_wait', value=0.3)])
+        Parameter('lockstep', value=True), Parameter('lockstep_wait', value=0.3),
+        Parameter('stamp_tolerance', value=0.0)])   # synthetic stamps from t = 0
     node = Node('ekf_order_test', context=ros_context)
     states = []
     node.create_subscription(JointState, '/cartpole/state', states.append, 100)

@@ -43,6 +43,7 @@ class Harness:
 
         from cartpole_estimation.ekf_node import EkfNode
 
+        overrides = [('stamp_tolerance', 0.0), *overrides]   # synthetic stamps from t = 0
         self.ekf = EkfNode(context=context, parameter_overrides=[
             Parameter(name, value=value) for name, value in overrides])
         self.node = Node('ekf_test_client', context=context)
@@ -261,12 +262,12 @@ def test_installed_executable_answers_and_stops_on_sigint(ros_context, spin_unti
         node.create_subscription(JointState, '/cartpole/state', states.append, 10)
         assert spin_until(executor, lambda: pub.get_subscription_count() > 0
                           and node.count_publishers('/cartpole/state') > 0, timeout=30.0)
-        k = 0
+        k, t0 = 0, time.time()   # stamped now: the executable judges stamps
         deadline = time.monotonic() + 20.0
         while not states and time.monotonic() < deadline:
             # Discovery of our subscription by the node can lag its discovery
             # of our publisher: resend with increasing stamps until answered.
-            pub.publish(joint_state(5.0 + k * TS, 0.2, math.pi))
+            pub.publish(joint_state(t0 + k * TS, 0.2, math.pi))
             k += 1
             spin_until(executor, lambda: bool(states), timeout=0.5)
         assert states, 'no /cartpole/state from the executable'

@@ -4,206 +4,31 @@
 time into lines to send and samples to publish. The serial link
 (:mod:`cartpole_hw.serial_link`) and the ROS node (:mod:`cartpole_hw.hw_node`)
 only move bytes and messages; every safety rule lives here and is tested
-without a port. Time ``now`` is ``time.monotonic()`` seconds.
-
-Safety rules (docs/rig.md, "The lifecycle"; any fault commands zero force):
-
-- Disarmed (the default): the device is kept disabled (``E,0``, re-sent if a
-  sample shows it enabled) and no ``U`` other than ``U,0`` is ever sent.
-- Arming needs a live link (``V`` with protocol version 1 or 2 seen) and homed
-  encoders (``R`` done by this bridge, see :meth:`BridgeCore.home`); it sends
-  ``E,1`` and ``U,0``. Until the first force command arrives the bridge feeds
-  the device ``U,0`` every sample (zero force, device watchdog quiet).
-- The node's arming (:meth:`BridgeCore.activate`, the lifecycle's activate)
-  needs, besides, a warm loop: ``warm_commands`` consecutive commands
-  received while disarmed, each fresh within half the ``command_timeout``, the
-  latest within ``command_timeout``. A loop still starting up (a backlog of
-  samples being worked off, commands older than the watchdog), or no
-  controller at all, would otherwise be armed and at once disarmed by the
-  watchdogs. :meth:`BridgeCore.arm` itself arms at once (tests, tools).
-- Host watchdog: once commands flow, no fresh command for ``command_timeout``
-  -> ``U,0``, ``E,0``, disarmed (a *trip*). Non-finite or stale commands
-  (stamp older than ``command_timeout``) are not fresh. The watchdogs run at
-  every :meth:`BridgeCore.on_tick` (at least every ``tick_period``, the
-  link's read timeout), and the host watchdog trips at the tick that would
-  otherwise be the last one before the deadline: ``U,0`` goes out at most
-  ``command_timeout`` after the last command arrived, not up to a
-  tick later.
-- A checksummed sample whose sequence number jumps further ahead than the
-  device can have counted since the last accepted sample (one per
-  ``sample_time``, plus ``sequence_slack``) is refused as a bad sample
-  (``bad_samples``): a corrupted line that kept a valid checksum, not a
-  million lost samples. Should the device really have jumped, three
-  consecutive samples that follow the new number are taken as the new
-  sequence (``sequence_resyncs``).
-- Faults that disarm (``U,0`` + ``E,0``): no valid sample for
-  ``sample_timeout``, the device's watchdog flag, a limit switch closing
-  while armed, a device ``!`` line with a fault code (>= 16), a serial
-  error/disconnect, a device restart (sequence jumping back), shutdown.
-  Re-arming is always an explicit request (nothing arms by itself).
-- Limit switches: force towards a closed switch is never sent (directional
-  inhibit), so the cart homed at the left stop (left switch closed) can be
-  driven right; a switch *closing* while armed is a crash: fault.
-- Homing: ``R`` then ``P``; samples are discarded until the ``V`` answer
-  (the device handles lines in order, so every sample after ``V`` counts
-  from the new zero), then the counter unwrapping restarts. Allowed only
-  while disarmed. Never done automatically on a reconnect: a device that
-  kept power kept its counts (the position reference survives, the bridge
-  keeps unwrapping), while an automatic reset would silently move x = 0 to
-  wherever the cart happens to be. A device that restarted (sequence jumps
-  back) has lost its reference: ``homed`` drops and arming is refused until
-  an explicit home.
-
-Latency report (protocol version 2): a force command that answers one of
-the bridge's samples goes out tagged with that sample's ``seq``
-(``U,<setpoint>,<seq>``), and the device says in its sample lines which
-command is in force and when, in device time, it took effect. When that
-command changes, the sample passed on carries :class:`AppliedCommand`: the
-``seq`` it answers and the host time it took effect, its device time mapped
-by the same :class:`~cartpole_hw.device_clock.DeviceClock` mapping as the
-sample's own stamp (so ``applied - stamp of that sample`` is the loop's
-latency as the device's clock measured it, not the host's receipt times).
-A version-1 device gets untagged setpoints (it would refuse a tag) and
-reports nothing; it works as before. A version above 2 is refused.
-
-Stamps: each sample carries the host time at which the device took it,
-from its ``t_us`` through :class:`~cartpole_hw.device_clock.DeviceClock`
-(offset and drift from the least-delayed samples; USB latency spikes do not
-move it), not the time the line happened to arrive. A ``seq`` gap (samples
-lost on the way) is counted (``seq_gaps``, ``lost_samples``); the next
-sample's stamp is as many periods later, which is how the EKF sees it.
+without a port: disarmed by default (``E,0``, only ``U,0``), arming only with
+a live link, homed encoders and (for the lifecycle's activate) a warm control
+loop, the host watchdog, the refusal of implausible sequence jumps, zero force
+and disarm on every fault, the limit switches' directional inhibit, homing
+only on request. Each sample is stamped with the device's time of sampling
+(:class:`~cartpole_hw.device_clock.DeviceClock`), and with protocol version 2
+the device's report of the command in force becomes an :class:`AppliedCommand`.
+The rules one by one, and why: docs/rig.md ("Conversions, device-time stamps
+and the safety rules", "The latency report"). Time ``now`` is
+``time.monotonic()`` seconds.
 """
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from dataclasses import dataclass, field
+from collections import deque
 
 from cartpole_core.realtime import CycleGapMeter
 
 from . import protocol as jp
+from .bridge_records import AppliedCommand, BridgeConfig, BridgeCounts, JointSample, Output
+from .counters import CounterUnwrapper, SequenceTracker
 from .device_clock import DeviceClock
 
-
-@dataclass(frozen=True)
-class BridgeConfig:
-    """Tunables of the host side."""
-
-    calibration: jp.Calibration = field(default_factory=jp.Calibration)
-    command_timeout: float = 0.05
-    """Host watchdog: longest gap between fresh force commands while armed [s]."""
-    sample_timeout: float = 0.05
-    """Longest gap between valid samples while armed [s] (10 samples)."""
-    answer_timeout: float = 0.5
-    """Time to wait for the ``V`` answer to a ``P`` before asking again [s]."""
-    latency_window: int = 400
-    """Number of latest command latencies kept for p50/max (2 s at 200 Hz)."""
-    tick_period: float = 0.002
-    """Longest gap between two :meth:`BridgeCore.on_tick` calls [s] (the link's read
-    timeout); the host watchdog trips one tick early rather than one tick late."""
-    sample_time: float = 0.005
-    """The device's sample period Ts [s] (one sequence number per period)."""
-    sequence_slack: float = 0.1
-    """Sequence jumps beyond elapsed time / sample_time + this / sample_time are refused [s]."""
-    warm_commands: int = 20
-    """Consecutive fresh commands (within command_timeout / 2) an arming requested ahead
-    waits for: the control loop answers the samples in time (100 ms at 200 Hz)."""
-
-    def __post_init__(self) -> None:
-        for name in ('command_timeout', 'sample_timeout', 'answer_timeout', 'tick_period',
-                     'sample_time', 'sequence_slack'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
-        if not (isinstance(self.warm_commands, int) and self.warm_commands >= 0):
-            raise ValueError(f'warm_commands must be an integer >= 0, got {self.warm_commands!r}')
-
-
-@dataclass(frozen=True)
-class AppliedCommand:
-    """The device's report that the command answering sample ``seq`` took effect."""
-
-    seq: int
-    """``seq`` of the sample the command was computed from (its tag)."""
-    stamp: float
-    """Host time [s] (the core's clock) at which it took effect: its device time mapped
-    like a sample's ``t_us``."""
-    latency: float
-    """Sample to command in force [s], in device time (``back`` periods minus ``age_us``)."""
-
-
-@dataclass(frozen=True)
-class JointSample:
-    """One decoded sample, ready to publish on ``/joint_states``."""
-
-    receipt: float
-    """Host time the line was read [s] (the clock given to the core)."""
-    stamp: float
-    """Host time [s] (same clock) at which the device took the sample: its ``t_us``
-    mapped by the :class:`~cartpole_hw.device_clock.DeviceClock`."""
-    seq: int
-    t_us: int
-    x: float
-    """Cart position [m], unwrapped counts times resolution (2.4)."""
-    theta: float
-    """Pendulum angle [rad], pi hanging after reset (2.3)."""
-    flags: int
-    missed: int = 0
-    """Samples lost just before this one (the ``seq`` gap)."""
-    applied: AppliedCommand | None = None
-    """A newly reported command in force (protocol version 2), else None."""
-
-
-@dataclass
-class BridgeCounts:
-    """The bridge's event counts (they only grow): the counters of the health report,
-    :meth:`BridgeCore.health` (docs/rig.md, ``/cartpole/hw/health``)."""
-
-    samples: int = 0
-    """Valid samples passed on (samples discarded while homing are not)."""
-    seq_gaps: int = 0
-    """Gaps in the sequence numbers (each one or more lost samples)."""
-    bad_lines: Counter[str] = field(default_factory=Counter)
-    """Refused lines by reason (:data:`cartpole_hw.protocol.DECODE_REASONS`)."""
-    watchdog_trips: int = 0
-    """Host watchdog trips: no fresh force command for ``command_timeout`` while armed."""
-    device_watchdog_trips: int = 0
-    """The device's ``!,16`` notices (its watchdog zeroed the current)."""
-    device_errors: Counter[int] = field(default_factory=Counter)
-    """The device's ``!`` lines by error code."""
-    ignored_commands: int = 0
-    """Force commands received while disarmed (none is forwarded)."""
-    bad_commands: int = 0
-    """Non-finite or malformed force commands."""
-    bad_samples: int = 0
-    """Checksummed samples refused for a sequence jump the device cannot have made."""
-    sequence_resyncs: int = 0
-    """Times the sequence was taken up anew after three consecutive such samples."""
-    stale_commands: int = 0
-    """Force commands stamped more than ``command_timeout`` ago."""
-    limit_inhibits: int = 0
-    """Force commands zeroed for pushing towards a closed limit switch."""
-    faults: int = 0
-    """Disarming faults (the latest one's reason is :attr:`BridgeCore.last_error`)."""
-    connects: int = 0
-    """Times the port was opened (see :attr:`reconnects`)."""
-    homes: int = 0
-    """Completed homings (each moves the position reference: x = 0 now)."""
-    actuation_reports: int = 0
-    """Commands the device reported in force (protocol version 2), each counted once."""
-
-    @property
-    def reconnects(self) -> int:
-        """Re-opened ports (``connects`` after the first)."""
-        return max(0, self.connects - 1)
-
-
-@dataclass
-class Output:
-    """What one event asks the link to do."""
-
-    write: list[bytes] = field(default_factory=list)
-    sample: JointSample | None = None
+__all__ = ['AppliedCommand', 'BridgeConfig', 'BridgeCore', 'BridgeCounts', 'JointSample',
+           'Output', 'U_ZERO', 'E_ON', 'E_OFF', 'PING', 'RESET', 'STREAM_ON', 'STREAM_OFF']
 
 
 U_ZERO = jp.encode(jp.Setpoint(0))
@@ -216,13 +41,8 @@ STREAM_OFF = jp.encode(jp.Stream(False))
 
 
 class BridgeCore:
-    """Host-side protocol state machine (see the module docstring).
-
-    Why one class of about 350 lines: the host's protocol state machine
-    (disconnected, connected, armed, fault) whose transitions (connect, arm, command,
-    sample, device error, watchdog tick) all read and change the same state; the
-    codec is :mod:`cartpole_hw.protocol`, the device clock :mod:`cartpole_hw.device_clock`.
-    """
+    """Host-side protocol state machine: disconnected, connected, armed, fault (see the
+    module docstring); the codec is :mod:`cartpole_hw.protocol`."""
 
     def __init__(self, config: BridgeConfig | None = None) -> None:
         self.config = config or BridgeConfig()
@@ -239,10 +59,10 @@ class BridgeCore:
         self.home_sent = -math.inf
         self.armed_at = -math.inf
         self.flags = 0
-        self.tracker = jp.SequenceTracker()
+        self.tracker = SequenceTracker()
         self.device_clock = DeviceClock()
-        self._unwrap_cart = jp.CounterUnwrapper(self.config.calibration.counter_bits)
-        self._unwrap_pend = jp.CounterUnwrapper(self.config.calibration.counter_bits)
+        self._unwrap_cart = CounterUnwrapper(self.config.calibration.counter_bits)
+        self._unwrap_pend = CounterUnwrapper(self.config.calibration.counter_bits)
         self._since_resync = 0
         self._last_sequence_receipt: float | None = None
         self._jump_candidate: int | None = None

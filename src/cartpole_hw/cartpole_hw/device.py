@@ -1,39 +1,16 @@
 """The firmware's command handling as a pure state machine (Python mirror).
 
-This is the logic of ``firmware/cartpole_bridge/joint_protocol.cpp``
-(``JpDevice``): the emulator runs it, so the emulator answers exactly as the
-sketch does. Time is an argument (device ``micros()``, uint32, wrapping), so
-every behaviour is a pure function of the inputs and testable without a clock.
-
-Rules (docs/rig.md, "The Joint protocol"):
-
-- ``E,1`` enables the amplifier with a zero setpoint and restarts the
-  watchdog; ``E,0`` disables it (zero current, DAC at ``dac_zero``).
-- ``U,<s>`` sets the setpoint, clamped to the DAC range, feeds the watchdog
-  and clears a tripped watchdog.
-- Watchdog: enabled and no ``U`` for :data:`WATCHDOG_US` -> zero current,
-  flag bit 1 and one ``!,16,watchdog`` until the next ``U``. It is checked
-  once a sample period, at the tick that crosses the deadline: a tick trips
-  it when the next tick would come more than :data:`WATCHDOG_US` after the
-  last ``U``, so the current is zero at most 50 ms after the last ``U``
-  arrived, and at least 45 ms after it.
-- ``R`` zeroes the counters; refused (``!,9``) while enabled: the position
-  reference must not move under a running controller.
-- ``P`` answers ``V,2,<name>``; ``L,1``/``L,0`` start/stop streaming.
-- Latency report (protocol version 2): a tagged ``U,<s>,<tag>`` while
-  enabled is *pending* until its output is written (:meth:`DeviceLogic.output_written`,
-  the sketch's DAC write, ``micros()`` then) or, in the emulator, until the
-  plant reports it acting (:meth:`DeviceLogic.command_applied`, after the
-  scenario delay). From then on every ``S`` line carries ``back = seq - tag``
-  and ``age_us = t_us - applied``. The report ends (5-field ``S`` lines
-  again) with an untagged ``U``, any ``E``, a watchdog trip, or a tagged
-  ``U`` while disabled: no tagged command is in force then.
-- A refused line is answered ``!,<code>,<reason>`` (codes 1..8, one a
-  :data:`~cartpole_hw.protocol.DECODE_REASONS` entry).
-- Limit switches: current towards a closed limit switch is inhibited
-  (directional, as motion controllers do), so the cart resting at the left
-  stop after homing can still be driven right; a switch that closes while
-  enabled is reported once as ``!,17,limit <side>``.
+The logic of ``firmware/cartpole_bridge/joint_protocol.cpp`` (``JpDevice``),
+which the emulator runs, so it answers exactly as the sketch does. Time is an
+argument (device ``micros()``, uint32, wrapping), so every behaviour is a pure
+function of the inputs: ``E`` enables (zero setpoint) or disables, ``U`` sets
+the clamped setpoint and feeds the 50 ms watchdog (checked at each 5 ms tick,
+tripping at the tick that crosses the deadline), ``R`` zeroes the counters
+(refused while enabled), ``P`` answers ``V``, ``L`` streams; a tagged ``U``
+starts the latency report of protocol version 2; current towards a closed
+limit switch is inhibited; a refused line is answered ``!,<code>,<reason>``.
+The same rules are pinned for both by ``firmware/test_vectors/protocol_vectors.txt``;
+in prose in docs/rig.md ("The Joint protocol", "The latency report").
 """
 from __future__ import annotations
 

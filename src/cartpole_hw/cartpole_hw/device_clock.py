@@ -1,43 +1,18 @@
 """Device time on the host's clock: the stamp of each sample from the device's ``t_us``.
 
-The device samples its encoders every 5 ms on its own crystal and sends the
-sample with ``t_us``, its ``micros()`` at that moment (uint32, wraps every
-2**32 us = 71.6 min, docs/rig.md, "The Joint protocol"). The line reaches the host after a
-latency ``d`` (UART, the USB-serial chip's buffering, the USB frame, the
-kernel, this process being scheduled) that is never below some ``d_min`` and
-sometimes milliseconds above it. With device time ``tau`` (unwrapped, [s])
-and the host's receipt time ``r`` of the line,
-
-    r = c + (1 + e) tau + d,    d >= d_min,
-
-with ``c`` the clock offset and ``e`` the relative drift of the two clocks
-(tens of ppm for a crystal). The host time of the sample is
-``c + (1 + e) tau``: this module estimates it, the way NTP and PTP filter
-their offset samples (take the least-delayed ones):
-
-- **lower envelope.** The observations ``y = r - tau`` scatter above the line
-  ``c + e tau`` (plus ``d_min``, which no host measurement can separate from
-  ``c``: the stamps are the sample times plus the smallest latency seen, a
-  constant). Per ``block`` seconds of device time the least-delayed
-  observation is kept; latency spikes lie above it and never move it.
-- **drift by a slow fit.** ``e`` is the Theil-Sen slope (median of the
-  pairwise slopes) of the block minima over the last ``window`` seconds: a
-  block that was all spikes (a USB stall) is outvoted. The offset is then the
-  lowest point of the window relative to that slope.
-- **slewed, not stepped.** The offset applied to the stamps moves towards the
-  estimate by at most ``max_slew`` seconds per sample (20 us: the stamps'
-  intervals stay within Ts +/- 0.02 ms while the estimate converges), so
-  the EKF, which integrates over stamp differences, sees the device's even
-  5 ms steps and not the host's jitter. An error beyond ``step_limit`` (the
-  first sample, a restarted device, a host clock jump) is stepped at once.
-
-``t_us`` is unwrapped (a step of ``(t_us - last) mod 2**32`` below 2**31 is
-time going forward; anything else means the device restarted: the mapping
-starts again). Lost samples (``seq`` gaps) need nothing here: the next
-sample's ``t_us`` is that many periods later, so its stamp is too, and the
-EKF predicts across the gap and counts the missed samples from the stamps.
-
-Pure code, no ROS; times in seconds of the clock given as ``receipt``.
+The device samples every 5 ms on its own crystal and sends ``t_us``, its
+``micros()`` (uint32, wraps every 71.6 min); the line reaches the host after
+a latency that is never below some minimum and often milliseconds above it.
+With device time ``tau`` and receipt ``r``: ``r = c + (1 + e) tau + d``,
+``d >= d_min``. :class:`DeviceClock` estimates the host time of the sample,
+``c + (1 + e) tau``, as NTP and PTP filter their offsets: the least-delayed
+observation per ``block`` (a lower envelope spikes never move), the drift
+``e`` as the Theil-Sen slope of those minima over ``window``, and the offset
+applied to the stamps slewed by at most ``max_slew`` a sample (stepped beyond
+``step_limit``), so the EKF sees the device's even 5 ms steps, not the host's
+jitter. A ``t_us`` going back means a restarted device: the mapping starts
+again. Figures and reasoning: docs/rig.md ("Conversions, device-time stamps
+and the safety rules"). No ROS.
 """
 from __future__ import annotations
 

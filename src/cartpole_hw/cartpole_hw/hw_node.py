@@ -1,75 +1,20 @@
-"""ROS 2 managed (lifecycle) node ``hw_bridge``: the rig (or its emulator) on ``/joint_states``
-and ``/cartpole/force_command`` through the Joint serial protocol (docs/rig.md, "The Joint protocol").
+"""ROS 2 managed (lifecycle) node ``hw_bridge``: the rig (or its emulator) on ``joint_states``
+and ``cartpole/force_command`` through the Joint serial protocol.
 
 The node only wires ROS to :class:`~cartpole_hw.serial_link.SerialLink` and
-:class:`~cartpole_hw.bridge.BridgeCore`, where every rule lives (read
-``bridge.py``'s docstring for the safety rules). Armed is its lifecycle state
-(``rclpy.lifecycle``, the standard services ``~/change_state``,
-``~/get_state``, ``~/get_available_transitions``, ... that ``ros2 lifecycle``
-calls):
-
-- **unconfigured** (at start): the port is closed;
-- **configure**: opens the port (refused with the reason if it cannot be
-  opened), handshakes (``V`` answer, refused if none within
-  :data:`HANDSHAKE_TIMEOUT`), homes the encoders if ``home_on_start`` (once,
-  the first configure), and streams samples, disarmed: **inactive**
-  publishes ``/joint_states`` etc. with the amplifier disabled, re-opening a
-  vanished port; ``~/home`` works here;
-- **activate**: arms (``E,1``): the encoders homed and the control loop warm
-  (20 fresh force commands in a row, :meth:`BridgeCore.activate`), else
-  refused with the reason in the log; **active** forwards force commands;
-- **deactivate**: ``U,0`` and ``E,0`` at once (the device's next sample shows
-  zero), back to inactive, still streaming;
-- **cleanup**: ``U,0``, ``E,0``, streaming off, port closed: unconfigured;
-- **shutdown** (and ``destroy_node``) and **on_error**: the same, to
-  finalized and unconfigured;
-- **a fault while active** (the bridge's rules: a watchdog, a limit switch,
-  a device fault, the port lost, ...): the core zeroes and disarms at once
-  (reader thread); the executor then runs ``deactivate``, which returns ERROR,
-  so rclpy runs ``on_error``: port closed, unconfigured (configure again to go
-  on).
-
-Publishing happens in executor callbacks only: the reader thread of the
-link hands samples over through a queue and wakes the executor
-(``create_task`` of the executor the node is in, which for rclpy's executors
-triggers their guard condition; a guard condition of the node's own would do
-the same there, but the EventsExecutor of ``cartpole run`` refuses nodes that
-have one). The health timer drains the queue too, should a wake-up be lost.
-What the reader thread and the callbacks share (the core, the receipts) is
-under one lock. The publishers are plain ones, not lifecycle publishers: the
-inactive state publishes the samples on purpose (the estimator and the
-controller warm up on them before the amplifier is enabled).
-
-Topics and services:
-
-- publishes ``/joint_states`` (``cart``, ``pendulum``; x from the unwrapped
-  cart count (2.4), theta = pi + pendulum count (2.3); ``header.stamp`` =
-  the device's time of the sample, its ``t_us`` mapped to the host clock
-  (:mod:`cartpole_hw.device_clock`: USB latency jitter does not reach the
-  stamps) and read on the node clock), for every valid ``S`` line;
-- subscribes ``/cartpole/force_command`` (``name=['cart']``, ``effort=[F]``)
-  and sends ``U,<setpoint>``, setpoint = 56.744 F (A.3), while armed, tagged
-  ``U,<setpoint>,<seq>`` with the ``seq`` of the sample it answers (found by its
-  stamp among the last :data:`RECEIPTS_KEPT` published) when the device speaks
-  protocol version 2; a
-  command's age (the bridge's freshness rule) counts from the host's receipt
-  of the sample it answers (found by its stamp), not from the device's
-  sampling time: the USB latency before the receipt is the device
-  watchdog's business, and counting it twice made a late-read sample's
-  prompt answer stale;
-- ``~/home`` (std_srvs/Trigger) resets the encoders (configured and disarmed only);
-- publishes ``/cartpole/hw/health`` (diagnostic_msgs/DiagnosticArray,
-  status ``hw_bridge``) every ``health_period``, in every state, and the same health
-  as ``hw_bridge: serial link`` on ``/diagnostics`` once a second (:meth:`HwBridgeNode.health`);
-- publishes ``/cartpole/command_applied`` (sensor_msgs/TimeReference,
-  ``source='hw_bridge'``), once for every command the
-  device reports in force (protocol version 2): ``time_ref`` = the stamp this
-  bridge gave the sample the command answers, ``header.stamp`` = when it took
-  effect, the device's time mapped to the host clock as the samples' are: the
-  controller manager's measure of the loop's latency;
-- after a homing (the position reference moved: x = 0 now), announces it on
-  ``/cartpole/plant_reset`` (std_msgs/Header, stamp = the first sample's)
-  before that sample, so the EKF re-initialises instead of filtering the jump.
+:class:`~cartpole_hw.bridge.BridgeCore`, where every safety rule lives. Armed
+is its lifecycle state: configure opens the port and streams samples disarmed,
+activate arms once the encoders are homed and the control loop is warm,
+deactivate zeroes and disarms, a fault while active ends in ``on_error``
+(port closed, unconfigured). It publishes ``joint_states`` (stamped with the
+device's sampling time), ``cartpole/command_applied`` (the device's latency
+report), ``cartpole/plant_reset`` after a homing and ``cartpole/hw/health``;
+it forwards ``cartpole/force_command`` while active and offers ``~/home``.
+Publishing happens in executor callbacks only: the link's reader thread hands
+the samples over through a queue and wakes the executor (``create_task``; the
+EventsExecutor of ``cartpole run`` refuses a node's own guard condition).
+States, transitions, topics and health keys: docs/rig.md ("The lifecycle",
+"/cartpole/hw/health").
 """
 from __future__ import annotations
 
@@ -82,8 +27,7 @@ import time
 from builtin_interfaces.msg import Time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, TimeReference
@@ -91,14 +35,16 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from . import protocol as jp
-from .bridge import BridgeConfig, BridgeCore, JointSample
+from .bridge import BridgeCore
+from .bridge_records import JointSample
+from .hw_parameters import bridge_config, declare_bridge_parameters
+from .receipts import RECEIPTS_KEPT, ReceiptLog
 from .serial_link import SerialLink
 from cartpole_core.diagnostics import ERROR, OK, WARN, Health, HealthReport, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, RigLimits
 from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
-RECEIPTS_KEPT = 400
-"""Receipt times kept for the command-age rule (2 s of samples at 200 Hz); also the
-most samples waiting for the executor (older ones are dropped, ``handoff_dropped``)."""
 HANDSHAKE_TIMEOUT = 3.0
 """configure: longest wait for the device's ``V`` answer (and a homing's) [s]; the
 bridge pings every 0.5 s until it answers."""
@@ -107,85 +53,31 @@ DEGRADED = ('lost_samples', 'seq_gaps', 'bad_lines', 'bad_samples', 'bad_command
             'stale_commands', 'watchdog_trips', 'device_watchdog_trips', 'reconnects')
 """Health counters whose growth since the previous report makes it WARN."""
 
-_CALIBRATION = ('cart_sign', 'pendulum_sign', 'force_sign', 'cart_ticks_over_travel', 'travel',
-                'pendulum_ticks_per_rev', 'setpoint_per_newton', 'dac_zero')
 SUCCESS, FAILURE, TRANSITION_ERROR = (TransitionCallbackReturn.SUCCESS,
                                       TransitionCallbackReturn.FAILURE,
                                       TransitionCallbackReturn.ERROR)
 
 
 class HwBridgeNode(LifecycleNode):
-    """Serial bridge to the Arduino Due I/O firmware (managed node ``hw_bridge``).
-
-    Why one class of about 330 lines: a node adapter whose ``__init__`` declares the
-    bridge's parameters, topics and services, and whose transition callbacks open,
-    arm, disarm and close the link; everything it decides is
-    :class:`cartpole_hw.bridge.BridgeCore`.
-    """
+    """Serial bridge to the Arduino Due I/O firmware (managed node ``hw_bridge``); what it
+    decides is :class:`cartpole_hw.bridge.BridgeCore`'s."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('hw_bridge', **kwargs)
-        cal = jp.Calibration()
-
-        def fp(lo, hi):
-            return [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-
-        def ir(lo, hi, step=1):
-            return [IntegerRange(from_value=lo, to_value=hi, step=step)]
-
-        ro = dict(read_only=True)
-        self.declare_parameter('port', '/dev/ttyACM0', ParameterDescriptor(
-            description='serial device of the Arduino Due (or the emulator link, e.g. '
-                        '/tmp/cartpole-emu); opened by configure, re-opened after a '
-                        'disconnect while inactive', **ro))
-        self.declare_parameter('baud', 115200, ParameterDescriptor(
-            description='baud rate (8N1)', integer_range=ir(1200, 4_000_000), **ro))
-        for name, meaning in (('cart_sign', 'a growing cart count means the cart moves right'),
-                              ('pendulum_sign', 'a growing pendulum count means theta grows'),
-                              ('force_sign', 'a positive setpoint pushes the cart right')):
-            self.declare_parameter(name, getattr(cal, name), ParameterDescriptor(
-                description=f'+1 if {meaning}, else -1', integer_range=ir(-1, 1, 2), **ro))
-        for name, meaning, lo, hi in (
-                ('cart_ticks_over_travel', 'cart ticks over the travel (2.4)', 1, 1e6),
-                ('travel', 'cart travel between the end stops [m] (section 2.3)', 0.01, 10.0),
-                ('pendulum_ticks_per_rev', 'pendulum ticks per revolution (2.3)', 1, 1e6),
-                ('setpoint_per_newton', 'DAC setpoint per newton, 1/0.017623 (A.3)', 1.0, 1000.0)):
-            self.declare_parameter(name, getattr(cal, name), ParameterDescriptor(
-                description=meaning, floating_point_range=fp(lo, hi), **ro))
-        self.declare_parameter('dac_zero', cal.dac_zero, ParameterDescriptor(
-            description='DAC value of zero current (Appendix A)', integer_range=ir(0, 4095), **ro))
-        self.declare_parameter('command_timeout', 0.05, ParameterDescriptor(
-            description='host watchdog: longest gap between fresh force commands while '
-                        'active [s]; a trip sends U,0 and E,0 and ends in on_error',
-            floating_point_range=fp(0.005, 1.0)))
-        self.declare_parameter('sample_timeout', 0.05, ParameterDescriptor(
-            description='longest gap between valid samples while active before the fault [s]',
-            floating_point_range=fp(0.01, 1.0)))
-        self.declare_parameter('reconnect_period', 0.5, ParameterDescriptor(
-            description='period of the attempts to re-open a vanished port while inactive [s]',
-            floating_point_range=fp(0.05, 10.0)))
-        self.declare_parameter('health_period', 0.2, ParameterDescriptor(
-            description='period of /cartpole/hw/health [s]', floating_point_range=fp(0.02, 10.0),
-            **ro))
-        self.declare_parameter('home_on_start', False, ParameterDescriptor(
-            description='reset the encoders (R) at the first configure, once the device '
-                        'answers; the cart must be at the left stop and the pendulum hanging '
-                        'still', **ro))
-
-        p = {name: self.get_parameter(name).value for name in _CALIBRATION}
-        p['cart_ticks_over_travel'] = float(p['cart_ticks_over_travel'])
-        p['pendulum_ticks_per_rev'] = float(p['pendulum_ticks_per_rev'])
         try:
-            calibration = jp.Calibration(**p)
-            config = BridgeConfig(calibration=calibration,
-                                  command_timeout=self.get_parameter('command_timeout').value,
-                                  sample_timeout=self.get_parameter('sample_timeout').value)
-        except ValueError as exc:
-            raise ValueError(f'hw_bridge: bad calibration parameters: {exc}') from exc
-        port = self.get_parameter('port').value
-        if not isinstance(port, str) or not port.strip():
-            raise ValueError('hw_bridge: parameter port must name a serial device')
-        self.port = port
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            self.destroy_node()
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the core, topics, services, timers."""
+        declare_bridge_parameters(self)
+        config, self.port = bridge_config(self)
+        self.inputs = InputGuard(self, RigLimits(
+            travel=config.calibration.travel, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/force_command',))
+        """Judges every force command before it is taken (refused_inputs in the health)."""
 
         self.core = BridgeCore(config)
         self._lock = threading.RLock()
@@ -214,12 +106,8 @@ class HwBridgeNode(LifecycleNode):
                                                   PUBLISH_DEPTH)
         self._homes_announced = 0
         self._version_logged: int | None = None
-        self._received: dict[int, tuple[int, int]] = {}
-        """Stamp [ns] of each recent published sample -> (node-clock time of its receipt
-        [ns], its seq)."""
-        self._stamp_of_seq: dict[int, int] = {}
-        """seq of each recent published sample -> its stamp [ns]."""
-        self._received_order: collections.deque = collections.deque()
+        self.receipts = ReceiptLog(RECEIPTS_KEPT)
+        """The recent published samples: stamp, receipt, seq (node clock)."""
         self.create_subscription(JointState, 'cartpole/force_command', self._on_force_command, 10)
         self.create_service(Trigger, '~/home', self._on_home)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -383,7 +271,7 @@ class HwBridgeNode(LifecycleNode):
         stamp_ns = offset_ns + int(round(sample.stamp * 1e9))
         received_ns = offset_ns + int(round(sample.receipt * 1e9))
         msg.header.stamp = Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-        self._note_receipt(stamp_ns, received_ns, sample.seq)
+        self.receipts.note(stamp_ns, received_ns, sample.seq)
         if sample.applied is not None:
             self._publish_applied(sample, stamp_ns)
         msg.header.frame_id = ''
@@ -401,8 +289,7 @@ class HwBridgeNode(LifecycleNode):
         ``time_ref`` the stamp given to the sample it answers, ``header.stamp`` when it
         took effect, on the node clock through the same offset as this sample's stamp."""
         applied = sample.applied
-        with self._lock:
-            source_ns = self._stamp_of_seq.get(applied.seq)
+        source_ns = self.receipts.stamp_of(applied.seq)
         if source_ns is None:   # not a sample published here (before a homing, say)
             return
         applied_ns = stamp_ns + int(round((applied.stamp - sample.stamp) * 1e9))
@@ -429,31 +316,13 @@ class HwBridgeNode(LifecycleNode):
                 f'(commands untagged, nothing on /cartpole/command_applied); flash the '
                 f'protocol-{jp.PROTOCOL_VERSION} firmware for the latency compensation')
 
-    def _note_receipt(self, stamp_ns: int, received_ns: int, seq: int) -> None:
-        """Remember that the sample ``seq`` stamped ``stamp_ns`` was received at
-        ``received_ns`` (node clock; the last :data:`RECEIPTS_KEPT`)."""
-        with self._lock:
-            self._received[stamp_ns] = (received_ns, seq)
-            self._stamp_of_seq[seq] = stamp_ns
-            self._received_order.append((stamp_ns, seq))
-            while len(self._received_order) > RECEIPTS_KEPT:
-                old_stamp, old_seq = self._received_order.popleft()
-                self._received.pop(old_stamp, None)
-                if self._stamp_of_seq.get(old_seq) == old_stamp:
-                    del self._stamp_of_seq[old_seq]
-
     def command_age(self, stamp_ns: int, now_ns: int) -> float:
-        """Age [s] of a command answering the sample stamped ``stamp_ns``: from that
-        sample's receipt when it is one of ours, else from the stamp itself."""
-        with self._lock:
-            received = self._received.get(stamp_ns)
-        return (now_ns - (stamp_ns if received is None else received[0])) * 1e-9
+        """Age [s] of a command answering the sample stamped ``stamp_ns`` (:class:`ReceiptLog`)."""
+        return self.receipts.command_age(stamp_ns, now_ns)
 
     def sample_seq(self, stamp_ns: int) -> int | None:
         """``seq`` of the published sample stamped ``stamp_ns`` (None: not one of ours)."""
-        with self._lock:
-            received = self._received.get(stamp_ns)
-        return None if received is None else received[1]
+        return self.receipts.seq_of(stamp_ns)
 
     def _clock_offset_ns(self) -> int:
         """Node clock minus the link's clock (monotonic) [ns], from the two read back to
@@ -471,6 +340,10 @@ class HwBridgeNode(LifecycleNode):
         return best[1]
 
     def _on_force_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command'):
+            with self._lock:
+                self.core.counts.bad_commands += 1
+            return
         try:
             force = float(msg.effort[list(msg.name).index('cart')]) if msg.name else float(msg.effort[0])
         except (ValueError, IndexError):
@@ -538,6 +411,12 @@ class HwBridgeNode(LifecycleNode):
         self._health_pub.publish(msg)
 
     def health(self, values: dict[str, str] | None = None, state: str | None = None) -> Health:
+        """The bridge's health (:meth:`_own_health`) with the input checks' counts (WARN
+        once a force command was refused)."""
+        return self.inputs.health(self._own_health(values, state))
+
+    def _own_health(self, values: dict[str, str] | None = None,
+                    state: str | None = None) -> Health:
         """The bridge's health (``values``: the core's, read under the lock if not given;
         ``state``: the lifecycle's): unconfigured is OK (idle, port closed; its sample count
         left out: no samples is no staleness then) or ERROR after a fault or a refused

@@ -1,24 +1,18 @@
 """The serial port around :class:`~cartpole_hw.bridge.BridgeCore`: a reader thread.
 
-The port is opened by :meth:`SerialLink.open` (the caller's thread: the node's
-configure, which reports a port that cannot be opened) or by the thread (which
-re-opens it every ``reconnect_period`` while it is gone). One thread owns the
-reading side of the port: it reads with a timeout of the core's
-``tick_period`` (2 ms), splits lines, hands each to the core, and runs the
-core's watchdogs after every read that leaves nothing waiting in the port: after a stall of this process (a read that returns empty
-long after it was due, while the device's lines piled up) the lines are taken
-first, so the watchdogs judge the device, not this process's own scheduling.
-After a read that gave samples, or that changed whether the core is armed or
-connected (a fault, a lost port), it calls ``notify(samples)``: the node only
-hands them over to its executor there (a queue and a wake-up), so that
-nothing is published from this thread. Writes come from this thread and from the
-caller's (ROS executor) thread; both hold ``lock``, the same lock that
-guards the core, so the order of the lines on the wire is the order of the
-core's decisions. A write fails only when the port stays unwritable for
-:data:`WRITE_TIMEOUT` (pyserial's own write timeout also fires when the
-writing thread merely waited that long for the interpreter lock, after the
-bytes were written). A failed write or read closes the port; the core is told
-(it disarms) and the thread starts re-opening it. No ROS import.
+The port is opened by :meth:`SerialLink.open` (the node's configure, which
+reports a port that cannot be opened) or by the thread, which re-opens it
+every ``reconnect_period`` while it is gone. The thread reads with a timeout
+of the core's ``tick_period`` (2 ms), splits lines, hands each to the core and
+runs the core's watchdogs once nothing waits in the port, so after a stall of
+this process the piled-up lines are taken first and the watchdogs judge the
+device, not this process's scheduling. Samples go to ``notify`` (the node
+queues them for its executor: nothing is published from this thread). Writes
+from this thread and the caller's hold ``lock``, the core's, so the lines on
+the wire are in the order of the core's decisions; a write fails only when the
+port stays unwritable for :data:`WRITE_TIMEOUT`. A failed read or write closes
+the port and the core disarms. docs/rig.md ("Conversions, device-time stamps
+and the safety rules"). No ROS.
 """
 from __future__ import annotations
 
@@ -30,8 +24,9 @@ from typing import Callable
 
 import serial
 
-from . import protocol as jp
-from .bridge import BridgeCore, JointSample
+from .line_splitter import LineSplitter
+from .bridge import BridgeCore
+from .bridge_records import JointSample
 
 WRITE_TIMEOUT = 0.05
 """Longest time the port may stay unwritable before the link counts as broken [s]."""
@@ -84,7 +79,7 @@ class SerialLink:
         self.log = logger or (lambda text: None)
         self._serial: serial.Serial | None = None
         self._broken: str | None = None
-        self._splitter = jp.LineSplitter()
+        self._splitter = LineSplitter()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._deferred = 0

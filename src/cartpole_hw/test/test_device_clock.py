@@ -15,7 +15,7 @@ from cartpole_estimation.ekf import ExtendedKalmanFilter
 from cartpole_hw import protocol as jp
 from cartpole_hw.bridge import BridgeCore
 from cartpole_hw.device_clock import DeviceClock, DeviceClockConfig
-from cartpole_emulator.emulator import Emulator, FaultConfig
+from cartpole_emulator.emulated_rig import Emulator, FaultConfig
 from cartpole_hw.serial_link import SerialLink
 from cartpole_core.model import CartPoleParameters
 from cartpole_sim.plant import Scenario

@@ -25,7 +25,7 @@ def _make_rig(ros_context, tmp_path, active):
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
-    from cartpole_emulator.emulator import Emulator
+    from cartpole_emulator.emulated_rig import Emulator
     from cartpole_hw.hw_node import HwBridgeNode
     from cartpole_hw.lifecycle_client import LifecycleClient
 
@@ -377,7 +377,7 @@ def test_a_command_s_age_counts_from_the_receipt_of_its_sample(rig):
     node = rig.node
     now = node.get_clock().now().nanoseconds
     sampled = now - 80_000_000                 # device time of a sample read just now
-    node._note_receipt(sampled, now, 12345)
+    node.receipts.note(sampled, now, 12345)
     assert node.command_age(sampled, now) < 0.01
     assert node.command_age(sampled - 5_000_000, now) == pytest.approx(0.085)
     assert rig.spin(lambda: len(rig.joint_states) > 3, force=1.0)
@@ -428,3 +428,28 @@ def test_commands_answering_samples_go_tagged_and_their_application_is_published
         [(m, d) for m, d in pairs if abs(m - d) > 2e-4]
     h = rig.h()
     assert int(h['actuation_reports']) >= 40 and 0.0 < float(h['actuation_latency_s']) < 0.3
+
+
+def test_a_force_command_the_rig_cannot_produce_is_dropped_and_counted(rig):
+    """NaN, 1e308, no joint name, a zero stamp: none reaches the device; the setpoint of
+    the good commands around them does, and the health says WARN with the count."""
+    import math
+
+    from sensor_msgs.msg import JointState
+    bad = []
+    for effort, names, zero in ((math.nan, ['cart'], False), (1e308, ['cart'], False),
+                                (5.0, [], False), (5.0, ['cart'], True)):
+        msg = JointState(name=names, effort=[effort])
+        if not zero:
+            msg.header.stamp = rig.node.get_clock().now().to_msg()
+        bad.append(msg)
+    assert rig.spin(lambda: rig.em.device.setpoint == round(2.0 * 56.744), force=2.0)
+    for msg in bad:
+        rig.pub.publish(msg)
+    assert rig.spin(lambda: int(rig.h().get('refused_inputs', '0')) == len(bad), force=2.0), \
+        rig.h()
+    health = rig.h()
+    assert health['armed'] == 'true' and rig.em.device.setpoint == round(2.0 * 56.744)
+    assert (health['refused_inputs.non_finite'], health['refused_inputs.effort_range'],
+            health['refused_inputs.joint_names'], health['refused_inputs.zero_stamp']) == \
+        ('1', '1', '1', '1'), health

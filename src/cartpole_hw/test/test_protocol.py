@@ -8,7 +8,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from cartpole_hw import protocol as jp
-from cartpole_hw.protocol import CounterUnwrapper
+from cartpole_hw.calibration import Calibration
+from cartpole_hw.counters import CounterUnwrapper, SequenceTracker
+from cartpole_hw.line_splitter import LineSplitter, iter_lines
 from cartpole_core.model import CartPoleParameters, wrap_counter
 from cartpole_sim.plant import Plant, Scenario
 
@@ -50,12 +52,12 @@ def test_encode_vectors(body, line):
 
 @pytest.mark.parametrize('force,setpoint', vectors.load('setpoint'))
 def test_setpoint_vectors(force, setpoint):
-    assert jp.Calibration().force_to_setpoint(float(force)) == int(setpoint)
+    assert Calibration().force_to_setpoint(float(force)) == int(setpoint)
 
 
 @pytest.mark.parametrize('setpoint,dac', vectors.load('dac'))
 def test_dac_vectors(setpoint, dac):
-    assert jp.Calibration().dac_value(int(setpoint)) == int(dac)
+    assert Calibration().dac_value(int(setpoint)) == int(dac)
 
 
 @pytest.mark.parametrize('body,hh', vectors.load('checksum'))
@@ -137,7 +139,7 @@ def test_decoder_never_raises(data):
 @settings(max_examples=300)
 @given(st.lists(st.binary(max_size=300), max_size=30))
 def test_splitter_is_bounded_and_never_raises(chunks):
-    splitter = jp.LineSplitter()
+    splitter = LineSplitter()
     for chunk in chunks:
         for item in splitter.feed(chunk):
             if isinstance(item, jp.DecodeError):
@@ -157,12 +159,12 @@ def test_splitter_reassembles_lines_across_any_chunking(msgs, cuts):
         chunks.append(stream[i:i + n])
         i += n
         k += 1
-    decoded = [jp.decode_line(line) for line in jp.iter_lines(chunks)]
+    decoded = [jp.decode_line(line) for line in iter_lines(chunks)]
     assert decoded == msgs
 
 
 def test_splitter_drops_oversized_garbage_and_recovers():
-    splitter = jp.LineSplitter()
+    splitter = LineSplitter()
     good = jp.encode(jp.Sample(7, 35000, 1, 2, 1))
     out = splitter.feed(b'x' * 1000)
     out += splitter.feed(b'y' * 5000 + b'\n' + good)
@@ -173,7 +175,7 @@ def test_splitter_drops_oversized_garbage_and_recovers():
 
 # -- sequence tracking -----------------------------------------------------------------------------
 def test_sequence_tracker_counts_gaps_across_the_uint32_wrap():
-    t = jp.SequenceTracker()
+    t = SequenceTracker()
     for seq in (jp.UINT32 - 3, jp.UINT32 - 2, 1, 2, 2, 5):
         t.update(seq)
     # lost: UINT32-1, 0 (2) and 3, 4 (2); one duplicate
@@ -184,7 +186,7 @@ def test_sequence_tracker_counts_gaps_across_the_uint32_wrap():
 
 # -- conversions (2.3), (2.4), (A.3) ------------------------------------------------------------
 def test_calibration_matches_the_thesis_resolutions():
-    cal = jp.Calibration.from_parameters(CartPoleParameters())
+    cal = Calibration.from_parameters(CartPoleParameters())
     assert cal.cart_resolution == pytest.approx(88.016e-6, rel=1e-4)          # (2.4)
     assert cal.pendulum_resolution == pytest.approx(math.pi * 1e-3)           # (2.3)
     assert cal.cart_position(8737) == pytest.approx(0.769)
@@ -201,19 +203,19 @@ def test_calibration_matches_the_thesis_resolutions():
 
 
 def test_calibration_defaults_are_the_plant_parameters_encoder_figures():
-    default, p = jp.Calibration(), CartPoleParameters()
-    assert default == jp.Calibration.from_parameters(p)
+    default, p = Calibration(), CartPoleParameters()
+    assert default == Calibration.from_parameters(p)
     assert (default.cart_ticks_over_travel, default.travel, default.pendulum_ticks_per_rev,
             default.counter_bits) == (8737.0, 0.769, 2000.0, 16)     # thesis section 2.3
     assert isinstance(default.cart_ticks_over_travel, float)            # the bridge's doubles
     assert (default.cart_resolution, default.pendulum_resolution) == (p.cart_resolution,
                                                                       p.pendulum_resolution)
-    rig = jp.Calibration.from_parameters(p.replace(cart_ticks_over_travel=9000, travel=0.8))
+    rig = Calibration.from_parameters(p.replace(cart_ticks_over_travel=9000, travel=0.8))
     assert rig.cart_resolution == pytest.approx(0.8 / 9000)
 
 
 def test_calibration_signs_and_refusals():
-    cal = jp.Calibration(cart_sign=-1, pendulum_sign=-1, force_sign=-1)
+    cal = Calibration(cart_sign=-1, pendulum_sign=-1, force_sign=-1)
     assert cal.cart_position(100) < 0
     assert cal.pendulum_angle(500) == pytest.approx(math.pi / 2)
     assert cal.force_to_setpoint(10.0) == -567
@@ -221,7 +223,7 @@ def test_calibration_signs_and_refusals():
     for bad in (dict(cart_sign=0), dict(travel=-1.0), dict(dac_zero=5000),
                 dict(setpoint_per_newton=math.inf)):
         with pytest.raises(ValueError):
-            jp.Calibration(**bad)
+            Calibration(**bad)
 
 
 def test_unwrapper_rebuilds_count_across_wraps_synthetic():
@@ -238,7 +240,7 @@ def test_the_plants_positions_are_what_the_unwrapper_rebuilds_from_its_wrapping_
     p = CartPoleParameters(c_c_right=0.0, c_c_left=0.0, c_p=0.0, v_p=0.0)
     plant = Plant(p, Scenario(x0=p.x_middle, theta_dot0=40.0,
                               x_dot0=-p.m_p * p.l * 40.0 / (p.m_c + p.m_p)))
-    cal = jp.Calibration.from_parameters(p)
+    cal = Calibration.from_parameters(p)
     cart, pend = CounterUnwrapper(16), CounterUnwrapper(16)
     for _ in range(800):
         m = plant.measure()
@@ -249,7 +251,7 @@ def test_the_plants_positions_are_what_the_unwrapper_rebuilds_from_its_wrapping_
 
 
 def test_unwrapping_the_16_bit_counters_across_many_revolutions():
-    cal = jp.Calibration()
+    cal = Calibration()
     unwrap = CounterUnwrapper(16)
     counts = (0, 20000, 32767, 35536, 60536, 85536, 60000, 40000)   # many revolutions
     raw = [wrap_counter(c) for c in counts]

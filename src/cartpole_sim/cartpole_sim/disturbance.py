@@ -179,14 +179,13 @@ class DisturbedHold:
                         torque += amplitude
             h, forces = self._hold(line.command_at(a), b - a, cart)
             x, th, v, w, d = self._rk4_steps(x, th, v, w, h, forces,
-                                             self._acc_with_torque(torque) if torque else None)
+                                             self._acc_with_torque(torque) if torque else None,
+                                             a / 1e9, cart)
             if d and abs(d) > abs(deepest):
                 deepest = d
         self.state = [x, th, v, w]
         self.t = t1 / 1e9
         self.contact_penetration = deepest
-        if deepest:
-            self.end_stop_contact = True
 
     def _hold(self, command: float, duration_ns: int, extra: float) -> tuple[float, list[float]]:
         """The RK4 step length and the force of each step of a hold of ``command``.

@@ -5,7 +5,8 @@ sample period (zero-order hold), turned into a current reference
 i* = F* / (k_t / r), passed through the current loop H(s) = b / (s + a) (4.4)
 with the amplifier's saturation (+11 A / -12 A, Appendix C), and applied to the
 cart as F = (k_t / r) i (2.1). The cart is held in its travel by two stiff
-spring-damper end stops (section 4.5). The encoders count quadrature ticks
+spring-damper end stops (section 4.5); resting against one is no crash, an
+:class:`Impact` is (``end_stop_contact``). The encoders count quadrature ticks
 (2.3)/(2.4) in 16-bit counters that wrap (section 2.3).
 
 The mechanics (4.18) are integrated with fixed-step RK4 at ``integration_step``
@@ -40,6 +41,38 @@ END_STOP_TOLERANCE = 1.0e-6
 force at the stiffness 1e6 N/m, far below one cart encoder tick (88 um). A
 cart resting at the left stop after reset sits at x = 0 up to round-off
 (e.g. -1.7e-22 m); a sign test on that float is not a contact."""
+IMPACT_SPEED = 0.02
+"""[m/s] A cart arriving at a stop faster than this hits it (an :class:`Impact`).
+
+Above one cart encoder tick per sample (88 um / 5 ms = 17.6 mm/s: a speed
+the loop can see) and above what noise alone gives a resting cart: one 4-sigma
+sample of 3 N force noise moves the lightest cart of the combined table
+(3.8 kg) at 16 mm/s. Resting contacts arrive at a few mm/s. At 20 mm/s the
+stop (1e6 N/m, 1e3 N s/m) already peaks near 60 N on the cart."""
+IMPACT_PRESS_FORCE = 5.0
+"""[N] Our force (the amplifier's) pressing the cart into a stop beyond this is
+an :class:`Impact`. Resting needs none; a controller at rest may command its
+friction feedforward (6.12), up to c_c,R = 3.4 N, into the stop from the sign
+of a noisy velocity, and 1.3 x that (the combined table's largest gain error)
+is 4.4 N. More than 5 N is our code driving the cart into the stop."""
+
+
+@dataclass(frozen=True)
+class Impact:
+    """The cart hit an end stop: it arrived faster than :data:`IMPACT_SPEED`
+    (``kind`` ``arrival``) or our force pressed it in beyond
+    :data:`IMPACT_PRESS_FORCE` (``press``). One per contact with the stop."""
+
+    t: float
+    """When [s]: the integration step where it happened."""
+    side: str
+    """``left`` or ``right``."""
+    kind: str
+    """``arrival`` or ``press``."""
+    speed: float
+    """Speed into the stop when the cart reached it [m/s] (>= 0)."""
+    force: float
+    """Our force into the stop at the step [N] (positive into the stop)."""
 
 
 @dataclass(frozen=True)
@@ -56,21 +89,6 @@ class Measurement:
     """Cart position [m] from the unwrapped count."""
     theta: float
     """Pendulum angle [rad] from the unwrapped count, pi hanging after reset."""
-
-
-def _measurement(t: float, cart_ticks: int, pendulum_ticks: int, x: float,
-                 theta: float) -> Measurement:
-    """``Measurement(t, cart_ticks, pendulum_ticks, x, theta)``, built directly.
-
-    The same object the frozen dataclass's ``__init__`` makes (it only sets
-    the fields) without its per-field ``object.__setattr__``; once per sample
-    of every offline run. A test checks both are equal.
-    """
-    m = object.__new__(Measurement)
-    object.__setattr__(m, '__dict__', {'t': t, 'cart_ticks': cart_ticks,
-                                       'pendulum_ticks': pendulum_ticks, 'x': x,
-                                       'theta': theta})
-    return m
 
 
 def _rk4_stage(acc, stop, travel: float, force: float, x: float, th: float, v: float,
@@ -137,7 +155,12 @@ class Plant(DisturbedHold):
         self.current = 0.0
         self.force_command = 0.0
         self.end_stop_contact = False
-        """Latched: the cart was pressed into a stop by more than END_STOP_TOLERANCE."""
+        """Latched: the cart hit a stop (an :class:`Impact`); resting against one is not."""
+        self.impacts: list[Impact] = []
+        """Every impact on a stop since the reset, in time order."""
+        self._in_stop = False  # past END_STOP_TOLERANCE at the end of the last RK4 step
+        self._v_in = self.state[2]  # cart velocity at the last step start inside the travel
+        self._contact_counted = False  # this contact with a stop is an impact already
         self.contact_penetration = 0.0
         """Deepest penetration past a stop during the last step [m]: positive at
         the left stop, negative at the right one, 0.0 within the tolerance."""
@@ -214,11 +237,15 @@ class Plant(DisturbedHold):
         self.state = [x, th, v, w]
 
     def _rk4_steps(self, x: float, th: float, v: float, w: float, h: float,
-                   forces, acc=None) -> tuple[float, float, float, float, bool]:
+                   forces, acc=None, t0: float | None = None,
+                   extra: float = 0.0) -> tuple[float, float, float, float, bool]:
         """RK4 steps of length h of (4.18) with end stops, one per force in ``forces``.
 
         ``acc`` replaces the plant's acceleration function (a push on the
-        pendulum adds its torque, :meth:`_acc_with_torque`).
+        pendulum adds its torque, :meth:`_acc_with_torque`). ``t0`` (default
+        :attr:`t`) is the time of the first step's start and ``extra`` the part
+        of each force that is not ours (force noise, a push): a step past a
+        stop is judged by :meth:`_at_stop` (an impact or resting).
 
         Returns the final state and the deepest penetration past a stop after
         any of the steps (positive at the left stop, negative at the right one,
@@ -236,9 +263,14 @@ class Plant(DisturbedHold):
         hh = 0.5 * h
         h6 = h / 6.0
         deepest = 0.0
-        for force in forces:
+        in_stop, v_in = self._in_stop, self._v_in
+        for i, force in enumerate(forces):
             # The end-stop force is zero inside the travel; skip the call there.
-            a1, b1 = acc(x, th, v, w, force if 0.0 <= x <= travel else force + stop(x, v))
+            if 0.0 <= x <= travel:
+                v_in = v  # the speed at which a cart reaching a stop arrives
+                a1, b1 = acc(x, th, v, w, force)
+            else:
+                a1, b1 = acc(x, th, v, w, force + stop(x, v))
             v2, w2, a2, b2 = _rk4_stage(acc, stop, travel, force, x, th, v, w, hh, v, w, a1, b1)
             v3, w3, a3, b3 = _rk4_stage(acc, stop, travel, force, x, th, v, w, hh, v2, w2, a2, b2)
             v4, w4, a4, b4 = _rk4_stage(acc, stop, travel, force, x, th, v, w, h, v3, w3, a3, b3)
@@ -249,10 +281,42 @@ class Plant(DisturbedHold):
             if x < -END_STOP_TOLERANCE:
                 if -x > abs(deepest):
                     deepest = -x
+                self._at_stop(self.t if t0 is None else t0, i, h, 'left', in_stop, -v_in,
+                              extra - force)
+                in_stop = True
             elif x > travel + END_STOP_TOLERANCE:
                 if x - travel > abs(deepest):
                     deepest = travel - x
+                self._at_stop(self.t if t0 is None else t0, i, h, 'right', in_stop, v_in,
+                              force - extra)
+                in_stop = True
+            else:
+                in_stop = False
+        self._in_stop, self._v_in = in_stop, v_in
         return x, th, v, w, deepest
+
+    def _at_stop(self, t0: float, i: int, h: float, side: str, was_in: bool, speed: float,
+                 press: float) -> None:
+        """Step ``i`` (of length ``h`` from ``t0``) ended past the ``side`` stop: an impact?
+
+        ``speed`` is the velocity into the stop at the start of the last step
+        that began inside the travel (the arrival speed if ``was_in`` is False,
+        a new contact), ``press`` our force into the stop. A contact is one
+        impact at most; a bounce back into the stop is a new contact.
+        """
+        if not was_in:
+            self._contact_counted = False
+            if speed > IMPACT_SPEED:
+                self._impact(t0 + (i + 1) * h, side, 'arrival', speed, press)
+                return
+        if press > IMPACT_PRESS_FORCE and not self._contact_counted:
+            self._impact(t0 + (i + 1) * h, side, 'press', max(speed, 0.0) if not was_in else 0.0,
+                         press)
+
+    def _impact(self, t: float, side: str, kind: str, speed: float, press: float) -> None:
+        self._contact_counted = True
+        self.end_stop_contact = True
+        self.impacts.append(Impact(round(t * 1e9) / 1e9, side, kind, speed, press))
 
     def step(self, force_command: float, duration: float | None = None,
              source: float | None = None) -> None:
@@ -295,8 +359,6 @@ class Plant(DisturbedHold):
         # h = 0.001 thousands of times (5.55 s stays 5.55, not 5.550000000000188).
         self.t = round((self.t + n * h) * 1e9) / 1e9
         self.contact_penetration = deepest
-        if deepest:
-            self.end_stop_contact = True
 
     def applied_commands(self) -> list[tuple[float, float]]:
         """``[(source, applied), ...]``: when each tagged command took effect [s], since the last call.
@@ -352,7 +414,7 @@ class Plant(DisturbedHold):
         """
         cart, pend = self._continuous_counts()
         bits = self.params.counter_bits
-        return _measurement(self.t, wrap_counter(cart, bits), wrap_counter(pend, bits),
+        return Measurement(self.t, wrap_counter(cart, bits), wrap_counter(pend, bits),
                             cart * self._cart_resolution,
                             math.pi + pend * self._pendulum_resolution)
 

@@ -228,3 +228,46 @@ class Scenario:
     def replace(self, **changes) -> 'Scenario':
         """A copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """Every field as plain JSON/YAML values (:meth:`from_dict` gives this scenario back,
+        bit for bit: floats are written with ``repr``, which round-trips exactly)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out['parameter_scales'] = [[n, f] for n, f in self.parameter_scales]
+        out['pushes'] = [dataclasses.asdict(p) for p in self.pushes]
+        return out
+
+    @classmethod
+    def from_dict(cls, data) -> 'Scenario':
+        """The scenario of a mapping such as :meth:`to_dict` writes (missing fields keep
+        their defaults); ValueError naming an unknown field or a bad value."""
+        if not isinstance(data, dict):
+            raise ValueError(f'a scenario is a mapping of its fields, got {type(data).__name__}')
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise ValueError(f'unknown scenario field(s) {unknown}; known: {names}')
+        values = dict(data)
+        scales = values.get('parameter_scales', ())
+        if isinstance(scales, dict):
+            scales = list(scales.items())
+        if not isinstance(scales, (list, tuple)) or not all(
+                isinstance(s, (list, tuple)) and len(s) == 2 for s in scales):
+            raise ValueError('parameter_scales must be a list of [name, factor] pairs, '
+                             f'got {scales!r}')
+        values['parameter_scales'] = tuple((n, f) for n, f in scales)
+        pushes = values.get('pushes', ())
+        if not isinstance(pushes, (list, tuple)):
+            raise ValueError(f'pushes must be a list, got {pushes!r}')
+        values['pushes'] = tuple(_push_of(p) for p in pushes)
+        return cls(**values)
+
+
+def _push_of(item) -> Push:
+    """A :class:`Push` of a mapping (t, target, amplitude, width) or of ``T:TARGET:A:W``."""
+    if isinstance(item, str):
+        return parse_push(item)
+    keys = ('t', 'target', 'amplitude', 'width')
+    if not isinstance(item, dict) or set(item) != set(keys):
+        raise ValueError(f'a push is a mapping of {list(keys)}, got {item!r}')
+    return Push(**item)

@@ -7,7 +7,9 @@ Here rather than in ``cartpole_bringup`` because the emulator
 from __future__ import annotations
 
 import argparse
+import json
 import math
+from pathlib import Path
 
 from .scenario import DELAY_MAX, DROP_MAX, Scenario, parse_push
 
@@ -72,8 +74,60 @@ def add_scenario_arguments(parser: argparse.ArgumentParser,
     return g
 
 
+def add_scenario_file_argument(group) -> None:
+    """``--scenario FILE`` (:func:`scenario_from_args` reads it), for a command whose
+    plant takes the whole :class:`Scenario` (``cartpole offline``)."""
+    group.add_argument('--scenario', type=Path, default=None, metavar='FILE',
+                       help='the whole scenario from a JSON or YAML file of its fields (as '
+                            '`cartpole bench robustness --combined` writes for each failure); '
+                            'the other scenario options are then refused')
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """The :class:`Scenario` of a JSON or YAML file of its fields (:meth:`Scenario.to_dict`);
+    ValueError naming the file and what is wrong."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ValueError(f'--scenario {path}: cannot read it ({error.strerror})') from None
+    if path.suffix.lower() == '.json':
+        try:
+            data = json.loads(text)
+        except ValueError as error:
+            raise ValueError(f'--scenario {path}: not valid JSON ({error})') from None
+    else:
+        import yaml
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as error:
+            raise ValueError(f'--scenario {path}: not valid YAML ({error})') from None
+    try:
+        return Scenario.from_dict(data)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f'--scenario {path}: {error}') from None
+
+
+def save_scenario(scenario: Scenario, path: str | Path) -> Path:
+    """Write ``scenario`` as JSON (:func:`load_scenario` reads it back equal, bit for bit)."""
+    path = Path(path)
+    path.write_text(json.dumps(scenario.to_dict(), indent=1) + '\n')
+    return path
+
+
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The :class:`Scenario` of parsed options; ValueError (naming the option) if invalid."""
+    """The :class:`Scenario` of parsed options; ValueError (naming the option) if invalid.
+
+    With ``--scenario FILE`` the file's scenario, and any other scenario
+    option given as well is refused (the file is the whole scenario).
+    """
+    if getattr(args, 'scenario', None) is not None:
+        given = [f'--{name.replace("_", "-")}' for name, default in _OPTION_DEFAULTS.items()
+                 if getattr(args, name, default) != default]
+        if given:
+            raise ValueError(f'--scenario {args.scenario} is the whole scenario; drop '
+                             f'{", ".join(given)} (or edit the file)')
+        return load_scenario(args.scenario)
     try:
         return Scenario(x0=args.x0, theta0=args.theta0, tip_mass=args.tip_mass,
                         cart_mass=args.cart_mass, friction_scale=args.friction_scale,
@@ -91,6 +145,11 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
         raise ValueError(message) from None
 
 
+_OPTION_DEFAULTS = {'x0': 0.0, 'theta0': math.pi, 'tip_mass': None, 'cart_mass': None,
+                    'friction_scale': 1.0, 'encoder_offset': 0.0, 'noise': False, 'seed': 0,
+                    'delay': 0.0, 'jitter': 0.0, 'drop': 0.0, 'force_noise': 0.0,
+                    'actuator_gain': 1.0, 'actuator_tau': 0.0, 'push': []}
+"""Each scenario option's default (``--push`` as its ``dest``): what --scenario refuses."""
 _OPTION_FIELDS = ('x0', 'theta0', 'tip_mass', 'cart_mass', 'friction_scale', 'encoder_offset',
                   'seed', 'delay', 'jitter', 'drop', 'force_noise', 'actuator_gain',
                   'actuator_tau')

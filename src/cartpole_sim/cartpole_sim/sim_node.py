@@ -1,59 +1,23 @@
 """The simulator node ``sim``: the plant of :mod:`cartpole_sim.plant` on ROS.
 
-Publishes the encoder samples on ``/joint_states`` (quantised, at 1/Ts =
-200 Hz), the ground truth on ``/cartpole/true_state`` and, in lockstep mode,
-``/clock``; applies the latest ``/cartpole/force_command`` with zero-order
-hold. All numerical work is in :class:`~cartpole_sim.plant.Plant`, wrapped by
-:class:`~cartpole_sim.sim_runner.SimRunner`; this module only wires ROS.
-
-Real time (``lockstep:=false``): the plant is sampled on its own clock, as a
-device would be (:class:`~cartpole_sim.sim_runner.SampleClock`): a steady wall
-timer at Ts steps the plant up to the sample wall time has reached (after a
-stall of the process, several steps at once, each with the held command and
-the watchdog) and publishes every sample, stamped ``t_0 + k Ts`` from the node
-clock at the first sample: stamps exactly Ts apart, the plant's own time.
-``late_samples`` counts the samples published late (behind a stall).
-
-Lockstep (``lockstep:=true``): stamps are simulated time k Ts, also published on
-``/clock``. After sample k the node waits for the force command whose
-``header.stamp`` equals sample k's stamp; its arrival (a subscription
-callback, no polling) steps the plant by Ts and publishes sample k + 1. If no
-such command arrives within ``lockstep_timeout`` wall seconds, the node steps
-with the held command (zero once the watchdog tripped), so a missing
-controller cannot hang the graph. Until the first matching command arrives
-(``lockstep_startup_wait``), sample 0 is re-published every 0.1 s wall and the
-timeout does not apply, so a graph whose controller starts slowly still starts
-from the same sample and runs the same way every time.
-
-With a recorder in the loop (``recorder_window`` > 0; ``cartpole run
---lockstep --record`` sets it) the node also does not step past sample k
-until the recorder reports (``/cartpole/recorder/progress``, std_msgs/Header)
-that it holds every sample topic up to k - ``recorder_window``: so the bag is
-complete however slow the recorder is (see ``cartpole_bringup.graph.record_ledger``).
-A recorder silent for ``lockstep_timeout`` (at sample 0:
-:data:`STARTUP_RECORDER_WAIT`) is not waited for any longer.
-
-Reset (service ``~/reset``): the plant goes back to the scenario's initial
-state with zero force, and the node announces it on ``cartpole/plant_reset``
-(std_msgs/Header, ``stamp`` = the time from which samples show the reset
-plant: the reset sample's stamp in lockstep, the reset's time in real time)
-before the first sample after it, so that the EKF re-initialises and the
-controller manager starts a new swing-up instead of seeing the jump. Force
-commands stamped before the reset (answers to the old run) are ignored.
-
-Health: ``sim: simulation`` on ``/diagnostics`` once a second of the node clock
-(:meth:`SimNode.health`, :mod:`cartpole_core.diagnostics`).
-
-Topic names are relative (``joint_states`` is ``/joint_states`` without a
-namespace), so a graph can run in a namespace; ``/clock`` stays global.
+Publishes the encoder samples on ``joint_states`` (quantised, at 1/Ts = 200
+Hz), the ground truth on ``cartpole/true_state``, when each command took
+effect on ``cartpole/command_applied`` and, in lockstep, ``/clock``; applies
+the latest ``cartpole/force_command`` with zero-order hold and a watchdog.
+The numerical work is :class:`~cartpole_sim.sim_runner.SimRunner`'s; this
+module only wires ROS. Real time: a steady wall timer steps the plant up to
+the sample wall time has reached, stamped on the plant's own sample clock
+(``t_0 + k Ts``). Lockstep: sample k (stamp k Ts) waits for the command that
+echoes its stamp (and, with ``recorder_window`` > 0, for the recorder's
+progress), then steps; ``lockstep_timeout`` keeps a missing controller from
+hanging the graph. ``~/reset`` puts the plant back to the scenario's start and
+announces it on ``cartpole/plant_reset``. Health: ``sim: simulation`` on
+``/diagnostics``. Topic names are relative; ``/clock`` stays global. Stamps,
+lockstep, reset and watchdog in detail: docs/simulator.md ("The simulator node").
 """
 from __future__ import annotations
 
-import math
-from pathlib import Path
-
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -65,12 +29,12 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_core.diagnostics import OK, STALE, Health, NodeDiagnostics
-from cartpole_core.model import CartPoleParameters
-from .plant import Scenario
-from .scenario import DELAY_MAX, DROP_MAX, parse_push
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, RigLimits
+from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
+from .sim_parameters import SCENARIO_PARAMETERS, declare_sim_parameters, scenario_from
 from .sim_runner import (CART_JOINT, PENDULUM_JOINT, Sample, SampleClock, SimRunner,
                          force_from_command)
-from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 
 STARTUP_REPUBLISH_PERIOD = 0.1
 """Wall seconds between re-publications of sample 0 while lockstep waits for a controller."""
@@ -78,12 +42,6 @@ STARTUP_REPUBLISH_PERIOD = 0.1
 STARTUP_RECORDER_WAIT = 10.0
 """Lockstep: wall seconds sample 0 waits for the recorder (it may still be discovering the
 graph: up to about 3 s with Fast DDS); later samples wait ``lockstep_timeout``."""
-
-SCENARIO_PARAMETERS = ('x0', 'theta0', 'x_dot0', 'theta_dot0', 'tip_mass', 'friction_scale',
-                       'encoder_offset', 'noise', 'seed', 'plant_params_file',
-                       'integration_step', 'cart_mass', 'delay', 'jitter', 'drop',
-                       'force_noise', 'actuator_gain', 'actuator_tau', 'pushes')
-"""Parameters that take effect at the next reset (service ``~/reset``)."""
 
 
 DEGRADED = ('rejected_commands', 'lockstep_timeouts', 'late_samples', 'watchdog_trips')
@@ -94,70 +52,20 @@ LOST_IN_A_ROW_MAX = 2000
 waits for its lockstep timeout, so it keeps answering (services, SIGTERM) whatever the drop."""
 
 
-def _float_range(low: float, high: float) -> list[FloatingPointRange]:
-    return [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
-
-
-_START_PARAMETERS = (
-    ('x0', 0.0, 'Initial cart position from the left end stop [m]; within the travel.',
-     0.0, 10.0),
-    ('theta0', math.pi, 'Initial pendulum angle [rad]; 0 upright, pi hanging.', -20.0, 20.0),
-    ('x_dot0', 0.0, 'Initial cart velocity [m/s].', -5.0, 5.0),
-    ('theta_dot0', 0.0, 'Initial pendulum angular velocity [rad/s].', -50.0, 50.0),
-    ('tip_mass', 0.0, 'Tip mass of the plant [kg]; 0 keeps the nominal m_p (0.251 kg).',
-     0.0, 10.0),
-    ('friction_scale', 1.0, 'Multiplies every cart and pendulum friction coefficient.',
-     0.0, 10.0),
-    ('encoder_offset', 0.0, 'Pendulum angle minus pi when the encoders were reset [rad] '
-     '(Appendix H); biases the measured angle.', -math.pi, math.pi),
-)
-"""The start and the plant's uncertainties: (name, default, description, low, high)."""
-
-_DISTURBANCE_PARAMETERS = (
-    ('cart_mass', 0.0, 'Equivalent cart mass of the plant [kg]; 0 keeps the nominal m_c '
-     '(4.75 kg).', 0.0, 100.0),
-    ('delay', 0.0, 'Sensor-to-actuator latency [s]: a command takes effect this long after '
-     'the sample it was computed from (inside the hold).', 0.0, DELAY_MAX),
-    ('jitter', 0.0, 'Extra latency per sample, uniform in [0, jitter] [s].', 0.0, DELAY_MAX),
-    ('drop', 0.0, f'Probability in [0, {DROP_MAX:g}] that a sample is lost: not published on '
-     '/joint_states (/cartpole/true_state and /clock still are); lockstep steps on at once '
-     'with the held command.', 0.0, DROP_MAX),
-    ('force_noise', 0.0, 'Std of Gaussian force noise on the cart [N], one draw per sample.',
-     0.0, 100.0),
-    ('actuator_gain', 1.0, 'Amplifier gain error: the current is this times the commanded '
-     'one.', 0.0, 10.0),
-    ('actuator_tau', 0.0, 'Time constant of an extra first-order amplifier lag [s]; 0 = none.',
-     0.0, 1.0),
-)
-"""The scenario's disturbances (cartpole_sim.scenario): (name, default, description, low, high)."""
-
-
-def load_plant_parameters(path: str) -> CartPoleParameters:
-    """The nominal plant parameters: the thesis values, or a YAML file's."""
-    if not path:
-        return CartPoleParameters()
-    if not Path(path).is_file():
-        raise ValueError(f'plant_params_file {path!r} does not exist')
-    try:
-        return CartPoleParameters.from_yaml(path)
-    except ValueError as error:
-        raise ValueError(f'plant_params_file {path!r}: {error}') from error
-    except Exception as error:  # unreadable or not YAML (yaml.YAMLError, OSError, ...)
-        raise ValueError(f'plant_params_file {path!r} cannot be read: {error}') from error
-
-
 class SimNode(Node):
-    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring.
-
-    Why one class of about 360 lines: a node adapter, most of it the declaration of
-    the scenario's parameters and their validation, and the lockstep handshake with
-    the recorder, which shares the node's publishers and timers; the sample clock and
-    watchdog are :mod:`cartpole_sim.sim_runner`, the plant :class:`cartpole_sim.plant.Plant`.
-    """
+    """Simulated cart-pendulum rig (node name ``sim``); see the module docstring."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('sim', **kwargs)
-        self._declare_parameters()
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the plant, topics, services, timers."""
+        declare_sim_parameters(self)
         self.commands = 0
         """Force commands taken (the health's ``commands``)."""
         self.rejected_commands = 0
@@ -169,10 +77,14 @@ class SimNode(Node):
         """Real time: samples published in a later timer period than theirs (a stall)."""
 
         values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
-        params, scenario = self._scenario_from(values)  # raises on a bad start-up value
+        params, scenario = scenario_from(values)  # raises on a bad start-up value
         self._runner = SimRunner(params, scenario,
                                  integration_step=values['integration_step'],
                                  command_timeout=self.get_parameter('command_timeout').value)
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            params, stamp_tolerance=declare_stamp_tolerance(self)),
+            ('cartpole/force_command', 'cartpole/recorder/progress'))
+        """Judges every message before it is taken (refused_inputs in the health)."""
         self._lockstep = bool(self.get_parameter('lockstep').value)
         self._loop_established = not (self._lockstep
                                       and self.get_parameter('lockstep_startup_wait').value)
@@ -228,86 +140,6 @@ class SimNode(Node):
             f'sim: {"lockstep" if self._lockstep else "real time"}, Ts = {period * 1e3:g} ms, '
             f'x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad')
 
-    # -- parameters ------------------------------------------------------------------
-    def _declare_parameters(self) -> None:
-        declare = self.declare_parameter
-        declare('lockstep', False, ParameterDescriptor(
-            description='Lockstep: advance one Ts per force command echoing the sample stamp, '
-                        'publish /clock; false: real time on a wall timer.', read_only=True))
-        declare('lockstep_startup_wait', True, ParameterDescriptor(
-            description='Lockstep: until the first matching command, re-publish sample 0 every '
-                        '0.1 s wall and do not apply lockstep_timeout.', read_only=True))
-        declare('recorder_window', 0, ParameterDescriptor(
-            description='Lockstep: step past sample k only once the recorder holds every sample '
-                        'topic up to sample k - recorder_window; 0 = do not wait for a recorder.',
-            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=90, step=1)]))
-        declare('lockstep_timeout', 1.0, ParameterDescriptor(
-            description='Lockstep: wall seconds to wait for the awaited command before stepping '
-                        'with the held one [s]; takes effect at once.',
-            floating_point_range=_float_range(0.001, 3600.0)))
-        declare('command_timeout', 0.05, ParameterDescriptor(
-            description='Watchdog: zero force when no command arrived for this much simulated '
-                        'time [s]; takes effect at once.',
-            floating_point_range=_float_range(0.0, 10.0)))
-        self._declare_ranged(_START_PARAMETERS)
-        declare('noise', False, ParameterDescriptor(
-            description='Add Gaussian measurement noise before quantisation.'))
-        declare('seed', 0, ParameterDescriptor(
-            description='Seed of the measurement noise.',
-            integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)]))
-        self._declare_disturbances()
-        declare('plant_params_file', '', ParameterDescriptor(
-            description="YAML of CartPoleParameters (must exist and have the node's "
-                        "sample_time); '' = the thesis values."))
-        declare('integration_step', 0.001, ParameterDescriptor(
-            description='RK4 step of the plant [s]; at most the sample time.',
-            floating_point_range=_float_range(1e-5, 0.005)))
-
-    def _declare_ranged(self, table) -> None:
-        """Declare the float parameters of ``table``: (name, default, description, low, high)."""
-        for name, default, description, low, high in table:
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, floating_point_range=_float_range(low, high)))
-
-    def _declare_disturbances(self) -> None:
-        """The scenario's disturbances (cartpole_sim.scenario), at the next reset like the rest."""
-        declare = self.declare_parameter
-        self._declare_ranged(_DISTURBANCE_PARAMETERS)
-        declare('pushes', '', ParameterDescriptor(
-            description="Pushes 'T:TARGET:AMPLITUDE:WIDTH' separated by commas or spaces, "
-                        "TARGET cart [N] or pendulum [N m]; '' = none."))
-
-    @staticmethod
-    def _scenario_from(values: dict) -> tuple[CartPoleParameters, Scenario]:
-        """Nominal parameters and scenario from parameter values; ValueError if invalid."""
-        params = load_plant_parameters(values['plant_params_file'])
-        x0 = float(values['x0'])
-        if not 0.0 <= x0 <= params.travel:
-            raise ValueError(f'x0 = {x0:g} m is outside the travel [0, {params.travel:g}] m')
-        tip_mass = float(values['tip_mass'])
-        if not (tip_mass >= 0.0 and math.isfinite(tip_mass)):
-            raise ValueError(f'tip_mass must be 0 (nominal) or a positive mass, got {tip_mass!r}')
-        step = float(values['integration_step'])
-        if not 0.0 < step <= params.sample_time:
-            raise ValueError(f'integration_step = {step:g} s must be in (0, sample_time = '
-                             f'{params.sample_time:g} s]')
-        scenario = Scenario(
-            x0=x0, theta0=float(values['theta0']), x_dot0=float(values['x_dot0']),
-            theta_dot0=float(values['theta_dot0']),
-            tip_mass=tip_mass if tip_mass > 0.0 else None,
-            friction_scale=float(values['friction_scale']),
-            encoder_offset=float(values['encoder_offset']),
-            noise=bool(values['noise']), seed=int(values['seed']),
-            cart_mass=float(values['cart_mass']) or None, delay=float(values['delay']),
-            jitter=float(values['jitter']), drop=float(values['drop']),
-            force_noise=float(values['force_noise']),
-            actuator_gain=float(values['actuator_gain']),
-            actuator_tau=float(values['actuator_tau']),
-            pushes=tuple(parse_push(text) for text in
-                         str(values['pushes']).replace(',', ' ').split()))
-        scenario.plant_parameters(params)  # validates the scenario's plant (e.g. masses)
-        return params, scenario
-
     def _validate_parameters(self, changed: list[Parameter]) -> SetParametersResult:
         """Refuse a change that would make an invalid scenario; nothing changes then."""
         values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
@@ -319,7 +151,7 @@ class SimNode(Node):
         if not touched:
             return SetParametersResult(successful=True)
         try:
-            params, _ = self._scenario_from(values)
+            params, _ = scenario_from(values)
         except (ValueError, TypeError, OSError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         if params.sample_time != self._runner.params.sample_time:
@@ -448,6 +280,9 @@ class SimNode(Node):
         self._lockstep_advance()
 
     def _on_progress(self, msg: Header) -> None:
+        if not self.inputs.accept_stamps('cartpole/recorder/progress', msg.stamp,
+                                         now_ns=self._now_ns()):
+            return
         self._recorder_ns = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
         self._try_advance()
 
@@ -487,7 +322,17 @@ class SimNode(Node):
         self._publish(self._runner.sample)
         self._try_advance()  # the recorder's wait may have timed out
 
+    def _now_ns(self) -> int:
+        """What input stamps are judged against: simulated time in lockstep (the samples'
+        stamps, whatever the node clock), else the node clock."""
+        if self._lockstep:
+            return max(self._runner.stamp_ns, 1)
+        return self.get_clock().now().nanoseconds
+
     def _on_command(self, msg: JointState) -> None:
+        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command', self._now_ns()):
+            self.rejected_commands += 1
+            return
         force = force_from_command(msg.name, msg.effort)
         if force is None:
             self.rejected_commands += 1
@@ -516,7 +361,7 @@ class SimNode(Node):
         """Plant back to the scenario's initial state, with the scenario parameters now set."""
         values = {name: self.get_parameter(name).value for name in SCENARIO_PARAMETERS}
         try:
-            params, scenario = self._scenario_from(values)
+            params, scenario = scenario_from(values)
             sample = self._runner.reset(params=params, scenario=scenario,
                                         integration_step=float(values['integration_step']))
         except ValueError as error:
@@ -538,6 +383,11 @@ class SimNode(Node):
 
     # -- health ------------------------------------------------------------------------------
     def health(self) -> Health:
+        """The simulator's health with the input checks' counts (:meth:`_own_health`; WARN
+        once an input was refused)."""
+        return self.inputs.health(self._own_health())
+
+    def _own_health(self) -> Health:
         """The simulator's health for ``/diagnostics`` (``sim: simulation``): OK while it
         runs or waits for a controller; STALE once the force commands stopped (the watchdog
         holds zero force); WARN when a :data:`DEGRADED` counter grew since the last report."""

@@ -265,13 +265,6 @@ def test_step_equals_the_rk4_substeps_on_the_plant_bit_for_bit():
     assert a.end_stop_contact
 
 
-def test_measurement_built_directly_equals_the_dataclass_constructor():
-    from cartpole_sim.plant import Measurement, _measurement
-    m = _measurement(0.005, 12, -7, 0.001, 3.1)
-    assert type(m) is Measurement and m == Measurement(0.005, 12, -7, 0.001, 3.1)
-    assert hash(m) == hash(Measurement(0.005, 12, -7, 0.001, 3.1))
-    with pytest.raises(Exception):
-        m.x = 1.0
 
 
 def test_sample_times_are_whole_nanoseconds_without_drift():

@@ -86,6 +86,7 @@ def graph(ros_context):
     executor = SingleThreadedExecutor(context=ros_context)
 
     def make(echo_force=None, **overrides):
+        overrides.setdefault('stamp_tolerance', 0.0)   # the probe's commands are stamped 0
         sim = SimNode(context=ros_context, parameter_overrides=[
             Parameter(name, value=value) for name, value in overrides.items()])
         probe = Probe(ros_context, echo_force)

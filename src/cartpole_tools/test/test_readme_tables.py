@@ -1,4 +1,4 @@
-"""The README's generated tables agree with the code, and the check notices when they do not."""
+"""The generated reference tables agree with the code, and the check notices when they do not."""
 import os
 import subprocess
 import sys
@@ -7,11 +7,12 @@ from pathlib import Path
 import pytest
 
 from cartpole_tools.readme_tables.introspect import Endpoint, NodeInfo, ParameterInfo
-from cartpole_tools.readme_tables.regions import find_regions, problems, rewrite
+from cartpole_tools.readme_tables.regions import find_regions, problems, problems_across, rewrite
 from cartpole_tools.readme_tables.render import MissingNote
 from cartpole_tools.readme_tables.tables import generate
 
-README = Path(__file__).resolve().parents[3] / 'README.md'
+ROOT = Path(__file__).resolve().parents[3]
+REFERENCE = ROOT / 'docs' / 'reference'
 
 
 def _parameter(name, default, low=None, high=None, read_only=False):
@@ -67,9 +68,10 @@ def test_write_then_check_agrees_and_keeps_the_prose():
     table = {r.key: r.body for r in find_regions(text)}['parameters controller_manager']
     assert '| `state_timeout` | double | `0.05` | [0.006, 10.0] |' in table
     assert '[0.0001, 0.1]; read-only' in table
-    assert 'fake.gain' not in table  # a plugin's gains go to the plugin's own table
-    assert '| `fake.gain` | double | `2.0` | [0.0, 5.0] |' in \
-        {r.key: r.body for r in find_regions(text)}['parameters fake']
+    assert 'fake.gain' not in table  # a plugin's gains go to the plugins' section
+    plugins = {r.key: r.body for r in find_regions(text)}['plugin-parameters']
+    assert '### `fake` (stabilizer)' in plugins
+    assert '| `fake.gain` | double | `2.0` | [0.0, 5.0] |' in plugins
 
 
 def test_check_names_a_changed_default_in_the_readme():
@@ -117,33 +119,49 @@ def test_the_status_note_names_every_status_key():
     assert all(f'`{k}`' in note for k in STATUS_KEYS)
 
 
-def _check(readme: Path):
+def test_every_region_stands_in_one_document_only():
+    generated = _generate()
+    text = _readme(generated)
+    first, second = Path('a.md'), Path('b.md')
+    assert problems_across({first: text}, generated) == []
+    found = problems_across({first: text, second: text}, generated)
+    assert len(found) == len(generated) and all('appears in 2 documents' in p for p in found)
+    found = problems_across({first: text.replace('<!-- generated: topics -->', '<!-- generated: x -->')},
+                            generated)
+    assert any('no document has a region "<!-- generated: topics -->"' in p for p in found)
+    assert any("'x' names nothing" in p for p in found)
+
+
+def _check(*documents: Path):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    doc_args = [a for d in documents for a in ('--doc', str(d))]
     return subprocess.run([sys.executable, '-m', 'cartpole_tools.readme_tables', '--check',
-                           '--readme', str(readme)], capture_output=True, text=True, timeout=120,
-                          env=env)
+                           *doc_args], capture_output=True, text=True, timeout=120, env=env)
 
 
 @pytest.mark.ros
-def test_readme_tables_match_the_code(tmp_path):
-    """The installed nodes, plugins and bag topics are what README.md's generated tables say.
+def test_reference_tables_match_the_code(tmp_path):
+    """The installed nodes, plugins, bag topics and the cartpole command are what the generated
+    tables of docs/reference/ say.
 
-    On failure: ``python -m cartpole_tools.readme_tables --write`` and commit README.md.
+    On failure: ``python -m cartpole_tools.readme_tables --write`` and commit docs/reference/.
     """
-    result = _check(README)
+    pages = sorted(REFERENCE.glob('*.md'))
+    result = _check(ROOT / 'README.md', *pages)
     assert result.returncode == 0, result.stderr[-4000:]
-    text = README.read_text(encoding='utf-8')
+    text = '\n'.join(p.read_text(encoding='utf-8') for p in pages)
     for key in ('parameters controller_manager', 'parameters sim', 'parameters ekf',
                 'parameters hw_bridge', 'parameters recorder', 'plugins', 'topics',
-                'parameters time_optimal', 'parameters energy_saturated'):
+                'plugin-parameters', 'cli'):
         assert f'<!-- generated: {key} -->' in text
+    assert '### `time_optimal` (swingup)' in text and '### `cartpole run`' in text
     # the check notices one changed default in the manager's table
-    edited = text.replace('| `state_timeout` | double | `0.05` |',
-                          '| `state_timeout` | double | `0.5` |')
-    assert edited != text
-    copy = tmp_path / 'README.md'
+    parameters = REFERENCE / 'parameters.md'
+    edited = parameters.read_text(encoding='utf-8').replace(
+        '| `state_timeout` | double | `0.05` |', '| `state_timeout` | double | `0.5` |')
+    copy = tmp_path / 'parameters.md'
     copy.write_text(edited, encoding='utf-8')
-    result = _check(copy)
+    result = _check(ROOT / 'README.md', *[copy if p == parameters else p for p in pages])
     assert result.returncode == 1
     assert "'parameters controller_manager' disagrees" in result.stderr
     assert '`0.5`' in result.stderr

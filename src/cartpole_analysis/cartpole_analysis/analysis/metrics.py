@@ -25,6 +25,8 @@ WINDOW_S = 10.0
 SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m',
                 'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'swingup_law',
                 'force_rms_n', 'force_p2p_n')
+STRICT_KEYS = ('falls_after_catch', 'impacts', 'first_impact_s', 'impact_speed_mps')
+"""Keys of the strict rule, in the summary when the caller knows them (offline runs)."""
 
 
 def wrap(theta: np.ndarray) -> np.ndarray:
@@ -40,7 +42,9 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
               controllers: Sequence[dict[str, Any]] | None = None,
               longest_cycle_gap_s: float | None = None, swingup_law: str | None = None,
               force: Sequence[float] | None = None,
-              t_force: Sequence[float] | None = None) -> dict[str, Any]:
+              t_force: Sequence[float] | None = None,
+              falls_after_catch: int | None = None,
+              impacts: Sequence[Any] | None = None) -> dict[str, Any]:
     """The run summary of one run from hanging rest.
 
     Parameters
@@ -53,7 +57,8 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     catch_time
         Time of the first switch to the stabiliser, or None.
     end_stop_contact
-        Whether the cart touched an end stop.
+        Whether the cart hit an end stop (simulation: an impact, see ``impacts``;
+        resting against a stop is not one).
     window
         Length of the final window for the amplitude, error, MSE and force figures.
     fault
@@ -74,6 +79,15 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     force, t_force
         The force commands [N] and their times [s] (``t_force`` defaults to
         ``t``); ``force_rms_n`` and ``force_p2p_n`` are null without them.
+    falls_after_catch
+        How often the pendulum fell after the first catch (the manager's
+        ``fall`` events); when given, ``success`` also needs none (the strict
+        rule), and the key is in the summary (null when not known).
+    impacts
+        The plant's impacts on a stop (objects with ``t`` [s] and ``speed``
+        [m/s], :class:`cartpole_sim.plant.Impact`); when given, the summary
+        has ``impacts`` (count), ``first_impact_s`` and ``impact_speed_mps``
+        (the fastest arrival; 0.0 for impacts that only pressed).
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -87,7 +101,14 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
     x_err_max = float(np.max(np.abs(x_err)))
     long_enough = t[-1] - t[0] >= window
     success = bool(catch_time is not None and long_enough and theta_amp < THETA_AMP_LIMIT_DEG
-                   and x_err_max <= X_ERR_LIMIT_M and not end_stop_contact and fault is None)
+                   and x_err_max <= X_ERR_LIMIT_M and not end_stop_contact and fault is None
+                   and not falls_after_catch)
+    extra: dict[str, Any] = {'falls_after_catch': None if falls_after_catch is None
+                             else int(falls_after_catch)}
+    if impacts is not None:
+        extra.update(impacts=len(impacts),
+                     first_impact_s=float(impacts[0].t) if impacts else None,
+                     impact_speed_mps=max((float(i.speed) for i in impacts), default=None))
     return {
         'catch_time_s': None if catch_time is None else float(catch_time),
         'upright_time_s': float(t[upright[0]]) if upright.size else None,
@@ -102,6 +123,7 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         'longest_cycle_gap_s': None if longest_cycle_gap_s is None else float(longest_cycle_gap_s),
         'swingup_law': swingup_law,
         **control_effort(force, t if t_force is None else t_force, t[-1] - window),
+        **extra,
     }
 
 

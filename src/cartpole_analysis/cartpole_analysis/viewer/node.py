@@ -1,42 +1,20 @@
 """The ``viewer`` node: the running graph, live, in Foxglove (a WebSocket server).
 
-Subscribes the graph's topics (docs/architecture.md) and feeds
-:class:`cartpole_analysis.viewer.server.LiveView`, which serves the Foxglove
-WebSocket protocol through the foxglove-sdk (channels, rates and contents:
-:mod:`cartpole_analysis.viewer.server`)::
+Subscribes the graph's topics and feeds :class:`cartpole_analysis.viewer.server.LiveView`
+(the Foxglove WebSocket protocol through the foxglove-sdk)::
 
     ros2 run cartpole_bringup viewer                      # ws://127.0.0.1:8765
-    ros2 run cartpole_bringup viewer --ros-args -p host:=0.0.0.0 -p port:=8765
 
-or ``cartpole run --sim --view``, which starts it in its own process. It
-never publishes on the graph and subscribes best-effort (a reliable reader
-in another process costs the publishers acknowledgements and resends): a
-viewer that falls behind drops samples, the loop never waits for it.
-
-Topics: ``/cartpole/state`` (the estimate: each one that is due draws the
-scene), ``/cartpole/controller_status`` (mode, energies, the force command
-and its parts, events), the plant's own state drawn under the
-estimate -- ``/cartpole/true_state`` (the simulator's ground truth) while it
-has a publisher, else ``/joint_states`` (the encoders' measurement) -- and
-``/parameter_events`` (x* follows ``ros2 param set /controller_manager
-x_ref ...``). Every subscription a process adds costs the publishers a send
-per message, so the viewer takes only these: the force command is the
-status's ``force``, the value the manager publishes on
-``/cartpole/force_command`` with the same stamp, and only one of the
-measurement and the truth is subscribed at a time (chosen every
-:data:`PLANT_TOPIC_CHECK_PERIOD`). The names are relative: a viewer started in a
-graph's namespace (``-r __ns:=/rig2``) shows that graph (``/rig2/cartpole/state``,
-the manager ``/rig2/controller_manager``).
-
-With ``feed:=PATH`` it subscribes none of these 200 Hz topics but takes the
-samples from a local Unix socket instead, sent by the ``viewer_tap``
-node inside the graph's process (:mod:`cartpole_analysis.viewer.feed`: no
-remote DDS reader on the loop's critical path); ``cartpole run --view``
-works this way.
-
-It runs at the lowest CPU priority (:func:`lower_priority`), so that it never
-takes the processor from the loop. On start it prints one line to stderr,
-``viewer: serving ws://HOST:PORT`` (the real port when ``port`` is 0).
+It never publishes on the graph and subscribes best-effort, so a viewer that
+falls behind drops samples and the loop never waits for it. It takes only
+``cartpole/state`` (each one due draws the scene), ``cartpole/controller_status``,
+one of ``cartpole/true_state`` (while it has a publisher) or ``joint_states``
+(chosen every :data:`PLANT_TOPIC_CHECK_PERIOD`) and ``/parameter_events``:
+every subscription costs the publishers a send per message. With
+``feed:=PATH`` it takes the samples from the ``viewer_tap`` node's Unix
+socket instead (:mod:`cartpole_analysis.viewer.feed`; ``cartpole run --view``).
+It runs at the lowest CPU priority and prints ``viewer: serving ws://HOST:PORT``
+to stderr on start. docs/live_view.md.
 """
 from __future__ import annotations
 
@@ -44,6 +22,7 @@ import math
 import os
 import sys
 import threading
+from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -55,6 +34,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from cartpole_sim.geometry import RigGeometry
+from cartpole_core.diagnostics import OK, Health, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import SAMPLE, RigLimits
+from cartpole_core.message_checks import STATE as STATE_KIND, TRUTH as TRUTH_KIND
 from cartpole_core.model import CartPoleParameters
 from cartpole_core.node_runner import run_node
 
@@ -73,16 +56,41 @@ PLANT_TOPIC_CHECK_PERIOD = 1.0
 """Wall seconds between checks whether /cartpole/true_state has a publisher."""
 
 
-class ViewerNode(Node):
-    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``.
+class _Stamp(NamedTuple):
+    sec: int
+    nanosec: int
 
-    Why one class of about 180 lines: a node adapter whose ``__init__`` declares the
-    viewer's parameters and chooses between the graph's topics and the tap's feed;
-    the view itself is :class:`cartpole_analysis.viewer.server.LiveView`.
-    """
+
+class _Header(NamedTuple):
+    stamp: _Stamp
+
+
+class _JointStateView(NamedTuple):
+    """A parsed JointState as :func:`cartpole_core.message_checks.judge` reads it."""
+
+    header: _Header
+    name: list
+    position: object
+    velocity: object
+    effort: object
+
+
+class ViewerNode(Node):
+    """Node ``viewer`` (see the module docstring); takes ``**kwargs`` of ``rclpy.node.Node``."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        try:
+            self._start()
+        except BaseException:   # refused: nothing of the node stays in the graph
+            server = getattr(self, 'server', None)
+            if server is not None:
+                server.stop()
+            Node.destroy_node(self)
+            raise
+
+    def _start(self) -> None:
+        """The rest of ``__init__``: parameters, the server, subscriptions, timers."""
         self.declare_parameter('host', DEFAULT_HOST, ParameterDescriptor(
             description='Address the Foxglove WebSocket server binds to (0.0.0.0: every '
                         'interface)', read_only=True))
@@ -109,6 +117,11 @@ class ViewerNode(Node):
 
         path = self.get_parameter('plant_params_file').value
         params = CartPoleParameters.from_yaml(path) if path else CartPoleParameters()
+        # Stamps not judged by default: the viewer keeps wall time even in lockstep.
+        self.inputs = InputGuard(self, RigLimits.from_parameters(
+            params, stamp_tolerance=declare_stamp_tolerance(self, default=0.0)),
+            (relative(STATE), relative(JOINTS), relative(TRUE_STATE)))
+        """Judges every sample before it is drawn (refused_inputs on /diagnostics)."""
         x_ref = self.get_parameter('x_ref').value
         self._x_ref_fixed = math.isfinite(x_ref)
         host = self.get_parameter('host').value
@@ -154,6 +167,8 @@ class ViewerNode(Node):
         self._x_ref_timer = None
         if not self._x_ref_fixed:
             self._x_ref_timer = self.create_timer(X_REF_QUERY_PERIOD, self._query_x_ref)
+        self.diagnostics = NodeDiagnostics(self, 'live view', 'cartpole', self.health,
+                                           degraded=('refused_inputs', 'bad_messages'))
         print(f'viewer: serving {self.server.url}', file=sys.stderr, flush=True)
 
     # -- the feed of cartpole run --view ------------------------------------------------------
@@ -188,24 +203,49 @@ class ViewerNode(Node):
 
     # The measurement and truth of a sample that is not drawn are not decoded (the stamp
     # is the first field; cdr_stamp_ns reads it alone).
+    def _judged(self, data: bytes, kind: str, topic: str):
+        """(stamp [ns], {joint: (position, velocity)}) of a sample the rig can produce, else
+        None (counted, :mod:`cartpole_core.message_checks`)."""
+        try:
+            stamp, names, position, velocity, effort = parse_joint_state(data)
+        except (ValueError, IndexError, UnicodeDecodeError):
+            self.inputs.refuse(topic, 'undecodable')
+            return None
+        sec, nanosec = divmod(stamp, 1_000_000_000)
+        msg = _JointStateView(_Header(_Stamp(sec, nanosec)), names, position, velocity, effort)
+        if not self.inputs.accept(msg, kind, topic):
+            return None
+        at = {name: i for i, name in enumerate(names)}
+        return stamp, {name: (position[i], velocity[i] if len(velocity) else 0.0)
+                       for name, i in at.items()}
+
     def _on_measurement(self, data: bytes) -> None:
         if not self.view.wanted(cdr_stamp_ns(data)):
             return
-        stamp, _, position, _, _ = parse_joint_state(data)
-        if len(position) >= 2:
-            self.view.measurement(stamp, position[0], position[1])
+        judged = self._judged(data, SAMPLE, JOINTS)
+        if judged is not None:
+            stamp, joints = judged
+            self.view.measurement(stamp, joints['cart'][0], joints['pendulum'][0])
 
     def _on_truth(self, data: bytes) -> None:
         if not self.view.wanted(cdr_stamp_ns(data)):
             return
-        stamp, _, position, velocity, _ = parse_joint_state(data)
-        if len(position) >= 2 and len(velocity) >= 2:
-            self.view.truth(stamp, position[0], position[1], velocity[0], velocity[1])
+        judged = self._judged(data, TRUTH_KIND, TRUE_STATE)
+        if judged is not None:
+            stamp, (cart, pendulum) = judged[0], (judged[1]['cart'], judged[1]['pendulum'])
+            self.view.truth(stamp, cart[0], pendulum[0], cart[1], pendulum[1])
 
     def _on_estimate(self, data: bytes) -> None:
-        stamp, _, position, velocity, _ = parse_joint_state(data)
-        if len(position) >= 2 and len(velocity) >= 2:
-            self.view.estimate(stamp, position[0], position[1], velocity[0], velocity[1])
+        judged = self._judged(data, STATE_KIND, STATE)
+        if judged is not None:
+            stamp, (cart, pendulum) = judged[0], (judged[1]['cart'], judged[1]['pendulum'])
+            self.view.estimate(stamp, cart[0], pendulum[0], cart[1], pendulum[1])
+
+    def health(self) -> Health:
+        """The viewer's health for ``/diagnostics`` (``viewer: live view``): OK while it
+        serves, WARN once it dropped a sample the rig cannot produce (refused_inputs)."""
+        return self.inputs.health(Health(OK, f'serving {self.server.url}', {
+            'bad_messages': self.bad_messages, 'plant_topic': self.plant_topic}))
 
     def _on_status(self, data: bytes) -> None:
         try:

@@ -5,6 +5,8 @@ import argparse
 import sys
 import time
 
+from cartpole_sim.scenario_options import add_scenario_file_argument
+
 from .. import boundary, options
 
 LINGER_S = 1.0
@@ -14,6 +16,11 @@ reach the clients before the connection closes."""
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     options.add_number_argument(parser, '--duration', 30.0, 'simulated seconds', metavar='S')
+    parser.add_argument('--stop-on-failure', action='store_true',
+                        help='end the run at the first sample after which it cannot succeed '
+                             '(an impact, a fall after the catch, a manager fault), as the '
+                             'benchmarks run it: a failure file of `cartpole bench robustness '
+                             '--combined` replays to the same summary')
     parser.add_argument('--plot', default=None, metavar='FILE.png',
                         help='draw cart position, angle, force and energy (Figure 10.1 layout)')
     v = parser.add_argument_group('live view (Foxglove WebSocket, no ROS)')
@@ -28,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'subscribe to the scene')
     options.add_controller_arguments(parser)
     options.add_scenario_arguments(parser)
+    add_scenario_file_argument(parser)
     options.add_output_arguments(parser)
 
 
@@ -76,7 +84,7 @@ def main(args: argparse.Namespace) -> int:
         run = run_closed_loop(nominal, scenario, duration=args.duration,
                               manager_parameters=manager, ekf_config=ekf_config,
                               progress=options.progress_printer('cartpole offline'),
-                              observer=observer)
+                              observer=observer, stop_on_failure=args.stop_on_failure)
     except ValueError as exc:  # checked above; a plugin's own refusal at its start
         print(f'cartpole offline: the run failed: {exc}', file=sys.stderr)
         return 1

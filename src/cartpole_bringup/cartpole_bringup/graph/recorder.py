@@ -1,34 +1,17 @@
 """The recorder node ``recorder``: every topic of the graph into a rosbag2 bag.
 
 Subscribes the topics of docs/architecture.md (:data:`cartpole_analysis.bags.writer.TOPICS`)
-with ``raw=True``, so rclpy hands over the serialized CDR bytes, and writes
-them unchanged into an MCAP bag (metadata version 9, readable by
-``ros2 bag info``, Foxglove and ``rosbags``). Log time = the message's own
-stamp (simulated time in lockstep); see :mod:`cartpole_analysis.bags.writer`.
-
-Run alone next to a graph started otherwise::
-
-    ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag
-
-The bag is closed (``metadata.yaml`` written) when the node is destroyed,
-on Ctrl-C and on SIGTERM alike. Until then the MCAP file is written in
-chunks at most ``flush_period`` old (also while no message arrives: a
-thread writes an idle chunk on the wall clock), so a recorder killed with SIGKILL loses at most
-that much; ``cartpole bag repair BAG`` makes the rest readable.
-
-Complete bags (:mod:`cartpole_bringup.graph.record_ledger`): with ``lockstep:=true``
-the recorder publishes on ``/cartpole/recorder/progress`` (std_msgs/Header)
-the stamp up to which it holds every sample topic, and the simulator does not
-step more than ``recorder_window`` samples ahead of it; a sample re-published
-while the graph starts is written once. In real time the messages it missed
-are counted by stamp and stored as ``recorder_missed`` in the bag's
-custom_data when it closes.
-
-In a namespace (``-r __ns:=/rig2``, ``cartpole run --namespace rig2``) it
-subscribes the graph's topics there and records them by the names they have
-(``/rig2/joint_states``; ``/clock`` as remapped, ``/rig2/clock`` with ``cartpole
-run``); the bag's custom_data holds ``namespace`` (:mod:`cartpole_core.namespaces`),
-and the ``topics`` parameter keeps the root names.
+with ``raw=True`` and writes the serialized CDR bytes unchanged into an MCAP
+bag (readable by ``ros2 bag info``, Foxglove and ``rosbags``), log time = the
+message's own stamp (:mod:`cartpole_analysis.bags.writer`). Run alone next to
+a graph: ``ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag``.
+The bag is closed when the node is destroyed (Ctrl-C, SIGTERM); until then it
+is written in chunks at most ``flush_period`` old, so a SIGKILL loses at most
+that (``cartpole bag repair``). With ``lockstep:=true`` it publishes its
+progress on ``cartpole/recorder/progress`` and the simulator waits for it
+(:mod:`cartpole_bringup.graph.record_ledger`); in real time the messages it
+missed are counted by stamp (``recorder_missed`` in the bag's custom_data).
+In a namespace it records the graph's topics by the names they have there.
 """
 from __future__ import annotations
 
@@ -42,7 +25,12 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 
+from cartpole_core.diagnostics import OK, Health, NodeDiagnostics
+from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
+from cartpole_core.message_checks import COMMAND, SAMPLE, STATE, TRUTH, RigLimits
 from cartpole_core.node_runner import run_node
 
 from cartpole_analysis.bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
@@ -51,6 +39,10 @@ from .progress import LockstepProgress
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 
+
+JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
+          '/cartpole/force_command': COMMAND, '/cartpole/true_state': TRUTH}
+"""The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
 
 WRITE_PERIOD = 0.01
 """Wall seconds between two looks of the writer thread at the queue."""
@@ -110,6 +102,8 @@ class RecorderNode(Node):
             description='Subscription queue depth (reliable QoS).', read_only=True,
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
         try:
+            self.inputs = InputGuard(self, RigLimits(
+                stamp_tolerance=declare_stamp_tolerance(self)), [])
             self._start()
         except BaseException:
             # refused (an unknown topic, an existing bag): no half-built recorder, with its
@@ -139,6 +133,9 @@ class RecorderNode(Node):
             sub = self.create_subscription(_import_type(TOPICS[topic]), relative(topic),
                                            self._writer_for(topic), qos, raw=True)
             self._recorded[topic] = sub.topic_name
+        self._judged = {self._recorded[t]: JUDGED[t] for t in topics if t in JUDGED}
+        """Recorded name -> the kind its messages are judged as (in the writer thread)."""
+        self.inputs.topics = tuple(relative(t) for t in topics if t in JUDGED)
         self._bag = BagWriter(Path(output), {self._recorded[t]: TOPICS[t] for t in topics},
                               custom, log_time=str(self.get_parameter('log_time').value),
                               flush_period=flush_period)
@@ -153,6 +150,8 @@ class RecorderNode(Node):
                                         daemon=True)
         self._writer.start()
         self.get_logger().info(f'recording {len(topics)} topics into {self._bag.path}')
+        self.diagnostics = NodeDiagnostics(self, 'recording', 'cartpole', self.health,
+                                           degraded=('refused_inputs',))
 
     def _writer_for(self, topic: str):
         if topic not in self.ledger.topics:
@@ -170,10 +169,29 @@ class RecorderNode(Node):
         return book_and_queue
 
     def _write_queued(self) -> None:
-        queue, bag = self._queue, self._bag
+        queue, bag, judged = self._queue, self._bag, self._judged
         while queue:
             topic, data, received = queue.popleft()
             bag.write(topic, data, received)
+            kind = judged.get(topic)
+            if kind is not None:
+                self._judge(topic, kind, data, received)
+
+    def _judge(self, topic: str, kind: str, data: bytes, received: int) -> None:
+        """Count a recorded message the rig cannot have produced (it stays in the bag)."""
+        try:
+            msg = deserialize_message(data, JointState)
+        except Exception:  # noqa: BLE001 - undecodable bytes: counted like any bad message
+            self.inputs.refuse(topic, 'undecodable')
+            return
+        self.inputs.accept(msg, kind, topic, received)
+
+    def health(self) -> Health:
+        """The recorder's health for ``/diagnostics`` (``recorder: recording``): OK while it
+        writes, WARN once it recorded a message the rig cannot produce (refused_inputs)."""
+        written = self._bag.counts
+        return self.inputs.health(Health(OK, f'recording into {self._bag.path}', {
+            'written': sum(written.values()), 'missed': self.ledger.missed}))
 
     def _write_loop(self) -> None:
         while not self._stop_writer.wait(WRITE_PERIOD):

@@ -85,8 +85,9 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     ``lost_samples`` and ``ekf_missed_samples``.
 
     With ``stop_on_failure`` the run ends at the first sample after which it
-    cannot succeed: the cart touched an end stop, or the manager is in fault
-    mode (offline nothing restarts it: no swing-up, no stabiliser any more).
+    cannot succeed: the cart hit an end stop (an impact), the pendulum fell
+    after the catch, or the manager is in fault mode (offline nothing
+    restarts it: no swing-up, no stabiliser any more).
     The summary is then of the shorter run, with ``success`` False and
     ``stopped_at_s`` (the benchmarks use it to save time on failed runs).
 
@@ -173,11 +174,13 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             observer(meas, est, out, s)
         add_row((t, s[0], s[1], s[2], s[3], x, theta, x_dot, theta_dot, force))
         add_mode(mode)
+        fell = False
         if out.event:
             events.append((t, out.event))
             if law is None and manager.catch_time is not None:
                 law = out.swingup_law
-        if stop_on_failure and (mode == FAULT or plant.end_stop_contact):
+            fell = manager.catch_time is not None and 'fall' in out.event.split(';')
+        if stop_on_failure and (mode == FAULT or plant.end_stop_contact or fell):
             stopped_at = t
             break
         if k + 1 < steps:
@@ -208,8 +211,11 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
                                      started_with['stabilizer']),
         swingup_law=law if law is not None else (out.swingup_law if out is not None else None),
-        force=run.force)
+        force=run.force, falls_after_catch=falls_after_catch(events, catch_time),
+        impacts=plant.impacts)
     run.summary.update(loop_summary(manager, plugin_status))
+    for key in metrics.STRICT_KEYS:  # after the older keys: their order is kept
+        run.summary[key] = run.summary.pop(key)
     if scenario.drop:
         run.summary.update(lost_samples=run.lost_samples,
                            ekf_missed_samples=run.ekf_missed_samples)
@@ -233,6 +239,13 @@ def loop_summary(manager: ControllerManager,
            'actuator_delay_s': round(manager.actuator.delay, 6)}
     out.update(plugin_status or {})
     return out
+
+
+def falls_after_catch(events: list[tuple[float, str]], catch_time: float | None) -> int:
+    """How many ``fall`` events the manager reported after its first catch."""
+    if catch_time is None:
+        return 0
+    return sum(text.split(';').count('fall') for t, text in events if t >= catch_time)
 
 
 def first_fault(events: list[tuple[float, str]]) -> str | None:

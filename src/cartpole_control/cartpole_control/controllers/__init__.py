@@ -8,17 +8,7 @@ Swing-up laws (chapter 7), entry-point group ``cartpole_control.swingup``:
   the singularity guard (7.28)-(7.30);
 - :mod:`.sign_based` -- sign-based method (7.36), sign replaced by a saturation.
 
-Stabilisers (chapter 8), entry-point group ``cartpole_control.stabilizer``:
-
-- :mod:`.pid` -- cascade PID (8.1)-(8.10), Table 8.1;
-- :mod:`.lqg` -- LQR on the linearisation (8.13)/(8.14), (8.15)-(8.24); the
-  "G" of LQG is the EKF upstream;
-- :mod:`.smc` -- sliding-mode control (8.26)-(8.42);
-- :mod:`.mpc` -- constrained model-predictive control on the LQI's model
-  (8.13)/(8.14) and weights (8.15), the terminal LQR (8.16)-(8.18) its
-  unconstrained case (not in the thesis; the QP in :mod:`..mpc_qp`).
-
-This package module holds only the few helpers the laws share. No rclpy.
+Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.controllers``).
 """
 from __future__ import annotations
 

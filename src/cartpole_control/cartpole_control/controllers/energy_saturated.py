@@ -8,31 +8,9 @@ rig can give, saturated at n g:
     a_E = sat_{n g}( k g (E* - E_p) / E* sgn(theta_dot cos theta) )
 
 (sgn replaced by a saturation of width ``sign_width`` against chattering, as
-section 7.3.3 suggests). To it is added cart centring, a PD on the cart
+section 7.3.3 suggests), plus a cart-centring PD term.
 
-    a_c = k_x (x* - x) - k_v x_dot,
-
-and the sum is limited to ``a_max``. A rail brake overrides both when the
-cart, braking at ``brake_acceleration``, would stop closer than
-``rail_margin`` to an end stop (the manager's rail guard would otherwise
-trip and fault the run):
-
-    x + x_dot T_d + sgn(x_dot) x_dot^2 / (2 a_b) outside [margin, travel - margin]
-      => a = -sgn(x_dot) a_b.
-
-From hanging rest ``theta_dot cos theta = 0`` gives no direction; while
-E_p < ``kick_energy`` E* and the pumping term is inside its linear zone the
-law kicks towards x* (to the right at the middle).
-
-The acceleration ``a`` becomes a force through (7.10) with theta_ddot taken
-from the frictionless pendulum equation (7.2) at that acceleration,
-theta_ddot = (a cos theta + g sin theta) / l, i.e. the exact inverse of the
-frictionless (4.18):
-
-    F = (m_c + m_p sin^2 theta) a - m_p g sin theta cos theta + m_p l sin theta theta_dot^2.
-
-The manager then adds the friction feedforward (6.12), saturates and guards
-the rail. No ROS import.
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.energy_saturated``).
 """
 from __future__ import annotations
 

@@ -11,32 +11,7 @@ compensated by the feedforward (6.12)), the function (7.14)
         / (-k_e (E* - E) + k_v alpha(theta))
         + theta_dot cos theta k_i int_0^t (E* - E) dt                 (7.27)
 
-    alpha = 1 / (m_c + m_p sin^2 theta)                                (7.17)
-    beta  = m_p sin theta (-l theta_dot^2 + g cos theta) / (m_c + m_p sin^2 theta)   (7.18)
-
-so that x_ddot = alpha u + beta (4.40). ``u`` is a force [N].
-
-Singularity guard (7.28)-(7.30). The denominator
-``D = k_v alpha - k_e (E* - E)`` must never reach zero. ``E >= 0`` (M is
-positive definite and the potential is zero hanging), so ``E* - E <= E*`` and
-``alpha >= 1 / (m_c + m_p)``; hence ``D > 0`` for every state if and only if
-``k_v / k_e > E* (m_c + m_p)`` (8.238 J kg for the nominal rig; the thesis's
-(7.30) and its k_v = 8.3 leave a margin of 0.75 %). :meth:`on_configure`
-refuses gains (or a plant model, e.g. a heavier tip mass) that break it, since
-a denominator that changes sign reverses the cart term and drives the cart into
-an end stop (docs/controllers.md, "full_energy"). E is always computed with the controller's own
-model, so the guard holds whatever the true tip mass is.
-
-Near the hanging rest the denominator is small (D = k_v/m_c - k_e E* = 0.10
-for the thesis gains) and the law is a very stiff position loop; the
-parameter ``d_min`` floors D to soften that (``d_min = 0`` is the thesis law).
-Integral action, tuned. The thesis's k_i = 0.012 needs more than 30 s to
-bring the energy to the catch window on this model; the default is 0.2.
-Anti-windup beyond the thesis: the integral is clamped to ``+-i_max``, and
-its term acts only while ``E < E*`` (it keeps integrating, so it unwinds
-while E > E*). Without that gate the integral, built up over the whole
-swing-up, keeps pumping after E* is passed: with 20 % less friction the
-energy overshot to 2 E* and the pendulum was never caught in 30 s.
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.full_energy``).
 """
 from __future__ import annotations
 

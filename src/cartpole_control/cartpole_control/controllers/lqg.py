@@ -1,80 +1,19 @@
 """LQR stabiliser on the upright linearisation, section 8.2, with integral action (LQI).
 
-The model linearised about upright rest, (8.13)/(8.14), comes from
-:func:`cartpole_core.model.linearise_upright` (with the 1/m_c that the printed
-A44 of (8.13) lacks). The gain minimising (8.15)
+The model linearised about upright rest, (8.13)/(8.14)
+(:func:`cartpole_core.model.linearise_upright`), augmented with the integral
+of the cart error ``xi = int (x - x*) dt``; the gain ``K_aug = R^-1 B_aug^T
+P_aug`` (8.17) with P_aug from the algebraic Riccati equation (8.18) of the
+augmented system, solved by :func:`scipy.linalg.solve_continuous_are`. The
+law (8.16) with integral action,
 
-    J = int (x^T Q x + u^T R u) dt
+    u = -K (x - x_ref) - K_i xi,  x = [x, theta_w, x_dot, theta_dot],  x_ref = [x*, 0, 0, 0]
 
-is ``K = R^-1 B^T P`` (8.17) with P from the algebraic Riccati equation (8.18),
-solved by :func:`scipy.linalg.solve_continuous_are`. The thesis's weights follow
-Bryson's rule (8.19)-(8.23): Q = diag(100, 400, 100, 400), R = 0.01, which give
-K = [-100, 983, -170.4, 267.0] on the model here (thesis (8.24):
-[-100, 1012, -172.1, 266.8]) and the closed-loop poles -127.9,
--1.68 +- 1.41j, -1.00 ((8.25) is misprinted). The law (8.16), about the
-reference,
-
-    u = -K (x - x_ref),  x = [x, theta_w, x_dot, theta_dot],  x_ref = [x*, 0, 0, 0]
-
-is a force [N]. The "G" of LQG is the EKF upstream (section 8.2, Figure 8.3).
-
-Integral action (LQI, not in the thesis). A state feedback without an
-integrator settles wherever its own inputs balance: an encoder reset with the
-pendulum b off hanging (Appendix H) makes the measured upright angle -b, and
-the cart settles ``K_theta b / K_x`` from x* (about 7 m per rad with the
-plain gain) -- the thesis's Figure H.1; an under-compensated cart friction
-shifts it too. The state is therefore augmented with the integral of the cart
-error, ``xi = int (x - x*) dt``::
-
-    z = [x - x*, theta_w, x_dot, theta_dot, xi]
-    z_dot = A_aug z + B_aug u,  A_aug = [[A, 0], [e_1^T, 0]],  B_aug = [B; 0]
-    Q_aug = diag(q, q_i),  K_aug = R^-1 B_aug^T P_aug  (the Riccati equation (8.18) of
-    the augmented system),  u = -K_aug z = -K (x - x_ref) - K_i xi
-
-In equilibrium xi is constant, so x = x*: whatever constant bias the angle,
-the friction compensation or the model carries, the integrator takes it up
-(the measured angle then settles at -b with the pendulum truly upright). The
-pair (A_aug, B_aug) is controllable ((A, B) is, and the cart position's
-transfer function has no zero at s = 0), and with q_i > 0 the integrator's
-mode is seen by the cost, so P_aug exists. With q_i = 0 the integrator's mode
-(eigenvalue 0, a marginal mode outside the cost) is not detectable and the
-ARE has no stabilising solution: that case is the plain LQR of (8.17) with
-K_i = 0, handled explicitly. ``lqg.q`` carries q_i as a fifth entry; four
-entries are the plain LQR.
-
-Anti-windup and bumplessness. The integrator starts from zero at every
-activation (the first command is the law without it), does not run during
-swing-up (the stabiliser is not active then), and takes back its increment
-whenever the manager reports the command as cut, by the saturation or the
-rail guard, in the direction the increment pushed it, or held
-(:class:`~cartpole_control.controllers.ConditionalIntegrator`). It is not
-clamped by the actuator range: with an angle bias b that the EKF does not
-take out (its offset state off) the integral term settles at ``K_theta b``
-(66 N at b = 0.05 rad), cancelled by the proportional term that sees the
-biased angle; only the sum is a force.
-
-Default weights (Bryson's rule (8.19) with other bounds, R = 0.01 as (8.23)):
-q = [10, 10000, 10, 1, 400], i.e. the pendulum within 0.01 rad (0.57 deg), the
-cart within 0.32 m and 0.32 m/s, the pendulum's rate within 1 rad/s and the
-integral within 0.05 m s. K = [-341, 1328, -289, 160], K_i = -200 N/(m s);
-closed-loop poles -18.8 +- 16.7j, -1.23, -0.66 +- 1.07j. Why not the thesis's
-[100, 400, 100, 400] (K = [-100, 983, -170, 267], a pole at -128 1/s):
-
-- the pendulum joint's Coulomb friction (3.8 mN m, Table 4.1) acts like a
-  relay on theta_dot; with the thesis's weights (and with the earlier tuned
-  default diag(400, 400, 400, 400)) the loop seen from the joint crosses the
-  negative real axis where the relay's describing function predicts a limit
-  cycle of 0.34-0.38 deg at about 3 rad/s, which is what the closed loop
-  shows; a heavy angle weight and light rate weights put it at 0.23 deg;
-- the light rate weight halves K_theta_dot (160 against 267-361 N s/rad):
-  the rate estimate's noise reaches the force through it, and the fast pole
-  near -130 1/s, which only that noise excites, is gone (-19 +- 17j);
-- the cart's own weights can then be light (its poles -1.23, -0.66 +- 1.07j
-  are about the thesis's): the integral, not a stiff cart loop, brings the
-  cart back to x*, and the catch transients stay inside the rail for every
-  swing-up of the bench grid.
-
-The thesis's law (8.24) is one parameter away: ``lqg.q: [100, 400, 100, 400]``.
+is a force [N]; ``lqg.q`` with four entries is the plain LQR (K_i = 0). The
+integrator starts from zero at every activation and takes back its increment
+when the command is cut or held (anti-windup). The "G" of LQG is the EKF
+upstream (Figure 8.3). The weights, why they differ from the thesis's (8.24)
+and what they give: docs/controllers.md (``lqg``).
 """
 from __future__ import annotations
 
@@ -122,6 +61,11 @@ def lqi_gain(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray,
     return lqr_gain(a_aug, b_aug, q_aug, r)
 
 
+RESOLVE_TOLERANCE = 0.01
+"""The estimated pendulum length differs from the model's by more than this fraction: the
+gain is solved again at the catch."""
+
+
 class LqgStabilizer(Controller):
     """LQR state feedback (8.16)-(8.18) with integral action on the cart position, on the EKF estimate."""
 
@@ -160,7 +104,14 @@ class LqgStabilizer(Controller):
         if len(weights) not in (4, 5):
             raise ValueError(f'lqg: q needs 4 entries (the plain LQR) or 5 (with the integral '
                              f'weight q_i), got {len(weights)}')
-        a, b = linearise_upright(self.context.plant)
+        self._solve(self.context.plant)
+        self._nominal = (self.gain, self.integral_gain, self._minus_gain)
+        self.solved_for = self.context.plant
+        """The plant model of the gain in use (the nominal one, or the estimate at the catch)."""
+
+    def _solve(self, plant) -> None:
+        weights = [float(v) for v in self.gains['q']]
+        a, b = linearise_upright(plant)
         q_i = weights[4] if len(weights) == 5 else 0.0
         r = np.array([[float(self.gains['r'])]])
         k_aug = lqi_gain(a, b, np.diag(weights[:4]), r, q_i)[0]
@@ -170,9 +121,26 @@ class LqgStabilizer(Controller):
         self._minus_gain = tuple(float(-k) for k in self.gain)
 
     def on_activate(self, state: ControllerState) -> None:
-        """Bumpless start: the integral starts from zero at this state."""
+        """Bumpless start: the integral starts from zero at this state.
+
+        At the catch the Riccati equation (8.18) is solved again for the plant
+        the manager has estimated (:attr:`ControlContext.plant_estimate`: the
+        pendulum's omega_0^2), if it differs from the model by more than
+        :data:`RESOLVE_TOLERANCE`; else the configured gain stays.
+        """
         self._integral.reset()
         self._clock.reset(state.t)
+        estimate = self.context.plant_estimate
+        plant = estimate.estimated_plant() if estimate is not None else self.context.plant
+        if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE:
+            try:
+                self._solve(plant)
+                self.solved_for = plant
+                return
+            except ValueError:
+                pass  # no stabilising solution for the estimate: the model's gain
+        self.gain, self.integral_gain, self._minus_gain = self._nominal
+        self.solved_for = self.context.plant
 
     def update(self, state: ControllerState) -> float:
         """u = -K (x - x*) - K_i int (x - x*) dt, with the wrapped angle."""

@@ -11,32 +11,7 @@ pumps energy in while ``E_p < E*`` and takes it out above, with E* = 2 m_p g l
 the P-term (7.31) keeps the cart near x*. ``u`` is a cart acceleration
 [m/s^2]; it becomes a force through (7.10).
 
-The integral is clamped to ``+-i_max`` (anti-windup, not in the thesis): the
-energy error changes sign only after E* is reached, so an unbounded integral
-keeps pumping and overshoots (the thesis saw "several full revolutions");
-:mod:`.energy_integral` holds it, shared with the full energy law.
-
-Default gains (not the thesis's k_e = 0.5): k_e = 1.5 with the pumping
-acceleration bounded to ``+-a_max`` = 4 m/s^2 (the saturated energy law of
-Astrom and Furuta, "Swinging up a pendulum by energy control", Automatica
-36 (2000), eq. (9): ``u = sat(k (E* - E) sign(theta_dot cos theta))``, here
-with the thesis's proportional pump inside the bound)::
-
-    u = sat_{a_max}((k_e (E* - E_p) + k_i int (E* - E_p) dt) theta_dot cos theta) + k_c (x* - x)
-
-Why. From the hanging rest theta_dot cos theta is tiny, so with k_e = 0.5 the
-first swings ask for less than the cart's static friction (3.4 N) once the
-amplifier is 25 % weak or the friction 40 % high: the cart sticks short of x*
-and the pendulum is never excited (``cartpole bench robustness``: no catch at
-actuator gain x0.75 or cart friction x1.4). k_e = 1.5 triples the pump at
-small swings; the bound keeps the large swings as gentle as the thesis's
-(|u| about 4 m/s^2, 20 N), so a delay or an amplifier lag does not make the
-swing-up overrun the rail guard's envelope (unbounded, k_e = 1.5 asks for
-30 N and more and trips the guard from 30 ms of delay). Measured: the
-nominal catch at 2.81 s instead of 4.77 s; the default pair swings up at
-actuator gain x0.7-x3 (was x0.8-x2) and cart friction up to x1.5 (x1.3);
-docs/robustness.md has the scores. The thesis's law (7.32) is two
-parameters away: ``pendulum_energy.k_e: 0.5``, ``pendulum_energy.a_max: 100``.
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.pendulum_energy``).
 """
 from __future__ import annotations
 

@@ -1,48 +1,6 @@
 """Cascade PID stabiliser, section 8.1, (8.1)-(8.10), gains of Table 8.1.
 
-Two PID controllers of the form (8.8), ``C = K_p + K_i / s + K_d s``:
-
-- outer, cart position: ``theta* = -C_c (x* - x)`` [rad], the angle the
-  pendulum must lean to bring the cart back. The sign: to move the cart
-  right the pendulum must first lean right, i.e. theta < 0 (the tip is at
-  ``x - l sin theta``); the other sign catches and then loses the pendulum
-  (docs/controllers.md, "pid").
-- inner, pendulum angle: ``u = C_p (theta* - theta)``, a cart acceleration
-  [m/s^2] (the input u_2 of (8.6)/(8.7)), turned into a force by (7.10). A
-  pendulum leaning left (theta > theta*) gives u < 0: the cart accelerates
-  left, under the tip.
-
-With u a cart acceleration, the inner loop's characteristic polynomial is
-``l s^3 + (K_d,p + v_p / (m_p l)) s^2 + (K_p,p - g) s + K_i,p`` (from (8.7)
-and (8.8)); with Table 8.1 its roots are -36.5, -8.18, -0.150 on this model's
-v_p (the thesis's (8.9), -37.187, -8.033, -0.15, matches a larger v_p of
-about 0.016 N m s/rad). The whole linearised loop (derivative on the
-measurement, see below) has the poles -13.0 +- 7.4j, -0.84 +- 1.36j, -0.171,
--0.133.
-
-Discrete form (Ts from the state stamps): forward-Euler integrators; the
-derivative acts on the measurement, i.e. on the estimated rates
-``-x_dot`` and ``-theta_dot`` of the EKF (no numerical differentiation, no
-kick when x* changes).
-
-Integral action and anti-windup (not in the thesis) by conditional
-integration (:class:`~cartpole_control.controllers.ConditionalIntegrator`):
-the outer integrator stops while theta* is limited to ``+-theta_max`` in the
-direction it would push further; both stop (take back their increment) when
-the manager reports the force command as cut by the saturation or the rail
-guard in the direction their increment pushed it, or held. Their effects on
-the force: ``(m_c + m_p) K_i,p`` per rad s of the inner integral and
-``-(m_c + m_p) K_p,p K_i,c`` per m s of the outer one (through theta*, (7.10)).
-Activation resets both integrators (bumpless: the first output depends only
-on the current state); they do not run during swing-up.
-
-With an encoder offset b (Appendix H) the inner integrator settles at the
-lean that holds the pendulum truly upright (theta* = -b in the encoder's
-frame) and the outer one makes that theta* with x = x*: the cascade is
-offset-free by structure. How fast is set by the outer loop, whose Table 8.1
-gains are slow (K_i,c = 0.03 rad/(m s): the outer integral's time constant is
-tens of seconds, and K_p,c = 0.2 rad/m lets a 0.05 rad offset hold the cart
-25 cm off meanwhile).
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.pid``).
 """
 from __future__ import annotations
 

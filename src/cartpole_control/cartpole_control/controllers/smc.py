@@ -11,70 +11,7 @@ so
 has no u. Linearised at the origin (8.36)-(8.38):
 ``A = [[0, 0, 0], [-g/l, 0, 0], [0, l, 0]]``, ``B = [1, v_p/(l^2 m_p), l]^T``.
 
-Manifold (8.35), (8.40). ``phi(eta) = -k eta`` with k from pole placement
-(Ackermann's formula, exact for this single input and repeated poles too) for
-the poles of ``A - B k``; the thesis's -1, -4 +- 2.4j give
-k = [9.77, -1.015, -2.218] (thesis (8.39): k ~ [10, -1, -2])::
-
-    s = xi + k eta = theta_dot + k_1 theta_w + k_2 (x_dot cos(theta)/l - theta_dot) + k_3 (x - x*)
-
-Integral action (not in the thesis). On the manifold the motion is
-``eta_dot = (A - B k) eta`` plus whatever constant the sliding variable is
-off by: an encoder offset b (Appendix H) makes the measured s differ from
-the true one by k_1 b, and the cart settles ``k_1 b / k_3`` (4.4 m per rad)
-from x*. The regular form is therefore extended by the integral of the cart
-error, ``eta_4 = int (x - x*) dt`` (``eta_4_dot = eta_3``, no u: still the
-regular form (8.28)), linearised
-
-    A_4 = [[0, 0, 0, 0], [-g/l, 0, 0, 0], [0, l, 0, 0], [0, 0, 1, 0]],  B_4 = [1, v_p/(l^2 m_p), l, 0]^T
-
-and k = [k_1, k_2, k_3, k_4] is placed for four poles (8.36)::
-
-    s = theta_dot + k_1 theta_w + k_2 (x_dot cos(theta)/l - theta_dot) + k_3 (x - x*) + k_4 int (x - x*) dt
-
-On s = 0, eta_4 is constant, so x = x*: the offset is taken up by the
-integral. With the three poles of the thesis (the 6-number ``smc.poles``) k_4
-is 0, the thesis's law; with a fourth pole p_4 (8 numbers) the fourth-order
-characteristic polynomial is the three poles' times (s - p_4). The
-integral's derivative adds ``k_4 (x - x*)`` to Phi below. Anti-windup: it
-integrates only inside the boundary layer (on the manifold; during the
-reaching phase the sliding dynamics it is designed for do not hold), takes
-back its increment when the manager reports the force as cut in its
-direction or held, starts from zero at activation (bumpless) and does not
-run during swing-up.
-
-Derivative of s, derived again from (4.34) (docs/controllers.md, "smc": the printed (8.41)
-puts the term ``(k_3 - k_2 sin/l) x_dot`` into Gamma and drops the theta_dot
-of ``d/dt cos theta = -theta_dot sin theta``). With ``x_ddot = f_c + g_c u``,
-``theta_ddot = f_p + g_p u`` (8.27), ``d = m_c + m_p sin^2 theta``,
-``g_c = 1/d``, ``g_p = cos theta / (l d)``::
-
-    s_dot = theta_ddot + k_1 theta_dot
-            + k_2 (x_ddot cos/l - x_dot theta_dot sin/l - theta_ddot) + k_3 x_dot
-          = Phi + Gamma u
-    Phi   = (1 - k_2) f_p + k_2 f_c cos(theta)/l + k_1 theta_dot
-            + (k_3 - k_2 theta_dot sin(theta)/l) x_dot + k_4 (x - x*)
-    Gamma = (1 - k_2) g_p + k_2 g_c cos(theta)/l = g_p = cos theta / (l d)
-
-(Gamma equals g_p for every k: the u-terms of eta cancel, which is what the
-regular form is for.) f_c and f_p are the model accelerations with the
-friction of (6.11), ``B = [0, c_p tanh(k theta_dot) + v_p theta_dot]``: the
-cart's Coulomb friction is left to the feedforward (6.12), the pendulum
-joint's is in the model as the thesis has it (k = ``friction_steepness``;
-the joint's 3.8 mN m holds the pendulum like a lean of 0.26 deg, and left
-out it drives a limit cycle of about that amplitude while balancing).
-
-Control law (8.42) with a boundary layer against chattering::
-
-    u = -(Phi + lambda sat(s / phi_b)) / Gamma
-
-so that ``s_dot = -lambda sat(s/phi_b)``: s reaches the layer |s| <= phi_b in
-finite time and then decays with the rate ``lambda/phi_b``. The thesis makes
-``lambda = |Phi/Gamma| + lambda_0``, which adds a force to an angular
-acceleration; here lambda is the constant reaching gain ``lambda_0``
-[rad/s^2]. Gamma vanishes with cos theta at +-90 deg; |cos theta| is floored
-at ``cos_min`` so the law stays finite away from upright (the catch window is
-+-30 deg, cos >= 0.87).
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.smc``).
 """
 from __future__ import annotations
 

@@ -10,51 +10,7 @@ stops, and a calm hand-over: at the final time the pendulum is in the catch
 region (|theta_w| <= 10 deg, energy within 5 %), the cart within
 ``terminal_window`` of x* and slower than ``terminal_speed``.
 
-Tracking. With the plan (xbar_k, Fbar_k) and the time-varying LQR gains
-K_k of the RK4-discretised model linearised along it
-(:func:`~cartpole_control.trajectory_optimization.tracking_gains`, stage cost
-diag(q) and r), the desired actuator force is
-
-    F_k = Fbar_k - K_k (x_k - xbar_k),   k = round((t - t_activation) / Ts).
-
-The plan's model contains the cart friction, so Fbar already pays for it;
-the manager adds the feedforward (6.12) c_c(x_dot) tanh(k u) on top of the
-raw output. The plugin subtracts that (the manager's own feedforward, handed
-over in :attr:`ControlContext.feedforward`), so the actuator gets F_k.
-
-Fall-back to :class:`~.energy_saturated.EnergySaturatedSwingUp` (its default
-gains) when
-
-- there is no plan loaded for the start: the activation state is not
-  hanging at rest within the ``start_tolerance_*``, no plan was prepared for
-  this cart position, or the optimiser found none;
-- the tracking error exceeds ``abort_x`` or ``abort_theta`` (the plan is no
-  longer valid: a different plant, a push);
-- the plan has ended without the manager's catch.
-
-:attr:`law` says which ran (the run summary's ``swingup_law``):
-``time_optimal:plan``, or ``time_optimal:fallback(<why>)`` with why one of
-``not at hanging rest``, ``no plan``, ``no feasible plan``, ``start off the
-plan``, ``tracking error``, ``plan ended``; every fall-back is logged.
-
-Where the work is done. Nothing slow runs in :meth:`activate` or
-:meth:`update`: the plan is read from the cache and its TV-LQR gains are
-built when the plugin is configured (``precompute``: for the default start
-``plan_x0``), so an activation only looks the plan up. Plans come from the
-cache of :mod:`cartpole_control.plan_cache`; a missing one is solved
-
-- before the run, blocking, by :meth:`prepare` (``cartpole offline``,
-  lockstep runs, ``cartpole plan``): the run then tracks it from its first
-  swing-up, deterministically given the cache;
-- in a detached background process when a real-time instance is configured
-  without it (``precompute``) or activated from a hanging rest it has no plan
-  for (``plan_on_activation``): the loop never waits; that swing-up uses the
-  fall-back, and a later one from there the plan, once loaded (a short
-  worker thread loads it and builds its gains, outside the cycle).
-
-Assumptions: no stiction (the Coulomb friction of (4.20) with the level of
-(4.27), smoothed), force limits as given (Appendix C), the nominal plant.
-No ROS import.
+Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.time_optimal``).
 """
 from __future__ import annotations
 

@@ -2,11 +2,10 @@
 
 After the robustness leaderboard of the DFKI double_pendulum benchmark: each
 category of uncertainty is swept over levels from nominal outwards, several
-seeds a level; a run succeeds as the run summary says (README.md, "The run
-summary": caught,
-|theta| < 2 deg and |x - x*| <= 10 cm over the last 10 s, no end-stop
-contact), without a controller-manager fault (the rail guard's: it leaves
-the pendulum to fall), and after a push also without a fall; a level *counts* when more than half
+seeds a level; a run succeeds by the strict rule (:func:`succeeded`): caught,
+no fall after the catch, no controller-manager fault (the rail guard's: it
+leaves the pendulum to fall), no impact on a stop, and |theta| < 2 deg and
+|x - x*| <= 10 cm over the last 10 s; a level *counts* when more than half
 of its seeds succeed; a category's score is the fraction of its levels that
 count, the overall score the mean over the categories.
 
@@ -229,11 +228,12 @@ def make_grid(pairs: Sequence[tuple[str, str]], sweeps: Sequence[Sweep], seeds: 
 
 
 def run_one(run: RobustnessRun) -> dict[str, Any]:
-    """One offline run: its run summary, the falls after the catch and the faults.
+    """One offline run: its run summary (``falls_after_catch`` and the impacts included) and
+    the manager's faults.
 
-    The run stops early once it cannot succeed (end-stop contact, or a
-    manager fault such as the rail guard's: the pendulum is left to fall),
-    ``stopped_at_s`` in the summary; a faulted run counts as failed.
+    The run stops early once it cannot succeed (an impact on a stop, a fall
+    after the catch, or a manager fault such as the rail guard's: the
+    pendulum is left to fall), ``stopped_at_s`` in the summary.
     """
     from cartpole_bringup.offline.closed_loop import run_closed_loop
 
@@ -241,10 +241,9 @@ def run_one(run: RobustnessRun) -> dict[str, Any]:
                              manager_parameters={'swingup': run.swingup,
                                                  'stabilizer': run.stabilizer},
                              stop_on_failure=True)
-    catch = result.catch_time
-    falls = sum(1 for t, e in result.events if e == 'fall' and catch is not None and t > catch)
-    faults = sorted({e for _, e in result.events if e.startswith('fault:')})
-    return {**result.summary, 'falls_after_catch': falls, 'faults': faults}
+    faults = sorted({e for _, text in result.events for e in text.split(';')
+                     if e.startswith('fault:')})
+    return {**result.summary, 'faults': faults}
 
 
 def run_grid(runs: Sequence[RobustnessRun], *, workers: int = 1, dask_address: str | None = None,
@@ -257,10 +256,21 @@ def run_grid(runs: Sequence[RobustnessRun], *, workers: int = 1, dask_address: s
     return [by_run[r] for r in runs]
 
 
+def strict_success(summary: dict[str, Any]) -> bool:
+    """The strict rule: caught, no fall after the catch, no manager fault, no impact on a
+    stop, and within 2 deg and 10 cm over the last 10 s.
+
+    The offline run summary's ``success`` already needs all of it; the
+    manager's fault events, the falls and the impacts are checked again so
+    that a summary without the strict keys (a bag's) cannot pass for strict.
+    """
+    return (bool(summary['success']) and not summary.get('faults')
+            and summary.get('falls_after_catch') == 0 and not summary.get('impacts'))
+
+
 def succeeded(sweep: Sweep, summary: dict[str, Any]) -> bool:
-    """The summary's success without a manager fault; after a push no fall either."""
-    return (bool(summary['success']) and not summary['faults']
-            and not (sweep.after_catch and summary['falls_after_catch']))
+    """:func:`strict_success`, the same for every sweep (``sweep`` kept for the callers)."""
+    return strict_success(summary)
 
 
 def run_by_majority(cells: Sequence[Cell], runs: Sequence[RobustnessRun], sweeps: Sequence[Sweep],

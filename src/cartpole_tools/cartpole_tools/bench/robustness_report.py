@@ -54,10 +54,10 @@ def markdown_report(scores: dict[tuple[str, str], dict[str, Any]], sweeps: Seque
     """The overall table (a row per pair), then per pair: category, score, largest level survived."""
     categories = list(dict.fromkeys(s.category for s in sweeps))
     lines = ['### Scores\n',
-             f'A level counts when more than half of its {seeds} seeds succeed (the run '
-             "summary's `success`, without a controller-manager fault; after a push also without "
-             'a fall); category score = counting levels / levels; overall = mean of the '
-             'categories.\n',
+             f'A level counts when more than half of its {seeds} seeds succeed (the strict '
+             'rule: caught, no fall after the catch, no controller-manager fault, no impact on '
+             'a stop, within 2 deg and 10 cm over the last 10 s); category score = counting '
+             'levels / levels; overall = mean of the categories.\n',
              '| pair | ' + ' | '.join(categories) + ' | overall |',
              '|' + '---|' * (len(categories) + 2)]
     for pair, sc in scores.items():

@@ -58,6 +58,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help='local process pool size (default: the number of cores; 1 = serial)')
     r.add_argument('--dask', default=None, metavar='ADDRESS',
                    help='run the grid on a Dask distributed scheduler instead (tcp://host:8786)')
+    r.add_argument('--combined', type=int, default=None, metavar='N',
+                   help='instead of the grid: N scenarios with every disturbance drawn at once '
+                        'from the range table (docs/robustness.md), strict success with its '
+                        '95 %% interval, failures by kind and by factor, a replayable scenario '
+                        'file for each failure')
+    r.add_argument('--ranges', type=Path, default=None, metavar='FILE.yaml',
+                   help='with --combined: your own range table (keys left out keep the '
+                        'published ones, share/cartpole_sim/config/combined_ranges.yaml)')
+    r.add_argument('--seed', type=int, default=0,
+                   help='with --combined: seed of the draws (scenario i from (seed, i); '
+                        'default 0)')
 
     o = sub.add_parser('offline', help='simulated seconds per wall second of the offline loop, per stage')
     _common(o)
@@ -181,6 +192,12 @@ def bench_robustness(args: argparse.Namespace, argv: list[str]) -> dict:
     if args.seeds < 1 or not args.duration > 0:
         raise SystemExit('--seeds must be >= 1 and --duration > 0')
     pairs = _pairs(args)
+    if getattr(args, 'combined', None) is not None:
+        from ..bench.combined_bench import bench_combined
+        return bench_combined(args, argv, pairs, lambda: _out_dir(args, 'robustness'),
+                              header('Combined disturbances (`cartpole bench robustness '
+                                     '--combined`)', argv) + f'Load average at the start: '
+                              f'{_load()}.\n\n', None if args.json else _progress)
     try:
         sweeps = br.sweeps_of(args.categories)
     except ValueError as error:
@@ -299,6 +316,8 @@ BENCH_NUMBERS = {  # option: (attribute, low, high, integer); checked before any
     '--repeat': ('repeat', 1, 100, True),
     '--warmup': ('warmup', 0.0, 600.0, False),
     '--view': ('view', 0, 100, True),
+    '--combined': ('combined', 1, 1000, True),
+    '--seed': ('seed', 0, 2 ** 31 - 1, True),
 }
 """The bench's own numbers and their ranges (``--duration`` is any run's duration)."""
 
@@ -308,6 +327,10 @@ def check_arguments(args: argparse.Namespace) -> None:
     from cartpole_bringup.boundary import InputError, duration, number, output_directory
     if getattr(args, 'duration', None) is not None:
         duration(args.duration)
+        if args.bench == 'robustness':
+            number('--duration', args.duration, 0.0, 120.0, low_open=True, unit='s')
+    if getattr(args, 'ranges', None) is not None and getattr(args, 'combined', None) is None:
+        raise InputError('--ranges FILE.yaml takes effect with --combined N only')
     for option, (name, low, high, integer) in BENCH_NUMBERS.items():
         value = getattr(args, name, None)
         if value is None:

@@ -129,7 +129,7 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'one status `hw_bridge` every `health_period`, levels as on `/diagnostics` (OK armed, '
         'disarmed or unconfigured, ERROR disconnected, disarmed or unconfigured by a fault); '
         'every key: '
-        '[docs/rig.md](docs/rig.md#cartpolehwhealth)',
+        '[the rig](../rig.md#cartpolehwhealth)',
     ('hw_bridge', '/diagnostics'):
         'status `hw_bridge: serial link` once a second (see "Diagnostics and logs")',
     ('hw_bridge', '/cartpole/plant_reset'):

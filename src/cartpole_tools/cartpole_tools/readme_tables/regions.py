@@ -1,4 +1,5 @@
-"""The generated regions of README.md: find, compare, rewrite.
+"""The generated regions of the documentation (README.md, docs/reference/*.md): find, compare,
+rewrite.
 
 A region is ``<!-- generated: KEY -->`` on a line of its own, the generated
 text, and ``<!-- end generated -->``. Everything outside the regions is the
@@ -71,3 +72,23 @@ def rewrite(text: str, generated: dict[str, str]) -> str:
             last = region.end
     pieces.append(text[last:])
     return ''.join(pieces)
+
+
+def problems_across(texts: dict, generated: dict[str, str]) -> list[str]:
+    """:func:`problems` over several documents (path -> text): every generated key stands in
+    exactly one of them, and every region agrees with the code."""
+    where: dict[str, list[str]] = {}
+    out = []
+    for path, text in texts.items():
+        regions = find_regions(text)
+        for region in regions:
+            where.setdefault(region.key, []).append(str(path))
+        own = {r.key for r in regions}
+        out += [f'{path}: {p}' for p in problems(text, {k: v for k, v in generated.items() if k in own})]
+    for key in generated:
+        if key not in where:
+            out.append(f'no document has a region "{BEGIN.format(key=key)}" for {key} '
+                       '(add the markers where the table belongs, then --write)')
+        elif len(where[key]) > 1:
+            out.append(f'region {key!r} appears in {len(where[key])} documents: {", ".join(where[key])}')
+    return out

@@ -1,4 +1,4 @@
-"""Every generated README table by region key, from the nodes, the registry and the bag."""
+"""Every generated reference table by region key, from the nodes, the registry and the bag."""
 from __future__ import annotations
 
 from .introspect import NodeInfo, describe_nodes
@@ -22,8 +22,9 @@ def generate(nodes: dict[str, NodeInfo], plugins: dict[str, dict[str, type]],
              recorded: list[str]) -> dict[str, str]:
     """Region key -> Markdown for every node, every plugin and the graph's topics.
 
-    Keys: ``parameters <node>``, ``interfaces <node>``, ``parameters <plugin>``,
-    ``plugins``, ``topics``, ``services``, ``recorded-topics``.
+    Keys: ``parameters <node>``, ``interfaces <node>``, ``plugin-parameters`` (a section a
+    plugin, so a plugin installed later has its table without a new region), ``plugins``,
+    ``topics``, ``services``, ``recorded-topics``.
     """
     names = {name for found in plugins.values() for name in found}
     out = {}
@@ -34,10 +35,12 @@ def generate(nodes: dict[str, NodeInfo], plugins: dict[str, dict[str, type]],
         if node not in NO_INTERFACE_TABLE:
             out[f'interfaces {node}'] = endpoint_table(info)
     manager = nodes[MANAGER]
-    for found in plugins.values():
-        for name in found:
+    sections = []
+    for kind, found in plugins.items():
+        for name in sorted(found):
             specs = [p for p in manager.parameters if p.name.startswith(name + '.')]
-            out[f'parameters {name}'] = parameter_table(specs)
+            sections.append(f'### `{name}` ({kind})\n\n' + parameter_table(specs))
+    out['plugin-parameters'] = '\n\n'.join(sections)
     out['plugins'] = plugin_table(plugins)
     out['topics'] = topic_table(nodes, recorded)
     out['services'] = service_table(nodes)

@@ -1,0 +1,1 @@
+"""Learned control on the project's plant: gymnasium environment, trainer, ``policy`` plugin."""

@@ -1,0 +1,1 @@
+"""The ``cartpole.commands`` entry points of this package (``cartpole train``)."""

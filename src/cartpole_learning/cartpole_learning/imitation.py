@@ -1,0 +1,143 @@
+"""DAgger: the policy learns the thesis's laws on the randomised rig, from the state it sees.
+
+Dataset aggregation (Ross, Gordon and Bagnell, "A reduction of imitation
+learning and structured prediction to no-regret online learning", AISTATS
+2011): round 0 runs the teacher (``energy_saturated`` swing-up and ``lqg``
+stabiliser, the manager's plugins with their default gains) on episodes drawn
+from the range table and records every state a plugin is handed with the
+teacher's raw force; each later round runs the network fitted so far (in a
+fraction ``1 - beta`` of the episodes; ``beta`` halves each round) and the
+teacher labels the states the network visits, which is what makes the clone
+recover from its own mistakes. The network (the actor layout of
+:mod:`cartpole_learning.training`) is fitted by least squares on all rounds.
+
+The episodes run :meth:`AgentLoop._episode` in-process (no agent thread): the
+plugins ask :class:`TeacherLoop` for the force, so the teacher and the
+network see exactly what the ``policy`` plugin will see.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from cartpole_control.controller import STABILIZER, SWINGUP, CommandFeedback, Controller, \
+    ControllerState
+from cartpole_control.controllers.energy_saturated import EnergySaturatedSwingUp
+from cartpole_control.controllers.lqg import LqgStabilizer
+from cartpole_core.model import CartPoleParameters
+from cartpole_sim.scenario_ranges import RangeTable
+
+from . import policy_file, ranges
+from .closed_loop import AgentLoop
+from .observation import observation
+
+TEACHERS = {SWINGUP: EnergySaturatedSwingUp, STABILIZER: LqgStabilizer}
+
+
+class TeacherLoop(AgentLoop):
+    """The closed loop whose plugins act with the teacher or the student, labelled by the teacher."""
+
+    def __init__(self, nominal: CartPoleParameters) -> None:
+        super().__init__(nominal)
+        self.scale = nominal.force_max
+        self.student: policy_file.Policy | None = None
+        self.student_acts = False
+        self.observations: list[np.ndarray] = []
+        self.labels: list[float] = []
+        self.falls = 0
+        self._teachers: dict[str, Controller] | None = None
+        self._kind = ''
+
+    def begin(self, student_acts: bool) -> None:
+        self.student_acts = student_acts and self.student is not None
+        self._teachers = None
+        self._kind = ''
+
+    def exchange(self, plugin: Controller, state: ControllerState) -> float:
+        kind = plugin.kind
+        if self._teachers is None:
+            self._teachers = {k: cls() for k, cls in TEACHERS.items()}
+            for teacher in self._teachers.values():
+                teacher.configure({}, plugin.context)
+        teacher = self._teachers[kind]
+        if kind != self._kind:
+            if self._kind:
+                self._teachers[self._kind].deactivate()
+                if self._kind == STABILIZER:
+                    self.falls += 1
+            teacher.activate(state)
+            self._kind = kind
+        label = float(teacher.update(state))
+        obs = observation(state.x - plugin.context.x_ref, state.theta, state.x_dot,
+                          state.theta_dot, state.x_ddot, kind == STABILIZER)
+        self.observations.append(obs)
+        self.labels.append(max(-1.0, min(1.0, label / self.scale)))
+        if self.student_acts:
+            return self.student.force(obs)
+        return label
+
+    def feedback(self, plugin: Controller, feedback: CommandFeedback) -> None:
+        if self._kind:
+            self._teachers[self._kind].command_applied(feedback)
+
+
+def collect(job: dict[str, Any]) -> dict[str, Any]:
+    """Run ``job['episodes']`` episodes (a worker's share of a round); returns the data."""
+    nominal = CartPoleParameters(**(job.get('nominal') or {}))
+    loop = TeacherLoop(nominal)
+    if job.get('student') is not None:
+        loop.student = policy_file.Policy(**job['student'])
+    rng = np.random.default_rng(job['seed'])
+    table = RangeTable.from_dict(job.get('table') or {})
+    steps = int(round(job['duration'] / nominal.sample_time))
+    ends: dict[str, int] = {}
+    for _ in range(job['episodes']):
+        scenario = ranges.draw(table, rng, nominal.x_middle, job['upright_start'],
+                               job['push_time'])
+        loop.begin(rng.uniform() >= job['beta'])
+        loop._episode(scenario, steps)
+        message = loop.receive()
+        end = message[1] if message[0] == 'end' else message[0]
+        ends[end] = ends.get(end, 0) + 1
+    loop.close()
+    return {'obs': np.array(loop.observations, dtype=np.float32),
+            'labels': np.array(loop.labels, dtype=np.float32), 'ends': ends,
+            'falls': loop.falls}
+
+
+def student_arrays(weights, biases, mean, var, clip: float, eps: float,
+                   scale: float) -> dict[str, Any]:
+    """The keyword arguments of :class:`policy_file.Policy` for a network in memory."""
+    return dict(obs_mean=np.asarray(mean, np.float64),
+                obs_scale=1.0 / np.sqrt(np.asarray(var, np.float64) + eps), obs_clip=clip,
+                weights=tuple(weights), biases=tuple(biases), action_scale=scale)
+
+
+def fit(actor, obs: np.ndarray, labels: np.ndarray, mean: np.ndarray, var: np.ndarray,
+        clip: float, eps: float, epochs: int, seed: int, log) -> float:
+    """Least squares of ``actor`` (a torch module on normalised observations) on the labels."""
+    import torch
+    gen = torch.Generator().manual_seed(seed)
+    x = torch.as_tensor(np.clip((obs - mean) / np.sqrt(var + eps), -clip, clip),
+                        dtype=torch.float32)
+    y = torch.as_tensor(labels, dtype=torch.float32).reshape(-1, 1)
+    optimiser = torch.optim.Adam(actor.parameters(), lr=1e-3)
+    n = len(x)
+    batch = 1024
+    loss = math.nan
+    for epoch in range(epochs):
+        order = torch.randperm(n, generator=gen)
+        total = 0.0
+        for i in range(0, n, batch):
+            idx = order[i:i + batch]
+            optimiser.zero_grad()
+            out = torch.clamp(actor(x[idx]), -1.0, 1.0)
+            batch_loss = torch.mean((out - y[idx]) ** 2)
+            batch_loss.backward()
+            optimiser.step()
+            total += batch_loss.item() * len(idx)
+        loss = total / n
+    log(f'    fit: {n} samples, {epochs} epochs, mse {loss:.2e}')
+    return loss
