@@ -111,7 +111,7 @@ def test_processes_lockstep_run_swings_up_records_and_analyses(tmp_path, truth_s
 
     stamps, last_force = bag_stamps(bag)
     assert SIM_TOPICS <= set(stamps)
-    assert_complete(stamps, 16.0)
+    assert_complete(stamps, 9.0)
     assert result['recorder_missed'] == 0
     assert last_force == 0.0, 'the last force command is not zero'
 
