@@ -25,12 +25,12 @@ import json
 import os
 import sys
 
-import cartpole_tools.bench.loop as bench_loop
+import cartpole_tools.bench.loop_probe as bench_loop
 from cartpole_tools.bench.loop_view import COMMAND_TOPIC, SAMPLE_TOPIC, _free_port
 from cartpole_analysis.viewer.process import viewer_executable
 
 KINDS = ('alone', 'view', 'view_idle_client', 'standalone')
-_normal_client = bench_loop._start_viewer_client
+_normal_client = bench_loop.start_viewer_client
 
 
 def _idle_client(url):
@@ -42,7 +42,7 @@ def _idle_client(url):
 def run(kind: str, seconds: float) -> dict:
     port = _free_port()
     url = f'ws://127.0.0.1:{port}'
-    bench_loop._start_viewer_client = _idle_client if kind == 'view_idle_client' \
+    bench_loop.start_viewer_client = _idle_client if kind == 'view_idle_client' \
         else _normal_client
     graph = bench_loop._graph_cmds('single', seconds, 'events')
     if kind == 'alone':
