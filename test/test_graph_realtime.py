@@ -4,7 +4,7 @@
 
 The verdict must be the plant's: the cart starts resting against the left
 stop, where round-off leaves its position at about -1e-22 m before the first
-command; that is not an end-stop contact (README.md, "The run summary": `end_stop_contact`).
+command; that is not an end-stop contact (docs/reference/summary.md, "The run summary": `end_stop_contact`).
 """
 import json
 import signal

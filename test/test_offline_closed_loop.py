@@ -137,7 +137,7 @@ def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_
 
 @pytest.mark.slow
 def test_default_stabiliser_is_quiet_while_balancing():
-    """The effort targets (README.md, "The run summary") on the nominal plant with noise:
+    """The effort targets (docs/reference/summary.md, "The run summary") on the nominal plant with noise:
     about the Coulomb floor.
 
     A cart moving all the time needs its friction, 3.4 / 2.45 N: 2.96 N rms. Before,

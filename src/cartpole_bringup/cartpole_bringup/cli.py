@@ -1,4 +1,4 @@
-"""`cartpole`: the one front door (README.md, "At a glance").
+"""`cartpole`: the one front door (docs/reference/cli.md, "The `cartpole` command").
 
 Each subcommand is a module with ``add_arguments(parser)`` and ``main(args) -> int``:
 this package's own in ``cartpole_bringup.commands.<name>``, the tools' (``bench``,

@@ -37,7 +37,7 @@ CLOCK = '/clock'
 CATCH_EVENT = 'catch'
 TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
 """Summary keys the comparison table shows besides the success measures
-(README.md, "The run summary")."""
+(docs/reference/summary.md, "The run summary")."""
 HW_LIMIT_KEYS = ('limit_left', 'limit_right')
 """Keys of the limit-switch flags in the hw bridge's health status."""
 
@@ -135,7 +135,7 @@ class SeriesBuilder:
     def hw_health(self, stamp_ns: int, values: Mapping[str, str]) -> None:
         """Limit switches: a flag closing after it was seen open is a contact.
 
-        The cart starts at the left stop (README.md, "Quick start"), where the left switch may
+        The cart starts at the left stop (README.md, "Two commands"), where the left switch may
         be closed; that is the starting position, not a contact.
         """
         self.hw_health_seen = True
@@ -223,7 +223,7 @@ class SeriesBuilder:
     def summarize(self, *, params: CartPoleParameters, x_ref: float, lockstep: bool,
                   label: str = '', end_ns: int | None = None, fault: str | None = None,
                   window: float = metrics.WINDOW_S) -> tuple[RunSeries, dict[str, Any]]:
-        """The series and the run summary (README.md, "The run summary"); ``fault``
+        """The series and the run summary (docs/reference/summary.md, "The run summary"); ``fault``
         overrides the reported one; ``window`` [s] is the final window it scores."""
         series, contact = self.build(params=params, x_ref=x_ref, lockstep=lockstep, label=label,
                                      end_ns=end_ns)

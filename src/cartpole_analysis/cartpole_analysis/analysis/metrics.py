@@ -1,4 +1,4 @@
-"""The run summary (README.md, "The run summary"), from time series.
+"""The run summary (docs/reference/summary.md, "The run summary"), from time series.
 
 One module for every consumer: ``cartpole offline``, ``cartpole analyze`` and
 the benchmarks compute the same numbers from the same code. Inputs are the
