@@ -176,15 +176,15 @@ def measure(cmds: list[list[str]], sample_topic: str, command_topic: str,
         probe.record(duration)
         elapsed = time.monotonic() - t0
         cpu1 = {name: cpu_seconds(pid) for name, pid in pids.items()}
-        stats = stats(probe)
-        stats['cpu_percent'] = {
+        result = stats(probe)
+        result['cpu_percent'] = {
             name: None if cpu0[name] is None or cpu1[name] is None
             else 100.0 * (cpu1[name] - cpu0[name]) / elapsed for name in pids}
         if client is not None:
             client.send_signal(signal.SIGINT)
             out, _ = client.communicate(timeout=30)
-            stats['viewer_messages'] = json.loads(out.strip().splitlines()[-1])
-        return stats
+            result['viewer_messages'] = json.loads(out.strip().splitlines()[-1])
+        return result
     finally:
         if client is not None and client.poll() is None:
             client.kill()
