@@ -27,13 +27,11 @@ suppress_warnings = ['myst.xref_missing', 'myst.header', 'ref.python']
 autodoc_default_options = {'members': True, 'undoc-members': False, 'show-inheritance': False}
 autodoc_member_order = 'bysource'
 autodoc_typehints = 'description'
-autodoc_mock_imports: list[str] = []
 napoleon_numpy_docstring = True
 napoleon_google_docstring = False
 
 html_theme = 'furo'
 html_title = 'cartpole: swing-up and stabilisation on ROS 2 Jazzy'
-html_static_path: list[str] = []
 
 
 import re  # noqa: E402

@@ -42,14 +42,21 @@ def find_regions(text: str) -> list[Region]:
 
 
 def problems(text: str, generated: dict[str, str]) -> list[str]:
-    """What disagrees between the README ``text`` and the ``generated`` tables, one entry each."""
-    found = {r.key: r for r in find_regions(text)}
+    """What disagrees between one document ``text`` holding every region and the ``generated``
+    tables, one entry each: a missing region, then :func:`disagreements`."""
+    found = {r.key for r in find_regions(text)}
+    out = [f'README has no region "{BEGIN.format(key=key)}" for {key} '
+           '(add the markers where the table belongs, then --write)'
+           for key in generated if key not in found]
+    return out + disagreements(text, generated)
+
+
+def disagreements(text: str, generated: dict[str, str]) -> list[str]:
+    """The regions of ``text`` that name nothing the code has, or whose body is not the
+    generated table, one entry each."""
     out = []
-    for key in generated:
-        if key not in found:
-            out.append(f'README has no region "{BEGIN.format(key=key)}" for {key} '
-                       '(add the markers where the table belongs, then --write)')
-    for key, region in found.items():
+    for region in find_regions(text):
+        key = region.key
         if key not in generated:
             out.append(f'README region {key!r} names nothing the code has '
                        f'(known: {", ".join(sorted(generated))})')
@@ -76,15 +83,14 @@ def rewrite(text: str, generated: dict[str, str]) -> str:
 
 def problems_across(texts: dict, generated: dict[str, str]) -> list[str]:
     """:func:`problems` over several documents (path -> text): every generated key stands in
-    exactly one of them, and every region agrees with the code."""
+    exactly one of them, and every region of each agrees with the code (:func:`disagreements`)."""
     where: dict[str, list[str]] = {}
     out = []
     for path, text in texts.items():
         regions = find_regions(text)
         for region in regions:
             where.setdefault(region.key, []).append(str(path))
-        own = {r.key for r in regions}
-        out += [f'{path}: {p}' for p in problems(text, {k: v for k, v in generated.items() if k in own})]
+        out += [f'{path}: {p}' for p in disagreements(text, generated)]
     for key in generated:
         if key not in where:
             out.append(f'no document has a region "{BEGIN.format(key=key)}" for {key} '
