@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-QEMU_BOARD = HERE.parents[1] / 'src' / 'cartpole_hw' / 'cartpole_hw' / 'qemu_board.py'
+QEMU_BOARD = HERE.parents[1] / 'src' / 'cartpole_emulator' / 'cartpole_emulator' / 'qemu_board.py'
 FLASH_BYTES = 512 * 1024
 SRAM_BYTES = 96 * 1024
 DUE_CYCLES_PER_TICK = 84_000_000 * 5 // 1000

@@ -22,6 +22,8 @@ import os
 from pathlib import Path
 from typing import Any, Iterable
 
+from cartpole_core.yaml_problem import yaml_problem
+
 MAX_DURATION_S = 3600.0
 """[s] Longest run a subcommand takes: the loops keep every 5 ms sample in memory
 (about 150 MB an hour offline)."""
@@ -87,10 +89,7 @@ def read_yaml(path: Path | str, option: str) -> Any:
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as error:
-        mark = getattr(error, 'problem_mark', None)
-        where = f' (line {mark.line + 1})' if mark is not None else ''
-        problem = getattr(error, 'problem', None) or type(error).__name__
-        raise InputError(f'{option} {path}: not valid YAML{where}: {problem}') from None
+        raise InputError(f'{option} {path}: not valid YAML, {yaml_problem(error)}') from None
     except (ValueError, RecursionError) as error:  # e.g. an integer too long for YAML
         raise InputError(f'{option} {path}: not valid YAML: {error}') from None
 

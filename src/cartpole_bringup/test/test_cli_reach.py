@@ -60,10 +60,7 @@ WORK = [  # (module, attribute): where work would begin that takes more than sec
 WORK_LIMIT_S = 60
 """Wall seconds an accepted input's real work may take (a command that runs on is a hole)."""
 
-KNOWN_HOLES: set[str] = {
-    'offline --speed 1e-300',   # commands/offline.py: --speed > 0 only (its owner bounds it)
-    'offline --scenario',       # a file that is not YAML: the parser's 7-line message
-}
+KNOWN_HOLES: set[str] = set()
 KNOWN_HOLE_COMMANDS: dict[str, str] = {
     'train': 'without stable_baselines3 it says so in 2 lines before checking any option',
 }

@@ -11,6 +11,8 @@ import json
 import math
 from pathlib import Path
 
+from cartpole_core.yaml_problem import yaml_problem
+
 from .scenario import DELAY_MAX, DROP_MAX, Scenario, parse_push
 
 
@@ -101,7 +103,7 @@ def load_scenario(path: str | Path) -> Scenario:
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as error:
-            raise ValueError(f'--scenario {path}: not valid YAML ({error})') from None
+            raise ValueError(f'--scenario {path}: not valid YAML ({yaml_problem(error)})') from None
     try:
         return Scenario.from_dict(data)
     except (TypeError, ValueError) as error:

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cartpole_core.yaml_problem import yaml_problem
+
 from .scenario import DELAY_MAX, DROP_MAX, FORCE_MAX, SCALE_MAX, TIME_MAX, Push, Scenario
 
 Interval = tuple[float, float]
@@ -166,7 +168,7 @@ def load_ranges(path: str | Path) -> RangeTable:
     except OSError as error:
         raise ValueError(f'{path}: cannot read the ranges file ({error.strerror})') from None
     except yaml.YAMLError as error:
-        raise ValueError(f'{path}: not valid YAML ({error})') from None
+        raise ValueError(f'{path}: not valid YAML ({yaml_problem(error)})') from None
     try:
         return RangeTable.from_dict(data)
     except (TypeError, ValueError) as error:

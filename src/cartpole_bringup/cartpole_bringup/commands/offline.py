@@ -64,7 +64,7 @@ def checked(args: argparse.Namespace):
     """Every input of the run, checked before it starts (InputError naming the option):
     (nominal parameters, scenario, manager parameters, EKF configuration, plot path)."""
     boundary.duration(args.duration)
-    boundary.number('--speed', args.speed, 0.0, 1000.0, low_open=True)
+    boundary.number('--speed', args.speed, 0.01, 1000.0)
     plot = boundary.figure_file(args.plot, '--plot') if args.plot else None
     options.check_view_address(args.view)
     nominal = options.nominal_parameters(args)
