@@ -6,6 +6,7 @@ PYTHON ?= python3.11
 VENV := .venv
 STAMP_VENV := $(VENV)/.installed
 STAMP_BUILD := install/.built
+STAMP_TRAIN := $(VENV)/.train-installed
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 
@@ -36,12 +37,15 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 
 # The firmware tests on the emulated Cortex-M3 need gcc-arm-none-eabi, libnewlib-arm-none-eabi and
 # qemu-system-arm: installed here when missing and we are root (CI); else those tests skip, naming them.
-test: $(STAMP_BUILD) firmware-deps
-	source ./env.sh && python -m pytest -q
+# Two xdist workers: the ROS-graph tests (marker ros) run one after another on one of them, the
+# rest spread over both at a lower CPU priority (conftest.py). TEST_ARGS adds pytest options.
+TEST_ARGS ?=
+test: $(STAMP_BUILD) firmware-deps $(STAMP_TRAIN)
+	source ./env.sh && python -m pytest -q -n 2 --dist loadgroup $(TEST_ARGS)
 
 # The day-to-day loop: no rclpy/DDS (marker ros), no long closed-loop runs (marker slow).
 test-fast: $(STAMP_BUILD)
-	source ./env.sh && python -m pytest -q -m "not ros and not slow"
+	source ./env.sh && python -m pytest -q -n 2 -m "not ros and not slow" $(TEST_ARGS)
 
 # The documentation site (Sphinx, MyST Markdown, the API reference from the docstrings).
 docs: $(STAMP_BUILD)
@@ -51,8 +55,13 @@ docs: $(STAMP_BUILD)
 # The training extra of cartpole_learning (`cartpole train`): torch (CPU-only wheel) and
 # stable-baselines3. torch declares setuptools>=77, which colcon's --symlink-install cannot use:
 # the venv's setuptools goes back to 65.5.0 afterwards.
-train-deps: $(STAMP_VENV)
-	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements-train.txt
+# make test installs it too (the suite's training smoke test); where it cannot be installed,
+# make says so and those tests skip, naming it.
+train-deps: $(STAMP_TRAIN)
+$(STAMP_TRAIN): $(STAMP_VENV) requirements-train.txt
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements-train.txt \
+	    && touch $@ || echo "make: the training extra (requirements-train.txt) did not install;" \
+	    "the training tests skip" >&2
 	$(VENV)/bin/python -m pip install --disable-pip-version-check -q setuptools==65.5.0
 
 firmware-deps:

@@ -11,13 +11,43 @@ import tempfile
 
 import pytest
 
-os.environ['ROS_DOMAIN_ID'] = str(os.environ.get('CARTPOLE_TEST_DOMAIN_ID')
-                                  or 1 + os.getpid() % 200)
+# Under pytest-xdist (``make test`` runs two workers) the controller picks the domain and
+# each worker takes the next ones: ``gw0`` base + 1, ``gw1`` base + 2 (never one shared).
+_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+if not _WORKER:
+    os.environ['CARTPOLE_TEST_DOMAIN_BASE'] = str(os.environ.get('CARTPOLE_TEST_DOMAIN_ID')
+                                                  or 1 + os.getpid() % 200)
+os.environ['ROS_DOMAIN_ID'] = str(int(os.environ['CARTPOLE_TEST_DOMAIN_BASE'])
+                                  + (int(_WORKER[2:]) + 1 if _WORKER.startswith('gw') else 0))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 os.environ.setdefault('MPLBACKEND', 'Agg')
 # time_optimal's plan cache: a fresh one per session, never the user's ~/.cache.
 os.environ['CARTPOLE_CACHE_DIR'] = tempfile.mkdtemp(prefix='cartpole-test-cache-')
+
+ROS_GRAPH_GROUP = 'ros_graph'
+"""The xdist group of every ``ros`` test: one worker runs them one after another, so no two
+graphs (a real-time one needs more than one core) share the 2 cores; the other tests
+spread over both workers, at a lower CPU priority than the graph (``_graph_first``)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.get_closest_marker('ros') is not None:
+            item.add_marker(pytest.mark.xdist_group(ROS_GRAPH_GROUP))
+
+
+@pytest.fixture(autouse=True)
+def _graph_first(request):
+    """Under xdist, a test without a ROS graph runs (with what it starts) at nice 10, so the
+    graph tests on the other worker keep their real-time budget; as root, ``ros`` tests go
+    back to nice 0. Outside xdist, or not root, nothing changes."""
+    if not _WORKER or os.geteuid() != 0:
+        yield
+        return
+    wanted = 0 if request.node.get_closest_marker('ros') is not None else 10
+    os.setpriority(os.PRIO_PROCESS, 0, wanted)
+    yield
 
 
 @pytest.fixture(autouse=True)

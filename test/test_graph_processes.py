@@ -138,22 +138,17 @@ SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m'
 
 
 def test_processes_lockstep_is_deterministic():
-    """Two identical runs, one process a node: the same summary to the last bit.
-
-    (Before the EKF waited for the previous command in lockstep, a sample that
-    overtook that command made two such runs differ: 0.29 vs 0.46 deg. Before the
-    controller manager waited for the state's own sample, a state handed over before
-    the previous sample made the pendulum's natural-frequency estimate differ about one
-    pair in three: omega0^2 29.33399 vs 29.33439 1/s^2.)
-    """
+    """Two identical runs, one process a node: the same summary to the last bit (the EKF
+    waits for the previous command in lockstep, the controller manager for the state's own
+    sample: a message that overtook another would make two runs differ)."""
     summaries = []
     for _ in range(2):
-        # The summary's window (the last 3 s of 9) starts well after the catch (2.8 s) and
+        # The summary's window (the last 1.5 s of 5) starts after the catch (2.8 s) and
         # after the first samples, which the run monitor of a graph of processes may miss
-        # (README, "Recording"): a window that took them in (the 10 s window of an 8 s run)
+        # (docs/running.md, "Recording"): a window that took them in (the 10 s window of an 8 s run)
         # made two such runs differ in mse_x (0.016449 vs 0.016415).
-        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '9',
-                              '--window', '3', '--json'], timeout=150)
+        code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '5',
+                              '--window', '1.5', '--json'], timeout=150)
         assert code == 0, err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})

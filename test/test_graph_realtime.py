@@ -40,8 +40,7 @@ def test_a_real_time_run_stalled_again_and_again_still_succeeds():
     """A loaded host deschedules the one process (sim, EKF and controller manager): here
     SIGSTOP for 40 ms every 0.3 s, catch transient included, for the whole run. The
     plant runs on its own sample clock through the stalls and the manager counts only
-    its running time as silence, so the run is caught and balanced as without them
-    (before: 0 of 10 such runs succeeded; docs/benchmarks.md).
+    its running time as silence, so the run is caught and balanced as without them.
 
     With the default controllers. energy_saturated's swing-up sends the cart back
     towards the stop it started near at up to 1.5-1.7 m/s, along the rail guard's

@@ -21,6 +21,7 @@ import contextlib
 import importlib
 import importlib.util
 import io
+import os
 import re
 import signal
 import subprocess
@@ -175,10 +176,28 @@ def invoke(argv: list[str]) -> tuple[int | None, str, BaseException | None]:
     return code, err.getvalue(), error
 
 
+def children() -> list[str]:
+    """The command lines of this process's living children (a viewer left running, say)."""
+    found = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+            if int(fields[1]) == os.getpid() and fields[0] != 'Z':
+                found.append((stat.parent / 'cmdline').read_bytes().replace(b'\0', b' ')
+                             .decode(errors='replace')[:120])
+        except (OSError, IndexError, ValueError):
+            continue   # gone meanwhile
+    return found
+
+
 def judge(argv: list[str], action: argparse.Action, value: str, must_refuse: bool,
           huge: bool) -> str | None:
     """What is wrong with the outcome of ``argv`` (None: a clean refusal or clean work)."""
+    before = set(children())
     code, err, error = invoke(argv)
+    left = set(children()) - before
+    if left:
+        return f'left a process running: {sorted(left)[0]}'
     lines = [line for line in err.splitlines() if line.strip()]
     if isinstance(error, WorkStarted) or (error is None and code in (0, 1) and not must_refuse):
         return 'accepted' if must_refuse else None

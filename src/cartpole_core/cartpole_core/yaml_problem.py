@@ -1,7 +1,7 @@
 """A YAML parse error in one line, for the messages that refuse a file.
 
 PyYAML's own text spans several lines with a caret drawing; a refused option should
-say where and what in one line (docs/reference/cli.md, "Errors").
+say where and what in one line (docs/running.md, "Bad input").
 """
 from __future__ import annotations
 

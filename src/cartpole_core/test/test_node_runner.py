@@ -1,6 +1,6 @@
-"""``run_node``: a stop signal never interrupts a callback (it used to raise KeyboardInterrupt
-wherever the interpreter was, once inside ``take_message``, where pybind11 turned it into
-"Unable to convert call argument" and the sim node died with a traceback)."""
+"""``run_node``: a stop signal never interrupts a callback (a KeyboardInterrupt raised inside
+``take_message`` becomes pybind11's "Unable to convert call argument" and kills the node
+with a traceback)."""
 import subprocess
 import sys
 import textwrap

@@ -157,10 +157,9 @@ def test_a_line_completed_across_a_deadline_comes_before_it(device):
     """Armed, tagged U lines back to back, as fast as the firmware's UART takes them, so a
     line is in flight at nearly every deadline. QEMU's clock is the host's, which runs on
     while the host runs something else: a line the loop took before a deadline may
-    complete, by micros(), after it. The firmware used to stamp it so: the deadline's S
-    line then reported the command as written after the sample (one sample in five here),
-    and its watchdog took the U as 2^32 us old (device fault 16 while U lines arrived
-    every 5 ms; the real-time graph run failed so). Every report now says the command in
+    complete, by micros(), after it. Stamped so, the deadline's S line would report the
+    command as written after the sample, and the watchdog would take the U as 2^32 us old
+    (device fault 16 while U lines arrive every 5 ms). Every report must say the command in
     force was written before its sample. (Whether the watchdog trips here depends on how
     the host runs QEMU and this process, so it is not asserted.)"""
     port = serial.Serial(device.link, 115200, timeout=0.002, write_timeout=0)

@@ -285,8 +285,14 @@ def main(args: argparse.Namespace) -> int:
         ros_args += ['--params-file', str(spec.params_file)]
     stop = _StopRequest()
     context = Context()
-    rclpy.init(args=['cartpole_run'] + ros_args, context=context,
-               signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=['cartpole_run'] + ros_args, context=context,
+                   signal_handler_options=SignalHandlerOptions.NO)
+    except BaseException:
+        if viewer is not None:   # started above: never left behind on port 8765
+            viewer.close()
+        scratch.cleanup()
+        raise
     stop.install()
     warnings: list[str] = []
     graph = None
