@@ -31,6 +31,7 @@ graphs (a real-time one needs more than one core) share the 2 cores; the other t
 spread over both workers, at a lower CPU priority than the graph (``_graph_first``)."""
 
 
+@pytest.hookimpl(tryfirst=True)   # before xdist's own, which reads the group marks
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.get_closest_marker('ros') is not None:
