@@ -40,6 +40,19 @@ TOO_LONG_KNOWN: set[str] = set()
 removes it here. A listed file that is no longer too long fails the test too, so the
 list only shrinks."""
 
+MAX_DOCSTRING_LINES = 20
+
+LONG_DOCSTRING_KNOWN = {
+    'src/cartpole_analysis/cartpole_analysis/bags/repair.py',
+    'src/cartpole_analysis/cartpole_analysis/bags/storage.py',
+    'src/cartpole_bringup/cartpole_bringup/graph/record_ledger.py',
+    'src/cartpole_control/cartpole_control/catch_region.py',
+    'src/cartpole_control/cartpole_control/mpc_model.py',
+}
+"""Modules whose docstring other work in progress shortens; the merge that shortens one
+removes it here. A listed module whose docstring fits fails the test too, so the list
+only shrinks."""
+
 
 def _modules() -> dict[str, Path]:
     """Dotted module name -> file, for every non-test module of every workspace package."""
@@ -163,6 +176,29 @@ def test_no_file_over_500_lines():
     too_long = {name for name, n in lengths.items() if n > MAX_LINES}
     assert sorted(f'{n}: {lengths[n]} lines' for n in too_long - TOO_LONG_KNOWN) == []
     assert sorted(TOO_LONG_KNOWN - too_long) == [], 'split: remove from TOO_LONG_KNOWN'
+
+
+def _docstring_lines(path: Path) -> int:
+    """Lines of a module's docstring as written (0 without one)."""
+    text = ast.get_docstring(ast.parse(path.read_text(), str(path)), clean=False)
+    return len(text.split('\n')) if text is not None else 0
+
+
+def test_no_module_docstring_over_20_lines():
+    """What and why in a page a reader can hold; the design notes live in docs/."""
+    lengths = {str(p.relative_to(ROOT)): _docstring_lines(p) for p in _python_files()
+               if p.is_relative_to(SRC) and 'test' not in p.relative_to(SRC).parts}
+    too_long = {name for name, n in lengths.items() if n > MAX_DOCSTRING_LINES}
+    assert sorted(f'{n}: {lengths[n]} lines' for n in too_long - LONG_DOCSTRING_KNOWN) == []
+    assert sorted(LONG_DOCSTRING_KNOWN - too_long) == [], 'fits: remove from LONG_DOCSTRING_KNOWN'
+
+
+def test_the_docstring_count_sees_a_long_one(tmp_path):
+    path = tmp_path / 'm.py'
+    path.write_text('"""What.\n' + 'why\n' * 19 + '"""\nX = 1\n')
+    assert _docstring_lines(path) == 21
+    path.write_text('X = 1\n"""Not a docstring."""\n')
+    assert _docstring_lines(path) == 0
 
 
 def test_every_package_is_in_the_layer_order():

@@ -1,31 +1,18 @@
 """A node's health on ``/diagnostics``, the way ROS's diagnostic_updater publishes it.
 
-Every node of the graph publishes, once a second of its clock (simulated time
-in lockstep: the reports are 1 s apart by their stamps either way), a
-diagnostic_msgs/DiagnosticArray on ``/diagnostics`` with one DiagnosticStatus
-named ``<node name>: <what>`` (``sim: simulation``, ``ekf: estimation``,
-``controller_manager: control``, ``hw_bridge: serial link``) and a
-``hardware_id``, which rqt_robot_monitor, the diagnostic aggregator and
-Foxglove's diagnostics panel show. The levels mean what they say:
-
-- ``OK``: working, or idle (nothing to do yet: no sample because the graph
-  does not run, control disabled, the bridge disarmed);
-- ``WARN``: degraded: an event counter the node names (bad messages, lost
-  samples, re-initialisations, ...) grew since the previous report, or the node
-  says so itself;
-- ``ERROR``: a fault (the node says so: a controller fault, the device
-  disconnected or disarmed by a fault);
-- ``STALE``: an input stopped arriving: the node says so (a watchdog), or a
-  counter of an input that had been growing did not grow since the previous
-  report (the node's own ERROR wins).
+Every node of the graph publishes, once a second of its clock, a
+diagnostic_msgs/DiagnosticArray with one DiagnosticStatus named ``<node name>: <what>``
+(``ekf: estimation``) and a ``hardware_id``, which rqt_robot_monitor, the diagnostic
+aggregator and Foxglove show. The levels mean what they say: ``OK`` working or idle,
+``WARN`` an event counter grew since the previous report, ``ERROR`` a fault, ``STALE`` an
+input stopped arriving (the node's own ERROR wins).
 
 The node supplies its health as a :class:`Health` (level, message, values);
-:class:`HealthReport` adds what changed since its previous report and builds
-the message, :class:`NodeDiagnostics` publishes it on a timer. Values are
-plain numbers as text (``'3'`` for a count, ``'0.25'``, ``'true'``): :func:`plain`.
-
-diagnostic_updater (ros/diagnostics) is not on PyPI, so this module does the
-little of it the nodes need; the messages are the same.
+:class:`HealthReport` adds what changed since its previous report and builds the
+message, :class:`NodeDiagnostics` publishes it on a timer; values are plain numbers as
+text (:func:`plain`). diagnostic_updater is not on PyPI, so this module does the little
+of it the nodes need, with the same messages.
+Each node's statuses and levels: (docs/architecture.md, "Diagnostics and logs").
 """
 from __future__ import annotations
 

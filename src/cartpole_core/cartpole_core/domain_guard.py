@@ -1,34 +1,19 @@
 """One graph per namespace of a ROS domain: a node refuses to start where its role is taken.
 
-Two graphs in one namespace of one ``ROS_DOMAIN_ID`` share their topics: one
-graph's controller would drive the other's plant, one's shutdown would switch
-off the other's controller. Graphs in different namespaces (``cartpole run
---namespace rig2``, ``--ros-args -r __ns:=/rig2``) do not meet. So every node
-executable (:func:`cartpole_core.node_runner.run_node` calls
-:func:`refuse_duplicate_node`) and ``cartpole run`` (:func:`claim_graph` for
-the whole graph) check before they create a node, by the node's role
-(:mod:`cartpole_core.roles`: what the node is, not what it is called, so a
-node renamed with ``-r __node:=...`` is still found), in two ways:
+Two graphs in one namespace of one ``ROS_DOMAIN_ID`` share their topics, so one's
+controller would drive the other's plant. Every node executable
+(:func:`cartpole_core.node_runner.run_node` calls :func:`refuse_duplicate_node`) and
+``cartpole run`` (:func:`claim_graph`) check before they create a node, by the node's
+role (:mod:`cartpole_core.roles`, not its name), in two ways: on this machine, certain
+and at once, an exclusive ``flock`` on ``<tmp>/cartpole-ros-domain-<N>/<namespace>.<role>.lock``
+held for the life of the process (:class:`NodeClaim`); on the DDS graph, a hidden probe
+node looks for a publisher of the role's own topic (:data:`cartpole_core.roles.ROLE_TOPICS`)
+within :func:`discovery_wait` seconds.
 
-1. **On this machine, certain and at once:** an exclusive ``flock`` on
-   ``<tmp>/cartpole-ros-domain-<N>/<namespace>.<role>.lock`` (``<role>.lock``
-   in the root namespace), held for the life of the process (the kernel
-   releases it when the process ends, also on SIGKILL). The file names the
-   holder (its node, PID and command line).
-2. **On the DDS graph:** a hidden probe node (``_cartpole_probe_<pid>``)
-   looks for a publisher of the role's own topic in the namespace
-   (:data:`cartpole_core.roles.ROLE_TOPICS`: the plant's samples, the estimate,
-   the controller status) within :func:`discovery_wait` seconds (0.5 s with
-   ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, where 1. already covers every
-   cartpole node; 3.5 s otherwise, about one participant announcement
-   period of Fast DDS, for graphs on other machines).
-
-A refusal raises :class:`DuplicateNodeError` with a one-line message naming
-the namespace, the domain, the node found and the fixes (another namespace,
-another ``ROS_DOMAIN_ID``). It is skipped with ``cartpole run
---allow-duplicates`` or, for an executable, the ROS argument ``-p
-allow_duplicates:=true`` (or ``allow_duplicates: true`` under ``/**`` in a
-parameters file).
+A refusal raises :class:`DuplicateNodeError` naming the namespace, the domain, the node
+found and the fixes. ``cartpole run --allow-duplicates`` or the parameter
+``allow_duplicates:=true`` skips the check.
+Design notes: (docs/running.md, "Namespaces, one graph per namespace").
 """
 from __future__ import annotations
 

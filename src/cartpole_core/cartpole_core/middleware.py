@@ -1,24 +1,17 @@
 """The DDS settings a cartpole process starts with: a service reply never holds the loop.
 
-rmw_fastrtps sends a service's reply only once the caller's reply reader is
-discovered, and waits for it up to the reply writer's ``max_blocking_time``
-(Fast DDS's default: 100 ms) inside ``send_response``, where rclpy holds the
-GIL. A new caller (every ``ros2 param set``, ``ros2 lifecycle get``, a
-test's probe) whose reader is discovered late so stops every thread of the
-process for 100 ms: in a one-process graph the controller, the EKF and the
-bridge's port thread, and the bridge's 50 ms watchdogs (host and device)
-disarm the rig. Measured: a caller whose reader never matches stalls a 200 Hz
-timer 105 ms with the default, 9.9 ms with the profile below.
+rmw_fastrtps waits inside ``send_response``, holding the GIL, until the caller's reply
+reader is discovered, up to the reply writer's ``max_blocking_time`` (100 ms by default):
+every ``ros2 param set`` discovered late would stop every thread of the process that
+long, and the bridge's 50 ms watchdogs would disarm the rig.
 
-:func:`use_profiles` points Fast DDS at ``share/cartpole_sim/config/
-fastdds_profiles.xml``, whose ``service`` profile (the one rmw_fastrtps
-gives every service's reply writer) bounds that wait to
-:data:`REPLY_WAIT_S`, one sample period. It is called before ``rclpy.init``
-by every node executable (:func:`cartpole_core.node_runner.run_node`) and by
-the ``cartpole`` command; child processes inherit it. A profiles file of
-your own (``FASTRTPS_DEFAULT_PROFILES_FILE`` or ``FASTDDS_DEFAULT_PROFILES_FILE``
-set) is left as it is: copy the profile into it. Another RMW than Fast DDS
-is left alone.
+:func:`use_profiles` points Fast DDS at ``share/cartpole_core/config/fastdds_profiles.xml``,
+whose ``service`` profile bounds that wait to :data:`REPLY_WAIT_S`, one sample period. It
+runs before ``rclpy.init`` in every node executable and the ``cartpole`` command; child
+processes inherit it. A profiles file of your own (``FASTRTPS_DEFAULT_PROFILES_FILE`` or
+``FASTDDS_DEFAULT_PROFILES_FILE``) and another RMW are left alone.
+Cause, measurements and the fix for your own profiles file: "The rig disarms when someone
+runs ``ros2 param``" in (docs/troubleshooting.md, "Troubleshooting").
 """
 from __future__ import annotations
 

@@ -1,28 +1,18 @@
 """Where a graph runs: its ROS namespace, in the nodes' names and in its bags (no ROS).
 
-Every node names its topics and services relative to its namespace
-(``joint_states``, ``cartpole/state``, ``~/reset``), so ``--ros-args -r
-__ns:=/rig2`` moves a node whole and ``cartpole run --namespace rig2`` a
-graph: ``/rig2/joint_states``, ``/rig2/sim/reset``. In the root namespace (the
-default) the names are ``/joint_states``, ``/cartpole/...`` as always.
+Every node names its topics and services relative to its namespace, so ``--ros-args -r
+__ns:=/rig2`` moves a node whole and ``cartpole run --namespace rig2`` a graph
+(``/rig2/joint_states``, ``/rig2/sim/reset``); the root namespace keeps the usual names.
+This module holds the name arithmetic every layer needs for that:
 
-One name stays absolute: ``/clock``, which every ROS node with
-``use_sim_time`` reads (rclpy's time source subscribes ``/clock`` itself). Two
-lockstep graphs must not share it, so a graph in a namespace remaps it for
-all its nodes, the simulator's publisher included: ``-r /clock:=/rig2/clock``
-(:func:`ros_arguments`).
+- :func:`ros_arguments`: a graph's remappings, ``/clock`` included (the one absolute name
+  every ``use_sim_time`` node reads; two lockstep graphs must not share it);
+- :func:`bag_namespace`, :func:`graph_topic`: a bag records the names the graph used and
+  its namespace in ``custom_data`` (:data:`NAMESPACE_KEY`); the analysis reads it by the
+  root names;
+- :func:`parameters_in_namespace`: a parameters file's sections moved into the namespace.
 
-**Bags** record the names the graph uses (``/rig2/joint_states``, ``/rig2/clock``,
-so ``ros2 bag play`` replays into the same namespace) and store the namespace
-in their ``custom_data`` (:data:`NAMESPACE_KEY`). The analysis reads a bag by
-the root names: :func:`bag_namespace` finds the namespace (custom_data, else
-from the topics of a bag recorded otherwise) and :func:`graph_topic` strips it.
-
-**Parameters files** name a node's section by its full name (``controller_manager``
-and ``/controller_manager`` are the root's node, ``/**`` every node):
-:func:`parameters_in_namespace` moves the sections of a graph's nodes into its
-namespace, so that ``cartpole run --params FILE --namespace rig2`` gives each
-node the section the same run gives it in the root.
+Design notes: (docs/running.md, "Namespaces, one graph per namespace").
 """
 from __future__ import annotations
 

@@ -1,31 +1,16 @@
 """``main()`` of every cartpole node: init, spin, destroy, shutdown, made safe for a clean stop.
 
-Why it lives here, in the bottom package, though it has nothing of the
-simulator: the five top-level packages are fixed (sim at the bottom;
-estimation, control and hw above it; bringup on top), and the runner and the
-QoS every node shares (:data:`PUBLISH_DEPTH`, :data:`PLANT_RESET_QOS`) must be
-importable by all of them without a cycle. Every node depends on
-``cartpole_sim`` already for the model (:mod:`cartpole_core.model`), so this
-module adds no dependency. It imports rclpy and :mod:`cartpole_core.realtime`
-only, never the plant or the simulator node: the EKF, controller manager,
-hardware bridge and recorder load no simulator code (a test checks it).
+:func:`run_node` points Fast DDS at the project's profiles (:mod:`cartpole_core.middleware`),
+refuses a node whose role is taken in its namespace (:mod:`cartpole_core.domain_guard`),
+applies the real-time hygiene after start-up (:mod:`cartpole_core.realtime`) and spins
+until SIGINT or SIGTERM. The signals only note the request: the spin loop ends after the
+callback in progress, so the context is still alive while the node shuts down and its
+last words (the controller manager's zero force, the bridge's disarm) still go out. Bad
+start-up parameters are reported on one line, exit 2. Beside it, the QoS every node
+shares (:data:`PUBLISH_DEPTH`, :data:`PLANT_RESET_QOS`). It imports rclpy, never the
+plant or the simulator node.
 
-rclpy's own SIGINT handler shuts the context down under the spinning
-executor: a callback in the middle of ``take_message`` then fails with an
-RCLError instead of a clean exit, and ``destroy_node`` can no longer publish
-(the controller manager's last zero force, the bridge's disarm). Raising
-KeyboardInterrupt from the handler is no better: raised inside the Python
-code that builds a message for ``take_message``, it turns into pybind11's
-"Unable to convert call argument" TypeError and kills the node. Here SIGINT
-and SIGTERM only note the request; the spin loop, which wakes at least every
-0.1 s, ends after the callback in progress, and the context is still alive
-while the node shuts down. Bad start-up parameters (and a bad
-``CARTPOLE_REALTIME``) are reported on one line, exit 2, and so is a node
-whose role is taken in its namespace already (:mod:`cartpole_core.domain_guard`).
-
-After start-up the process gets the real-time hygiene of
-:mod:`cartpole_core.realtime` (collector frozen and run between callbacks;
-SCHED_FIFO for the loop's nodes in real time).
+Why rclpy's own SIGINT handling is not used: (docs/architecture.md, "ROS interfaces").
 """
 from __future__ import annotations
 

@@ -1,51 +1,17 @@
 """Real-time hygiene of the control loop's processes (no ROS import).
 
-What the ROS 2 real-time guides ask of a control process, done once after
-start-up by :func:`enter_loop` and undone by :meth:`LoopHygiene.leave`:
+A 5 ms loop on two shared cores must not wait behind a BLAS thread pool, a full garbage
+collection or normal-priority work. :func:`enter_loop` does once after start-up what the
+ROS 2 real-time guides ask (:meth:`LoopHygiene.leave` undoes it): the collector frozen,
+pushed out to :data:`SAFETY_THRESHOLD` and run where the loop has time to spare
+(:func:`collect_when_idle`); ``SCHED_FIFO`` at :data:`DEFAULT_PRIORITY` for every thread
+of a loop process (:data:`cartpole_core.roles.LOOP_ROLES`) in real time only, dropped
+back to normal after :data:`RUNAWAY_LIMIT` s without blocking. :func:`pin_numerical_threads`
+pins the BLAS threads to one (every cartpole package's ``__init__`` runs it, before numpy
+loads); :class:`CycleGapMeter` keeps the longest gap between two cycles.
 
-- **Numerical threads pinned to one.** :func:`pin_numerical_threads` sets
-  ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ``MKL_NUM_THREADS`` and their
-  kin to 1 unless the environment sets them already. It must run before
-  numpy loads: every cartpole package's ``__init__`` calls it, so importing
-  any node module (or the ``cartpole`` command) pins them first. The loop's
-  matrices are 4x4; a BLAS thread pool only adds threads that wake, spin and
-  compete with the loop for the two cores.
-- **Garbage collector frozen after start-up, collecting only when idle.**
-  Everything built while starting (modules, nodes, plugins) is frozen
-  (:func:`gc.freeze`), so no later collection scans it; it is not collected
-  first: a full collection of the start-up heap pauses the process for up to
-  half a second on a loaded machine, and the loop may already run. The
-  automatic collection is pushed far out (:data:`SAFETY_THRESHOLD` allocations:
-  a safety net only), and the loop calls :func:`collect_when_idle` where it has
-  time to spare (after a cycle's command is out, or between two executor
-  callbacks): it runs the collection the interpreter would have run by now,
-  with CPython's own thresholds (:data:`IDLE_THRESHOLDS`).
-- **Real-time priority when permitted.** Every thread of the process (the
-  executor, the DDS threads, the serial reader) gets ``SCHED_FIFO`` at
-  :data:`DEFAULT_PRIORITY`, well below the kernel's own real-time threads
-  (threaded interrupts at 50, migration and watchdog at 99), with
-  ``SCHED_RESET_ON_FORK`` so that child processes (and threads started later,
-  e.g. background work) start at normal priority: call it once the executor
-  spins, when the loop's threads exist.
-  Only the loop's processes take it (the roles of
-  :data:`cartpole_core.roles.LOOP_ROLES`, whatever their node is called; the
-  one-process graph; the device emulator), and only in real time: a lockstep run
-  (simulated time) runs flat out by design and must not hold a core at
-  real-time priority. So that it can never starve the machine, a
-  thread that runs :data:`RUNAWAY_LIMIT` s without blocking gets ``SIGXCPU``
-  from the kernel (``RLIMIT_RTTIME``) and the whole process drops back to
-  normal priority, with a log line; the kernel's real-time throttling
-  (``sched_rt_runtime_us``, 95 % by default) is a second guard. Without the
-  permission (no ``CAP_SYS_NICE`` and ``ulimit -r`` too low) the process
-  says so in one log line and runs at normal priority.
-- **Stall figure.** :class:`CycleGapMeter` keeps the longest gap between two
-  cycles, published as ``longest_cycle_gap_s`` in the controller status and
-  the EKF and hardware health.
-
-The environment variable ``CARTPOLE_REALTIME`` chooses the priority: unset or
-``on`` for :data:`DEFAULT_PRIORITY`, a number 1..49 for that priority, ``off``
-(or ``0``) for none; the collector policy and the thread pinning apply
-either way.
+``CARTPOLE_REALTIME`` chooses the priority (unset or ``on``, 1..49, ``off`` or ``0``).
+Design notes, log lines and measurements: (docs/realtime.md, "Real-time priority and stalls").
 """
 from __future__ import annotations
 

@@ -1,23 +1,19 @@
 """The rig's closed loop with the agent inside the controller manager, in a worker thread.
 
-The environment must hand the agent the very state a plugin gets on the rig,
-and that state is made inside :meth:`ControllerManager.update_values` (the EKF
-estimate predicted over the measured latency, with the model accelerations),
-just before the active plugin's ``update`` is called, and the manager's cycle
-goes on with the plugin's force (feedforward (6.12), saturation, rail guard,
-the actuator-gain division). So the loop runs as on the rig, in a thread of
-its own: plant (sample-and-hold, quantised encoders, delay, lag, end stops),
-EKF, controller manager with two agent plugins (one per role, so the catch
-trigger (6.4) and the fall detector hand over as they do between the
-``policy`` plugins); each plugin ``update`` sends the state to the
-environment and blocks until the agent's force comes back (a queue round
-trip, about 36 us here). Nothing of the manager is copied or bypassed.
+The agent must get the very state a plugin gets on the rig, and that state is made inside
+:meth:`ControllerManager.update_values` (the EKF estimate predicted over the measured
+latency) just before the active plugin's ``update``, after which the manager's cycle goes
+on with the plugin's force (feedforward (6.12), saturation, rail guard). So the loop runs
+as on the rig, in a thread of its own: plant, EKF, controller manager with two agent
+plugins (one per role, so the catch trigger (6.4) and the fall detector hand over as
+between the ``policy`` plugins); each plugin ``update`` sends the state to the
+environment and blocks until the agent's force comes back. Nothing is copied or bypassed.
 
-Messages from the loop: ``('state', obs, kind, true_state)`` at each plugin
-call, ``('end', reason, true_state)`` when the run cannot go on (``impact``:
-the cart hit a stop, :attr:`Plant.impacts`; ``fault:<reason>``: the manager faulted, e.g. the rail
-guard tripped), ``('aborted',)`` after :meth:`AgentLoop.abort`, ``('error',
-text)`` if the loop raised.
+Messages from the loop: ``('state', obs, kind, true_state)`` at each plugin call,
+``('end', reason, true_state)`` when the run cannot go on (``impact``: the cart hit a
+stop, :attr:`Plant.impacts`; ``fault:<reason>``: the manager faulted), ``('aborted',)``
+after :meth:`AgentLoop.abort`, ``('error', text)`` if the loop raised.
+See (docs/learning.md, "The environment").
 """
 from __future__ import annotations
 

@@ -1,33 +1,19 @@
 """``cartpole/SwingUp-v0``: the gymnasium environment of this rig, registered on import.
 
 Each episode draws a plant from the combined benchmark's range table
-(:mod:`cartpole_learning.ranges`)
-and runs the rig's closed loop (:mod:`cartpole_learning.closed_loop`: the
-project's plant with sample-and-hold, quantised 16-bit encoders, delay and
-jitter, amplifier gain, saturation and lag, force noise, pushes, lost samples
-and end stops; the EKF; the controller manager with its prediction, catch
-trigger, friction feedforward, saturation and rail guard). The agent is the
-manager's plugin:
+(:mod:`cartpole_learning.ranges`) and runs the rig's own closed loop
+(:mod:`cartpole_learning.closed_loop`: plant, EKF and controller manager, nothing copied),
+so the agent learns on what the ``policy`` plugin meets on the rig. The agent is the
+manager's plugin: the observation is :func:`cartpole_learning.observation.observation` of
+the state the manager hands a plugin (never the true state); the action ``a`` in [-1, 1]
+is the raw force ``a * action_scale``; one step is one control cycle (5 ms). An episode
+ends at an impact on a stop, a manager fault or a fall after the catch, each with
+``-failure_penalty``, and is truncated after ``duration``. The reward, of the true state
+after the command acted, asks for up and still, near x*, with little and smooth force.
 
-- observation: :func:`cartpole_learning.observation.observation` of the state
-  the manager hands a plugin (never the true state);
-- action: ``a`` in [-1, 1], the plugin's raw force ``a * action_scale`` [N]
-  (``action_scale`` = the amplifier's positive limit, 34.2 N);
-- one step is one control cycle (5 ms); an episode ends (``terminated``) at an
-  impact on a stop (the plant's :attr:`~cartpole_sim.plant.Plant.impacts`: a cart
-  resting against a stop is none), a manager fault (the rail guard tripped) or
-  a fall after the catch, each with ``-failure_penalty``; it is truncated after
-  ``duration``.
-
-Reward per cycle, of the true state after the command acted (theta_w = 0 upright):
-``(1 + cos theta_w) / 2 + exp(-(theta_w / 0.035)^2) - 0.5 ((x - x*) / 0.385)^2
-- 0.02 a^2 - 0.1 (a - a_prev)^2``: up and still, near x*, with little and smooth
-force. A fraction ``upright_start`` of episodes starts near upright at x* (the
-catch fires in the first cycle) so the stabiliser is trained from the start.
-
-``gymnasium.make("cartpole/SwingUp-v0")`` after ``import cartpole_learning.env``
-(or ``gymnasium.make("cartpole_learning.env:cartpole/SwingUp-v0")``);
+``gymnasium.make("cartpole/SwingUp-v0")`` after ``import cartpole_learning.env``;
 ``gymnasium.make_vec(..., vectorization_mode="async")`` runs one per process.
+The reward's terms, the randomisation and the speed: (docs/learning.md, "The environment").
 """
 from __future__ import annotations
 

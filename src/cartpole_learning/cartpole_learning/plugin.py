@@ -1,28 +1,19 @@
 """``policy``: a learned swing-up and stabiliser as a controller-manager plugin.
 
 Registered in both entry-point groups (``cartpole_control.swingup`` and
-``cartpole_control.stabilizer``) under the one name ``policy``, with the same
-parameters (``policy.file``, ``policy.max_inference_us``), so that
-``swingup:=policy stabilizer:=policy`` runs the network from hanging to
-balancing (the manager's catch trigger (6.4) only hands the state from one
-instance to the other) and ``swingup:=policy stabilizer:=lqg`` hands over to
-the LQR at the catch.
+``cartpole_control.stabilizer``) under the one name ``policy``, with the same parameters
+(``policy.file``, ``policy.max_inference_us``), so that ``swingup:=policy
+stabilizer:=policy`` runs the network from hanging to balancing (the manager's catch
+trigger (6.4) only hands the state from one instance to the other) and ``swingup:=policy
+stabilizer:=lqg`` hands over to the LQR at the catch.
 
-Inference is numpy alone (:mod:`cartpole_learning.policy_file`): the
-observation of the manager's state (:mod:`cartpole_learning.observation`),
-normalised, through the tanh MLP; the output is the raw force, to which the
-manager adds the friction feedforward (6.12) and which it saturates and hands
-to the rail guard like any law's (the guard stays in charge).
-
-Fallback. A policy file that is missing or does not fit (checked when the
-plugin is configured; the reason is logged and reported), a non-finite
-output or, in a real-time loop, an inference longer than ``max_inference_us``
-(an overrun; batch and lockstep runs, which wait for every cycle, stay
-deterministic and do not time it out) hands the rest of the activation to
-the thesis's laws: the energy swing-up (7.32)
-(``pendulum_energy``) in the swing-up role, the LQR (8.17) (``lqg``) as the
-stabiliser, both with their default gains and activated from the current
-state. Each fallback is counted (``policy_fallbacks`` in the controller status).
+Inference is numpy alone (:mod:`cartpole_learning.policy_file`); the output is the raw
+force, to which the manager adds the friction feedforward (6.12) and which it saturates
+and hands to the rail guard like any law's. A policy file that is missing or does not
+fit, a non-finite output or, in a real-time loop, an inference over
+``max_inference_us`` hands the rest of the activation to the thesis's laws: the energy
+swing-up (7.32) (``pendulum_energy``) or the LQR (8.17) (``lqg``), activated from the
+current state and counted (``policy_fallbacks``). Details: (docs/learning.md, "The policy plugin").
 """
 from __future__ import annotations
 

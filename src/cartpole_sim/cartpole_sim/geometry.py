@@ -1,33 +1,17 @@
 """The rig as it is drawn: dimensions of Table 2.1 and the frame they are placed in.
 
-One geometry behind every picture of the rig: the URDF
-(``share/cartpole_sim/urdf/cartpole.urdf``), the live Foxglove scene
-(:mod:`cartpole_analysis.viewer.scene`) and the animations made from bags
-(:mod:`cartpole_analysis.analysis.animation`).
+One geometry behind every picture of the rig: the URDF (:mod:`cartpole_sim.urdf`), the
+live Foxglove scene (:mod:`cartpole_analysis.viewer.scene`) and the animations made from
+bags (:mod:`cartpole_analysis.analysis.animation`). No ROS import: plain numbers.
 
-The rail frame (``rail``): origin at the pendulum joint when the cart is at
-the left end stop (x = 0), x along the rail to the right, z up, y from the
-pendulum's plane into the rig (away from a viewer standing in front of it).
-The joint is then at ``(x, 0, 0)`` and the centre of the tip mass at
-``(x - l sin theta, 0, l cos theta)`` (4.5): theta = 0 upright, pi hanging,
-a positive theta leans the pendulum towards negative x, i.e. a rotation
-by theta about the -y axis.
-
-Dimensions (Table 2.1): rail length l_rail 0.889 m, rod diameter 1 cm, tip
-mass 10.4 cm high and 1.95 cm in diameter; the pendulum length l (joint to
-the centre of the tip mass) and the travel come from
-:class:`~cartpole_core.model.CartPoleParameters`. The cart width is
-``l_rail - travel`` = 0.12 m (section 2.3: travel = l_rail - w_cart; Table
-2.1's "w_cart 33.45 cm" repeats l and contradicts the measured travel of
-0.769 m). The rod is drawn from the joint to the tip mass, ``l - h_mass/2``
-long (Table 2.1 gives l_rod 28.28 cm with l = l_rod + h_mass/2 = 33.48 cm,
-0.3 mm more than the l of 33.45 cm the model uses). The thesis does not give
-the cart's height and depth, the rail's cross-section or the end stops'
-size: those are drawing sizes (``cart_height``, ``cart_depth``,
-``rail_height``, ``rail_depth``, ``stop_width``, ``axle_length``), named as
-such.
-
-No ROS import: the geometry is plain numbers.
+The rail frame (``rail``): origin at the pendulum joint when the cart is at the left end
+stop (x = 0), x along the rail to the right, z up, y into the rig. The joint is at
+``(x, 0, 0)``, the centre of the tip mass at ``(x - l sin theta, 0, l cos theta)`` (4.5):
+a rotation by theta about -y. Dimensions from Table 2.1; l and the travel from
+:class:`~cartpole_core.model.CartPoleParameters`, the cart width ``l_rail - travel``
+(section 2.3). Sizes the thesis does not give (``cart_height``, ``rail_depth``, ...) are
+drawing sizes, named as such. Where Table 2.1 contradicts itself and which value is
+drawn: (docs/live_view.md, "The rig's geometry").
 """
 from __future__ import annotations
 

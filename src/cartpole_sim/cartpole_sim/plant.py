@@ -1,28 +1,19 @@
 """The simulated rig around the model: actuator, end stops, encoders, sampling.
 
-Signal path (Figure 2.2, section 4.5): a force command F* [N] is held over each
-sample period (zero-order hold), turned into a current reference
-i* = F* / (k_t / r), passed through the current loop H(s) = b / (s + a) (4.4)
-with the amplifier's saturation (+11 A / -12 A, Appendix C), and applied to the
-cart as F = (k_t / r) i (2.1). The cart is held in its travel by two stiff
-spring-damper end stops (section 4.5); resting against one is no crash, an
-:class:`Impact` is (``end_stop_contact``). The encoders count quadrature ticks
-(2.3)/(2.4) in 16-bit counters that wrap (section 2.3).
+Signal path (Figure 2.2, section 4.5): a force command F* [N] is held over each sample
+period (zero-order hold), turned into a current reference i* = F* / (k_t / r), passed
+through the current loop H(s) = b / (s + a) (4.4) with the amplifier's saturation
+(+11 A / -12 A, Appendix C), and applied to the cart as F = (k_t / r) i (2.1). Two stiff
+spring-damper end stops hold the cart in its travel (section 4.5): resting against one is
+no crash, an :class:`Impact` is. The encoders count quadrature ticks (2.3)/(2.4) in 16-bit
+counters that wrap (section 2.3). The mechanics (4.18) are integrated with fixed-step RK4
+at ``integration_step`` (1 ms); the current loop, too fast for RK4 at that step, exactly.
 
-The mechanics (4.18) are integrated with fixed-step RK4 at ``integration_step``
-(1 ms by default); the current loop, whose pole at -1.058e4 1/s would make
-explicit RK4 unstable at that step, is integrated exactly over each step (it is
-linear), and the force used in the step is the exact mean of the current over it.
-
-The scenario's disturbances (:mod:`cartpole_sim.scenario`) act here too:
-command delay and jitter, the amplifier's gain error and extra lag, force
-noise and pushes inside the sample-and-hold (:meth:`Plant.step` splits a hold
-where a delayed command arrives or a push starts or ends), lost samples at
-the sampling (:meth:`Plant.sample_lost`). With none of them on, a step takes
-the fast path it always took (no per-step cost for them).
-
-Deterministic: the same parameters, scenario (seed included) and inputs give
-the same trajectory bit for bit.
+The scenario's disturbances (:mod:`cartpole_sim.scenario`) act here too: :meth:`Plant.step`
+splits a hold where a delayed command arrives or a push starts or ends, and
+:meth:`Plant.sample_lost` loses samples; with none on, a step costs nothing more.
+Deterministic: the same parameters, scenario (seed included) and inputs give the same
+trajectory bit for bit. Each part with its numbers: (docs/simulator.md, "The model").
 """
 from __future__ import annotations
 

@@ -1,32 +1,20 @@
 """One simulated run's start, plant uncertainties and disturbances: :class:`Scenario`.
 
-The same object configures the offline loop (``cartpole offline``), the
-simulator node (``cartpole run --sim``) and the device emulator (``cartpole
-emulate``); :class:`~cartpole_sim.plant.Plant` applies it. Every disturbance
-is off by default (the thesis procedure of Appendix H, a perfect rig), and
-every random one draws from its own generator seeded from ``seed``, so the
-same scenario gives the same run bit for bit, and switching one disturbance
-on leaves the random draws of the others as they were.
+The same object configures the offline loop (``cartpole offline``), the simulator node
+(``cartpole run --sim``) and the device emulator (``cartpole emulate``), and
+:class:`~cartpole_sim.plant.Plant` applies it, so the three see the same plant. Every
+disturbance is off by default (the thesis procedure of Appendix H, a perfect rig), and
+every random one draws from its own generator seeded from ``seed``: the same scenario
+gives the same run bit for bit, and switching one disturbance on leaves the draws of the
+others as they were.
 
-Where each disturbance acts (Figure 2.2's signal path):
-
-- ``delay``/``jitter``: sensor-to-actuator latency. The command computed from
-  the sample at t_k reaches the amplifier at t_k + delay + U[0, jitter]
-  (whole nanoseconds); until then the previous command is held, so a delay
-  that is not a whole number of samples splits the hold inside the plant's
-  sample-and-hold (lockstep stays lockstep). The link is a FIFO (a serial
-  line): a command never overtakes an earlier one.
-- ``drop``: each sample is lost on its way to the host with this
-  probability (:meth:`Plant.sample_lost`); the host sees a gap.
-- ``actuator_gain``: the amplifier gives G times the commanded current
-  (before its saturation); ``actuator_tau``: an extra first-order lag
-  1 / (tau s + 1) of the amplifier ahead of the current loop (4.4).
-- ``force_noise``: Gaussian force [N] of this standard deviation added to
-  the force on the cart, a new value each sample period, held over it.
-- ``pushes``: rectangular pulses on the cart [N] or the pendulum [N m].
-- ``tip_mass``, ``cart_mass``, ``friction_scale``, ``parameter_scales``:
-  the true plant differs from the nominal parameters the EKF and the
-  controllers use.
+Where each acts on Figure 2.2's signal path: ``delay``/``jitter`` between the sample and
+the amplifier (a FIFO, inside the plant's sample-and-hold); ``drop`` on the sample's way
+to the host; ``actuator_gain`` and ``actuator_tau`` (a lag ahead of the current loop
+(4.4)) in the amplifier; ``force_noise`` and ``pushes`` on the cart or the pendulum;
+``tip_mass``, ``cart_mass``, ``friction_scale``, ``parameter_scales`` in the true plant,
+which the EKF and the controllers do not know. Each option's range and meaning:
+(docs/simulator.md, "Disturbances").
 """
 from __future__ import annotations
 

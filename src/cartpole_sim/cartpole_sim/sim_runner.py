@@ -1,25 +1,17 @@
 """The simulator's sampling logic without ROS: sample clock, held command, watchdog.
 
-:class:`SimRunner` wraps a :class:`~cartpole_sim.plant.Plant` the way the
-simulator node drives it: the plant is sampled every Ts (5 ms, section 9.2),
-the latest force command is held over the next period (zero-order hold), and a
-watchdog in simulated time sets zero force when no command has arrived for
-``command_timeout`` (50 ms, as the device: docs/rig.md, "The Joint protocol"). All
-numerical work stays in the
-plant; this class only counts samples and decides which force is held.
+:class:`SimRunner` wraps a :class:`~cartpole_sim.plant.Plant` the way the simulator node
+drives it: the plant is sampled every Ts (5 ms, section 9.2), the latest force command is
+held over the next period (zero-order hold), and a watchdog in simulated time sets zero
+force when no command has arrived for ``command_timeout`` (50 ms, as the device:
+docs/rig.md, "The Joint protocol"). All numerical work stays in the plant; this class only
+counts samples and decides which force is held.
 
-The watchdog keeps its word as the tests measure it, from the last command's
-arrival to the first sample that shows zero force: a command received while
-sample k is out acts from t_k, and the force held over [t_j, t_j + Ts) shows
-in sample j + 1. So the watchdog zeroes the period whose closing sample would
-otherwise be the first past the deadline: with 50 ms and Ts = 5 ms the command
-is held over 9 periods and sample k + 10, at most 50 ms after the command
-arrived (it came at or after t_k), is the first at zero force. It decides at
-the sample that crosses the deadline, not one period later.
-
-The sample clock never goes backwards: a reset puts the plant back to its
-initial state but the sample index (hence the stamps and ``/clock``) keeps
-counting, so nodes on ``use_sim_time`` see no time jump.
+The watchdog decides at the sample that crosses the deadline, so the first sample at zero
+force comes at most 50 ms after the last command arrived. The sample clock never goes
+backwards: a reset puts the plant back to its initial state but the sample index (hence
+the stamps and ``/clock``) keeps counting. Why the watchdog counts 9 periods, and how the
+node stamps samples after a stall: (docs/simulator.md, "The simulator node").
 """
 from __future__ import annotations
 

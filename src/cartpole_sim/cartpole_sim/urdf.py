@@ -1,29 +1,17 @@
 """The URDF of the rig, from :class:`~cartpole_sim.geometry.RigGeometry` and the plant parameters.
 
-The installed ``share/cartpole_sim/urdf/cartpole.urdf`` is :func:`rig_urdf`
-of the thesis values (a test keeps the two equal); ``python -m
-cartpole_sim.urdf --plant-params FILE.yaml`` writes the one of your rig.
+The installed ``share/cartpole_sim/urdf/cartpole.urdf`` is :func:`rig_urdf` of the thesis
+values (a test keeps the two equal); ``python -m cartpole_sim.urdf --plant-params FILE.yaml``
+writes the one of your rig. Links ``base_link`` (:data:`ROOT_LINK`: the rail and both end
+stops), ``cart``, ``pendulum`` (the rod) and ``tip_mass``; joints ``cart`` (prismatic along
++x, limits [0, travel], velocity :func:`cart_speed_limit`), ``pendulum`` (continuous, axis
+-y, so that theta = 0 is upright and the tip mass is at ``(x - l sin theta, 0, l cos theta)``
+(4.5)) and ``tip`` (fixed). The joint names are those of ``/joint_states``, so
+``robot_state_publisher`` animates it from the simulator or the bridge directly.
 
-Links ``base_link`` (:data:`ROOT_LINK`, the root: the rail and both end stops),
-``cart``, ``pendulum`` (the rod) and ``tip_mass``; joints:
-
-- ``cart``, prismatic along +x of the rail frame, 0 at the left end stop,
-  limits [0, travel], effort the larger amplifier force, velocity the
-  fastest the amplifier can drive the cart over the whole travel from rest,
-  ``sqrt(2 F_max / m_c * travel)``;
-- ``pendulum``, continuous (URDF's revolute joint without limits: theta is
-  not wrapped on ``/joint_states``), axis -y, so that theta = 0 is upright,
-  pi hanging and a positive theta leans left: the tip mass at
-  ``(x - l sin theta, 0, l cos theta)`` (4.5);
-- ``tip``, fixed, ``pendulum`` -> ``tip_mass`` at l along the rod.
-
-Joint names are those of ``/joint_states``, so ``robot_state_publisher``
-animates it from the simulator or the bridge directly. Inertias: the cart
-carries the model's equivalent mass m_c (Table 4.1, transmission included),
-the tip mass m_p as a solid cylinder; the rod is massless, as in the model
-(section 4.2). Joint dynamics: the pendulum's Coulomb and viscous friction
-(Table 4.1); URDF has one Coulomb value for the cart, the mean of the two
-directions (the plant uses 3.4 N right, 2.45 N left).
+Masses and friction are the model's (Table 4.1, a massless rod as in section 4.2); what
+URDF cannot say as the model does (one Coulomb value for the cart) and how to view it:
+(docs/live_view.md, "The URDF").
 """
 from __future__ import annotations
 

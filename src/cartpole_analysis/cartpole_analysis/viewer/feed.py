@@ -1,23 +1,18 @@
 """The viewer's feed from inside the graph: decimated raw samples over a local Unix socket.
 
-A viewer that subscribes the graph's 200 Hz topics from another process is
-a remote DDS reader: every sample the loop publishes is then also sent to
-that process, inside the publisher's call, on the loop's critical path
-(measured on this machine: the loop's p99 latency about 1.9 times that with
-the tap; docs/benchmarks.md, "Live view"). ``cartpole run --view``
-therefore taps the topics where they are delivered anyway, in the graph's
-own process (:class:`FeedTap`, hosted by the ``viewer_tap`` node of
-:mod:`cartpole_analysis.viewer.tap`): the tap looks
-only at each message's stamp, keeps what the viewer will draw -- at most 60
-samples a second, by the viewer's own decimation rule -- and sends those
-messages, still serialized, over a local Unix socket to the viewer
-process, which decodes, draws and serves them. The socket is non-blocking:
-when the viewer is slow, a full socket buffer drops the message (counted),
-and the loop never waits.
+A viewer that subscribes the graph's 200 Hz topics from another process is a remote DDS
+reader, served inside the publisher's call on the loop's critical path (the loop's p99
+latency about 1.9 times that with this feed). ``cartpole run --view`` therefore taps the
+topics where they are delivered anyway, in the graph's own process (:class:`FeedTap`,
+hosted by the ``viewer_tap`` node of :mod:`cartpole_analysis.viewer.tap`): the tap reads
+only each message's stamp, keeps what the viewer will draw (at most 60 samples a second,
+by the viewer's own decimation) and sends those, still serialized, over a non-blocking
+local Unix socket to the viewer process. A full socket drops the message (counted); the
+loop never waits. Design and measurements: (docs/live_view.md, "The live view").
 
 A message (one ``SOCK_SEQPACKET`` packet) is one kind byte (:data:`TRUTH`,
-:data:`MEASUREMENT`, :data:`ESTIMATE`, :data:`STATUS`) followed by the
-graph's message in its CDR bytes.
+:data:`MEASUREMENT`, :data:`ESTIMATE`, :data:`STATUS`) followed by the graph's message in
+its CDR bytes.
 """
 from __future__ import annotations
 

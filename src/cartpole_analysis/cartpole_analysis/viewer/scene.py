@@ -3,22 +3,13 @@
 The rig is drawn at its true dimensions (:class:`cartpole_sim.geometry.RigGeometry`,
 Table 2.1) in the URDF's root frame ``base_link`` (the rail): x along the rail from the
 left end stop, z up, the pendulum in the plane y = 0, the tip mass at
-``(x - l sin theta, 0, l cos theta)`` (4.5). One update holds four entities:
-
-- ``rig``: the rail, both end stops and the x* mark (a thin vertical line
-  through the reference with a label);
-- ``plant``: the cart, the rod and the tip mass of the plant's own state
-  (the simulator's ground truth, else the encoders' measurement), the cart
-  and the tip mass in the colour of the controller's mode
-  (:data:`MODE_COLOURS`);
-- ``estimate``: the EKF's estimate drawn over it, in front of it, as a
-  translucent outline of the cart, a line for the rod and a sphere at the
-  tip;
-- ``label``: the time, the mode and the active controller as text above
-  the rail.
-
-Every update repeats the static ``rig`` entity, so a client that connects
-late sees the whole scene with its first message.
+``(x - l sin theta, 0, l cos theta)`` (4.5). One update holds four entities: ``rig`` (the
+rail, both end stops and the x* mark), ``plant`` (cart, rod and tip mass of the plant's
+own state, in the colour of the controller's mode, :data:`MODE_COLOURS`), ``estimate``
+(the EKF's estimate drawn over it as an outline) and ``label`` (time, mode, active
+controller). Every update repeats the static ``rig``, so a client that connects late sees
+the whole scene with its first message.
+What each channel shows: (docs/live_view.md, "The live view").
 """
 from __future__ import annotations
 

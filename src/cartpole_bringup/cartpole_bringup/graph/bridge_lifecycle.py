@@ -1,23 +1,16 @@
 """The rig's bridge in a graph: its lifecycle driven through its services, as ``ros2 lifecycle set``.
 
-``hw_bridge`` is a managed node (:mod:`cartpole_hw.hw_node`): it starts
-unconfigured, whether in this process or its own. The graph
-
-- **configures** it once the other nodes are up (port open, handshake,
-  samples streaming disarmed: the EKF and the controller manager run on
-  them) and fails to start with the reason if it cannot;
-- with ``hw_arm`` (``cartpole run --hw-arm``), once the first state arrived,
-  waits until the controller manager answers (twice :data:`WARM_COMMANDS` force
-  commands, the bridge's warm-loop rule) and **activates** it (arms), asking
-  again for up to :data:`ACTIVATE_TIMEOUT` s while the bridge refuses (a loop
-  still working off its start-up backlog);
-- at the stop **deactivates** it (``U,0``, ``E,0``) with the zero force, and
-  **cleans it up** (port closed) before the node stops;
-- watches ``hw_bridge/transition_event`` (relative: the graph's namespace, as the
-  lifecycle services): the bridge going to
-  ``errorprocessing`` (a fault while armed: it zeroed, disarmed and closed
-  the port) is the run's fault (``hw_bridge: <its last_error>; ...``, the
-  reason from ``/cartpole/hw/health`` when the monitor has it), and stops the run.
+``hw_bridge`` is a managed node (:mod:`cartpole_hw.hw_node`): it starts unconfigured,
+whether in this process or its own. The graph **configures** it once the other nodes are
+up (port open, samples streaming disarmed) and fails to start with the reason if it
+cannot; with ``hw_arm`` (``cartpole run --hw-arm``) it **activates** it (arms) once the
+controller manager answers (twice :data:`WARM_COMMANDS` force commands, the bridge's
+warm-loop rule), asking again for up to :data:`ACTIVATE_TIMEOUT` s while the bridge
+refuses; at the stop it **deactivates** it with the zero force and **cleans it up** (port
+closed). It watches ``hw_bridge/transition_event`` (relative, like the services): the
+bridge going to ``errorprocessing`` (a fault while armed) is the run's fault, with the
+bridge's ``last_error``, and stops the run.
+The bridge's states and transitions: (docs/rig.md, "The lifecycle").
 """
 from __future__ import annotations
 

@@ -1,24 +1,18 @@
 """The pulse player node ``pulse_player``: an open-loop pulse test on the rig or the simulator.
 
 A thin adapter around :class:`cartpole_tools.identification.pulse_player.PulsePlayer`: it
-answers every ``/joint_states`` sample with one ``/cartpole/force_command``
-(``name=['cart']``, ``effort=[F]``, ``header.stamp`` = the sample's stamp,
-as the controller manager does, so a lockstep simulator steps on it and the
-hw bridge's stale-command check applies). :func:`play_pulse_plan` runs it
-(with a recorder, optionally arming the hw bridge) for
-``cartpole identify --pulse-plan``.
+answers every ``/joint_states`` sample with one ``/cartpole/force_command`` stamped with
+that sample, as the controller manager does, so a lockstep simulator steps on it and the
+hw bridge's stale-command check applies. :func:`play_pulse_plan` runs it (with a recorder,
+optionally arming the hw bridge) for ``cartpole identify --pulse-plan``.
 
-Arming the bridge is its lifecycle ``activate``
-(:class:`cartpole_hw.lifecycle_client.LifecycleClient`, as ``ros2 lifecycle set
-/hw_bridge activate``), which needs a warm loop (20 timely force commands):
-the node first answers every sample with zero force, then asks. When the
-plan ends, or on any error or Ctrl-C, the node publishes zero force once and
-stops publishing, and a bridge it activated is deactivated (``U,0``, ``E,0``,
-still streaming); should that fail, the bridge's watchdog disarms it 50 ms
-later.
-
-Its names are relative (``joint_states``, ``hw_bridge/change_state``): in a namespace
-(``cartpole identify --namespace rig2``) it plays on that graph.
+Arming is the bridge's lifecycle ``activate``
+(:class:`cartpole_hw.lifecycle_client.LifecycleClient`), which needs a warm loop: the
+node answers with zero force first, then asks. When the plan ends, or on any error or
+Ctrl-C, it publishes zero force once, stops publishing and deactivates a bridge it
+activated (the bridge's watchdog disarms it 50 ms later should that fail). Its names are
+relative, so ``cartpole identify --namespace rig2`` plays on that graph.
+The test step by step: (docs/identification.md, "1. Record the tests on the rig").
 """
 from __future__ import annotations
 
