@@ -1,8 +1,8 @@
 """`cartpole train`: PPO on the rig's simulated loop, written as a policy file (docs/learning.md).
 
 Needs the training extra (``pip install -r requirements-train.txt``); without
-it the command says so and exits 2. docs/learning.md has what it does and how
-long it takes.
+it the command says so in one line and exits 2, as for any refused option.
+docs/learning.md has what it does and how long it takes.
 """
 from __future__ import annotations
 
@@ -40,45 +40,59 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='simulated seconds per episode (default 6)')
 
 
-def main(args: argparse.Namespace) -> int:
+BOUNDS = {'seed': (0, 2**32 - 1), 'rounds': (1, 50), 'episodes': (1, 1000), 'epochs': (1, 1000),
+          'workers': (1, 64), 'ppo_steps': (0, 20_000_000), 'duration': (0.5, 30.0)}
+"""Each sizing option's [low, high]: within them a training ends within hours at most
+(docs/learning.md, "Training: `cartpole train`" has the times)."""
+
+
+def checked(args: argparse.Namespace):
+    """(TrainConfig, output path) from the options, or InputError naming the option and bound."""
+    import dataclasses
+
+    from cartpole_bringup import boundary
+
+    from cartpole_learning.training import TrainConfig
+    for name, (low, high) in BOUNDS.items():
+        boundary.number('--' + name.replace('_', '-'), getattr(args, name), low, high)
+    out = boundary.output_file(args.out, '--out', ('.npz',))
+    table = {}
+    if args.ranges:
+        from cartpole_sim.scenario_ranges import load_ranges
+        boundary.input_file(args.ranges, '--ranges')
+        try:
+            table = load_ranges(args.ranges).to_dict()
+        except (OSError, ValueError) as error:
+            raise boundary.InputError(f'--ranges {error}') from None
+    nominal = {}
+    if args.plant_params:
+        nominal = dataclasses.asdict(boundary.plant_parameters(args.plant_params))
+    config = TrainConfig(seed=args.seed, rounds=args.rounds, episodes=args.episodes,
+                         epochs=args.epochs, workers=args.workers, ppo_steps=args.ppo_steps,
+                         duration=args.duration, table=table, nominal=nominal)
+    return config, out
+
+
+def require_training_extra() -> None:
+    """InputError in one line when torch or stable-baselines3 is missing."""
+    from cartpole_bringup.boundary import InputError
     try:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
     except ImportError as error:
-        print(f'cartpole train needs the training extra ({error}); install it with\n'
-              '  pip install -r requirements-train.txt', file=sys.stderr)
-        return 2
-    from cartpole_learning.training import TrainConfig, train
-    table = {}
-    if args.ranges:
-        from cartpole_sim.scenario_ranges import load_ranges
-        try:
-            table = load_ranges(args.ranges).to_dict()
-        except (OSError, ValueError) as error:
-            print(f'cartpole train: {args.ranges}: {error}', file=sys.stderr)
-            return 2
-    nominal = {}
-    if args.plant_params:
-        import dataclasses
+        raise InputError(f'needs the training extra ({error}): pip install -r '
+                         'requirements-train.txt (docs/learning.md)') from None
 
-        from cartpole_bringup.boundary import InputError, plant_parameters
-        try:
-            nominal = dataclasses.asdict(plant_parameters(args.plant_params))
-        except InputError as error:
-            print(f'cartpole train: {error}', file=sys.stderr)
-            return 2
-    if min(args.rounds, args.episodes, args.epochs, args.workers) <= 0 or args.ppo_steps < 0:
-        print('--rounds, --episodes, --epochs and --workers must be > 0, --ppo-steps >= 0',
-              file=sys.stderr)
-        return 2
-    config = TrainConfig(seed=args.seed, rounds=args.rounds, episodes=args.episodes,
-                         epochs=args.epochs, workers=args.workers, ppo_steps=args.ppo_steps,
-                         duration=args.duration, table=table, nominal=nominal)
+
+def main(args: argparse.Namespace) -> int:
+    config, out = checked(args)
+    require_training_extra()
+    from cartpole_learning.training import train
     try:
-        provenance = train(config, os.path.abspath(args.out), log=lambda s: print(s, flush=True))
+        provenance = train(config, os.path.abspath(out), log=lambda s: print(s, flush=True))
     except ValueError as error:
-        print(f'cartpole train: {error}', file=sys.stderr)
+        print(f'cartpole train: error: {error}', file=sys.stderr)
         return 2
-    print(f'wrote {args.out}: {provenance["steps"]} steps in {provenance["wall_time_s"]} s '
+    print(f'wrote {out}: {provenance["steps"]} steps in {provenance["wall_time_s"]} s '
           f'(seed {provenance["seed"]}, commit {provenance["commit"]})')
     return 0
