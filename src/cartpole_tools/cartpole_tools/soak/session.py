@@ -100,10 +100,11 @@ def bag_counts(bag: Path, windows: dict[str, dict]) -> dict[str, int]:
     """Messages per topic of the bag with a stamp in that topic's window (first..last ns)."""
     from mcap.reader import make_reader
 
+    from cartpole_analysis.bags.repair import bag_files
     from cartpole_analysis.bags.writer import cdr_stamp_ns
 
     counts = {topic: 0 for topic in windows}
-    for path in sorted(bag.glob('*.mcap')):
+    for path in bag_files(bag):
         with path.open('rb') as f:
             for _, channel, message in make_reader(f).iter_messages(topics=list(windows)):
                 w = windows[channel.topic]
