@@ -13,7 +13,8 @@ runs at a SCHED_FIFO priority below the loop's (:mod:`cartpole_core.realtime`). 
 ``lockstep:=true`` it publishes its
 progress on ``cartpole/recorder/progress`` and the simulator waits for it
 (:mod:`cartpole_bringup.graph.record_ledger`); in real time the messages it
-missed are counted by stamp (``recorder_missed`` in the bag's custom_data).
+missed are counted by stamp (``recorder_missed`` in the bag's custom_data; those
+before a publisher was discovered apart, ``recorder_missed_at_start``).
 In a namespace it records the graph's topics by the names they have there.
 """
 from __future__ import annotations
@@ -48,9 +49,10 @@ JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
           '/cartpole/force_command': COMMAND, '/cartpole/true_state': TRUTH}
 """The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
 
-QUEUE_DEPTH = 1000
-"""Default depth of each subscription's queue: 5 s of a 200 Hz topic that wait for the
-executor when the recorder is held up (it is not in the loop; the memory is cheap)."""
+QUEUE_DEPTH = 200
+"""Default depth of each subscription's queue (1 s of a 200 Hz topic). Not deeper: with
+1000 the controller manager's publishing stalled once for 330-340 ms in 3 of 6 short
+soaks (0 of 4 with 200; docs/soak.md), and the priority keeps the recorder fed."""
 
 WRITE_PERIOD = 0.01
 """Wall seconds between two looks of the writer thread at the queue."""
@@ -241,9 +243,14 @@ class RecorderNode(Node):
         self._write_queued()
         self._bag.close()
         missed = self.ledger.finish()
-        update_custom_data(self._bag.path, {'recorder_missed': str(missed)})
+        at_start = self.ledger.missed_at_start
+        update_custom_data(self._bag.path, {'recorder_missed': str(missed),
+                                            'recorder_missed_at_start': str(at_start)})
         if missed:
             self.get_logger().warning(f'the recorder missed {missed} messages (by stamp)')
+        if at_start:
+            self.get_logger().info(f'{at_start} messages were published before the recorder '
+                                   'had discovered their publisher')
 
     def destroy_node(self) -> None:
         self.close()

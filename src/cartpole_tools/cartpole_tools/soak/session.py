@@ -200,9 +200,14 @@ def run_soak(config: SoakConfig, should_stop: Callable[[], bool] = lambda: False
     custom = (info or {}).get('custom_data') or {}
     missed = custom.get('recorder_missed')
     published = probe.published
+    bag_figures = bag_verdict(published, bag_counts(bag, published), damage(bag),
+                              None if missed is None else int(missed))
+    # published before the recorder had discovered the publisher: reported, not judged
+    # (the bag is compared with the probe from COUNT_FROM_S on)
+    at_start = custom.get('recorder_missed_at_start')
+    bag_figures['recorder_missed_at_start'] = None if at_start is None else int(at_start)
     return verdict(config, elapsed, graph.fault, warnings, events, judge, probe, samples,
-                   bag_verdict(published, bag_counts(bag, published), damage(bag),
-                               None if missed is None else int(missed)), bag)
+                   bag_figures, bag)
 
 
 def _switch(graph, name: str, now: float) -> dict:
