@@ -43,6 +43,16 @@ def diagnostic(ts, t, name, values, message=''):
     return ts.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray')
 
 
+def read_log_times(bag: Path) -> dict[str, list[int]]:
+    """Log times [ns] of every message per topic, as ``rosbags`` reads the bag back."""
+    from rosbags.highlevel import AnyReader
+    out: dict[str, list[int]] = {}
+    with AnyReader([bag]) as reader:
+        for connection, log_time, _ in reader.messages():
+            out.setdefault(connection.topic, []).append(log_time)
+    return out
+
+
 def trajectory(duration=DURATION, x_offset=0.0):
     """Known run: theta falls linearly from pi to 0 over 6 s, then 0.01 sin(2 pi t);
     x = x* + 0.05 sin(2 pi t / 5) + x_offset. Times from 0 (lockstep)."""

@@ -47,12 +47,7 @@ def _record_and_kill(tmp_path: Path, seconds: float) -> tuple[Path, int]:
 
 
 def _read(bag: Path) -> dict[str, list[int]]:
-    from rosbags.highlevel import AnyReader
-    out: dict[str, list[int]] = {}
-    with AnyReader([bag]) as reader:
-        for connection, log_time, _ in reader.messages():
-            out.setdefault(connection.topic, []).append(log_time)
-    return out
+    return bag_synth.read_log_times(bag)
 
 
 def test_a_killed_recording_is_repaired_and_loses_at_most_the_flush_period(tmp_path):
