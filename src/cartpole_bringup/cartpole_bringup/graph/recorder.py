@@ -50,9 +50,9 @@ JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
 """The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
 
 QUEUE_DEPTH = 200
-"""Default depth of each subscription's queue (1 s of a 200 Hz topic). Not deeper: with
-1000 the controller manager's publishing stalled once for 330-340 ms in 3 of 6 short
-soaks (0 of 4 with 200; docs/soak.md), and the priority keeps the recorder fed."""
+"""Default depth of each subscription's queue (1 s of a 200 Hz topic); the real-time
+priority keeps the recorder fed. 1000 was tried: a loop process stalled 330-340 ms early
+in 3 of 6 short soaks with it, 1 of 7 with 200 (docs/soak.md)."""
 
 WRITE_PERIOD = 0.01
 """Wall seconds between two looks of the writer thread at the queue."""
