@@ -116,7 +116,7 @@ def test_sigkill_of_the_recorder_is_reported_and_its_bag_repaired(tmp_path, trut
     assert all(b - a == 5_000_000 for a, b in zip(truth, truth[1:]))
     # What the recorder had not yet written when it was killed: under one second.
     assert killed_at - truth[-1] < 1_000_000_000
-    assert (bag / 'bag.mcap.damaged').is_file()
+    assert (bag / 'bag_0.mcap.damaged').is_file()
 
 
 def test_a_raising_callback_in_one_process_is_the_fault(ros_context):
@@ -141,7 +141,7 @@ def test_a_raising_callback_in_one_process_is_the_fault(ros_context):
 
 def test_sigkill_of_the_whole_run_loses_under_a_second_after_repair(tmp_path, truth_stamps,
                                                                     spin_until):
-    """The whole `cartpole run` killed: only bag.mcap is left; `cartpole bag repair` makes it
+    """The whole `cartpole run` killed: only bag_0.mcap is left; `cartpole bag repair` makes it
     readable by rosbags and `cartpole analyze`, missing less than a second."""
     seen, executor = truth_stamps
     proc = subprocess.Popen([sys.executable, '-m', 'cartpole_bringup.cli', 'run', '--sim',

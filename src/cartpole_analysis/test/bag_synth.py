@@ -43,6 +43,16 @@ def diagnostic(ts, t, name, values, message=''):
     return ts.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray')
 
 
+def read_log_times(bag: Path) -> dict[str, list[int]]:
+    """Log times [ns] of every message per topic, as ``rosbags`` reads the bag back."""
+    from rosbags.highlevel import AnyReader
+    out: dict[str, list[int]] = {}
+    with AnyReader([bag]) as reader:
+        for connection, log_time, _ in reader.messages():
+            out.setdefault(connection.topic, []).append(log_time)
+    return out
+
+
 def trajectory(duration=DURATION, x_offset=0.0):
     """Known run: theta falls linearly from pi to 0 over 6 s, then 0.01 sin(2 pi t);
     x = x* + 0.05 sin(2 pi t / 5) + x_offset. Times from 0 (lockstep)."""
@@ -57,18 +67,20 @@ def trajectory(duration=DURATION, x_offset=0.0):
 
 def write_run(path: Path, *, truth=True, estimate=True, hw_limits=None, x_offset=0.0,
               t_origin=0.0, clock=True, custom_data=None, switch=None, events=None,
-              cycle_gap=None, swingup_laws=None):
+              cycle_gap=None, swingup_laws=None, max_bag_duration=None):
     """Write the known trajectory as a bag; returns the arrays.
 
     ``switch=(t, name)``: the stabiliser is ``name`` from ``t`` on (a ``ros2 param
     set``); ``events={t: 'fault:...'}``: extra status events; ``cycle_gap(t)``: the
     status key ``longest_cycle_gap_s``; ``swingup_laws``: (before the catch, from the
     catch on) values of the status's ``swingup_law``; None leaves the key out (a bag
-    from before it existed).
+    from before it existed); ``max_bag_duration``: split the bag (None: the writer's
+    default).
     """
     ts = _types()
     t, x, theta, x_dot, theta_dot, force = trajectory(x_offset=x_offset)
-    with BagWriter(path, custom_data=custom_data) as bag:
+    split = {} if max_bag_duration is None else {'max_bag_duration': max_bag_duration}
+    with BagWriter(path, custom_data=custom_data, **split) as bag:
         for k in range(t.size):
             tk = t[k] + t_origin
             state = ([x[k], theta[k]], [x_dot[k], theta_dot[k]])

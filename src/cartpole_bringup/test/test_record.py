@@ -128,7 +128,7 @@ def test_recorded_bag_reads_back_with_topics_types_counts_and_stamps(ros_context
     assert forces == [float(k) for k in range(n)]
     # recorder_missed: every status's force command and every sample's truth is there.
     assert bag_custom_data(bag) == {'x_ref': '0.3845', 'swingup': 'pendulum_energy',
-                                    'recorder_missed': '0'}
+                                    'recorder_missed': '0', 'recorder_missed_at_start': '0'}
     # metadata.yaml: version 9, MCAP, the right counts (what `ros2 bag info` reads).
     import yaml
     info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']

@@ -63,3 +63,15 @@ def test_a_topic_nobody_publishes_is_not_missed():
         ledger.take(JOINT_STATES, k * TS)
         ledger.take(STATE, k * TS)
     assert ledger.finish() == 0
+
+
+def test_messages_before_their_publisher_was_discovered_are_counted_apart():
+    """A real-time recorder in its own process finds the estimate's publisher before the
+    plant's: the first samples the estimates imply are missed at the start, not later."""
+    ledger = RecordLedger(ALL, horizon_ns=0)
+    for k in range(100):
+        one_sample(ledger, k, skip=(JOINT_STATES, TRUE_STATE, CLOCK) if k < 30 else ())
+    one_sample(ledger, 100, skip=(JOINT_STATES,))          # a sample lost later: a miss
+    one_sample(ledger, 101)
+    assert ledger.finish() == 1
+    assert ledger.missed_at_start == 30                    # 30 estimates imply their sample

@@ -37,6 +37,11 @@ DEFAULT_PRIORITY = 20
 """SCHED_FIFO priority of the loop's threads: above every normal process, well below
 the kernel's threaded interrupts (50) and its migration and watchdog threads (99)."""
 MAX_PRIORITY = 49
+RECORDER_ROLE = 'recorder'
+RECORDER_BELOW_LOOP = 5
+"""The recorder in real time runs SCHED_FIFO this far below the loop (15 by default): not
+in the loop, but a recorder starved for longer than the publishers' queues (0.5 s) loses
+samples; a loop priority of 5 or less leaves it at normal priority."""
 IDLE_THRESHOLDS = (700, 10)
 """CPython's default thresholds of the young generations, applied by :func:`collect_when_idle`."""
 SAFETY_THRESHOLD = 200_000
@@ -277,14 +282,20 @@ def node_hygiene(role: str | None, logger, simulated_time: bool = False,
                  name: str | None = None) -> LoopHygiene:
     """:func:`enter_loop` for a node process: priority only for a ``role`` of
     :data:`cartpole_core.roles.LOOP_ROLES` in real time (not on ``simulated_time``,
-    i.e. ``use_sim_time`` in lockstep).
+    i.e. ``use_sim_time`` in lockstep), and :data:`RECORDER_BELOW_LOOP` below it for
+    the recorder.
 
     ``logger`` has ``info`` and ``warning`` (an rclpy logger or a
     :class:`logging.Logger`); ``name`` (default: the role) is the node's name
     in the log line. Every node gets the collector policy.
     """
-    real_time_loop = role in LOOP_ROLES and not simulated_time
-    priority = priority_from_environment() if real_time_loop else 0
+    base = priority_from_environment() if not simulated_time else 0
+    if role in LOOP_ROLES:
+        priority = base
+    elif role == RECORDER_ROLE:
+        priority = max(0, base - RECORDER_BELOW_LOOP)
+    else:
+        priority = 0
     return enter_loop(priority, log=logger.info, warn=logger.warning,
                       what=name or role or 'node')
 

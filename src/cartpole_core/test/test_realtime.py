@@ -162,7 +162,7 @@ def test_not_permitted_says_so_and_runs_at_normal_priority(monkeypatch):
         hygiene.leave()
 
 
-def test_only_the_loop_nodes_take_the_priority(monkeypatch):
+def test_the_loop_nodes_take_the_priority_and_the_recorder_one_below(monkeypatch):
     """By role, whatever the node is called (``-r __node:=plant`` keeps the sim's priority)."""
     asked = []
     monkeypatch.setattr(realtime, 'enter_loop',
@@ -176,8 +176,13 @@ def test_only_the_loop_nodes_take_the_priority(monkeypatch):
     realtime.node_hygiene('controller_manager', Logger(), simulated_time=True)   # lockstep
     realtime.node_hygiene('sim', Logger(), name='plant')                          # renamed
     realtime.node_hygiene(None, Logger(), name='sim')               # no role: a name is not one
+    realtime.node_hygiene('recorder', Logger(), simulated_time=True)             # lockstep
+    monkeypatch.setenv(realtime.ENVIRONMENT_SWITCH, '5')
+    realtime.node_hygiene('recorder', Logger(), name='low')        # never at or above the loop
+    # the recorder, not in the loop, below it (a starved recorder loses samples)
     assert asked == [('controller_manager', 9), ('ekf', 9), ('hw_bridge', 9), ('sim', 9),
-                     ('recorder', 0), ('controller_manager', 0), ('plant', 9), ('sim', 0)]
+                     ('recorder', 4), ('controller_manager', 0), ('plant', 9), ('sim', 0),
+                     ('recorder', 0), ('low', 0)]
 
 
 def test_an_executable_s_role_does_not_depend_on_its_node_name():

@@ -115,8 +115,9 @@ def test_bad_options_are_refused_in_one_line(argv, message):
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason='issue 32 open: a real-time soak can judge its bag '
-                   'incomplete (recorder misses at start-up or under load; docs/soak.md)')
+@pytest.mark.xfail(strict=False, reason='on the shared development VM the host takes a vCPU away '
+                   'for ~100 ms now and then (measured: /proc/stat steal, docs/soak.md); the '
+                   "loop's processes on it stop and the manager's 50 ms stale check faults")
 def test_two_minutes_of_soak_pass(tmp_path):
     """The suite's soak: switch every 20 s, restart at 60 s; no fault, up, the bag whole."""
     out = tmp_path / 'soak'

@@ -8,7 +8,8 @@ refuse it. The file holds every chunk written before the kill (at most
 :data:`~cartpole_analysis.bags.storage.FLUSH_PERIOD` is lost), and possibly the
 beginning of one more record.
 
-:func:`repair_bag`:
+:func:`repair_bag`, for each file of the bag (a split bag has several; the
+files ``metadata.yaml`` lists, else every ``*.mcap`` in the order of its index):
 
 1. walks the file's records by their length fields up to the last complete
    one (a record cut short by the kill is dropped, and counted);
@@ -16,9 +17,10 @@ beginning of one more record.
    (schemas, channels, messages, the ``custom_data`` record) are copied, in
    order, into a new MCAP file with summary and index, which replaces the
    original; the original is kept next to it as ``<file>.damaged``;
-3. writes ``metadata.yaml`` (counts, time span, topics, ``custom_data`` from
-   the old ``metadata.yaml`` or from the file) unless an intact bag already
-   has one.
+
+then writes ``metadata.yaml`` (every file, counts, time span, topics,
+``custom_data`` from the old ``metadata.yaml`` or from the files) unless an
+intact bag already has one.
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ import yaml
 from .check import damage
 from .framing import RepairError, complete_prefix
 from .storage import (CUSTOM_DATA_RECORD, NO_QOS, ROSBAG2_RECORD, BagStats, McapBagFile,
-                          TopicInfo, bagfile_information, write_metadata)
+                      TopicInfo, bagfile_information, merged_stats, write_metadata)
 
 @dataclass
 class RepairResult:
@@ -40,6 +42,7 @@ class RepairResult:
 
     bag: Path
     file: Path
+    """The bag's last file, or the last one recovered."""
     action: str
     """``intact`` (nothing to do), ``metadata`` (metadata.yaml rebuilt) or ``recovered``
     (a truncated file rewritten)."""
@@ -50,6 +53,10 @@ class RepairResult:
     dropped_bytes: int = 0
     """Bytes at the end of the damaged file that held no complete record."""
     damaged_copy: Path | None = None
+    """Where the damaged original of :attr:`file` is kept (``recovered``)."""
+    damaged_copies: list[Path] = field(default_factory=list)
+    files: list[Path] = field(default_factory=list)
+    """Every file of the bag, in order."""
     metadata_problem: str | None = None
     """What was wrong with the ``metadata.yaml`` that was replaced (None: there was none)."""
 
@@ -67,27 +74,36 @@ class RepairResult:
                 'recovered': 'truncated MCAP recovered'}[self.action]
         out = f'{self.bag}: {text}: {self.message_count} messages{span}'
         if self.action == 'recovered':
+            kept = ', '.join(p.name for p in self.damaged_copies or [self.damaged_copy])
             out += (f'; {self.dropped_bytes} bytes of an unfinished record dropped; '
-                    f'the damaged file is kept as {self.damaged_copy.name}')
+                    f'the damaged file is kept as {kept}')
+        if len(self.files) > 1:
+            out += f' ({len(self.files)} files)'
         return out
 
 
-def _bag_file(bag: Path) -> Path:
-    """The MCAP file of a bag directory (from metadata.yaml, else the one ``*.mcap``)."""
+def _index(path: Path) -> tuple[int, str]:
+    """Sort key of a bag's files: the index after the last ``_`` (rosbag2's ``<bag>_<i>``)."""
+    stem, _, index = path.stem.rpartition('_')
+    return (int(index), stem) if stem and index.isdigit() else (-1, path.stem)
+
+
+def bag_files(bag: Path) -> list[Path]:
+    """The MCAP files of a bag directory: those metadata.yaml lists if they all exist, else
+    every ``*.mcap`` in the order of its index. RepairError if there is none."""
     meta = bag / 'metadata.yaml'
     if meta.is_file():
         try:
             info = yaml.safe_load(meta.read_text())['rosbag2_bagfile_information']
             files = [bag / p for p in info['relative_file_paths']]
         except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError):
-            files = []  # garbage metadata (UnicodeDecodeError is a ValueError): find the file
-        if len(files) == 1 and files[0].is_file() and files[0].suffix == '.mcap':
-            return files[0]
-    candidates = sorted(bag.glob('*.mcap'))
-    if len(candidates) != 1:
-        raise RepairError(f'{bag}: cannot repair: expected one .mcap file, found '
-                          f'{", ".join(p.name for p in candidates) or "none"}')
-    return candidates[0]
+            files = []  # garbage metadata (UnicodeDecodeError is a ValueError): find the files
+        if files and all(f.is_file() and f.suffix == '.mcap' for f in files):
+            return files
+    candidates = sorted(bag.glob('*.mcap'), key=_index)
+    if not candidates:
+        raise RepairError(f'{bag}: cannot repair: no .mcap file in it')
+    return candidates
 
 
 class _Prefix:
@@ -201,22 +217,41 @@ def repair_bag(bag: str | Path) -> RepairResult:
         bag = bag.parent
     if not bag.is_dir():
         raise RepairError(f'{bag}: no such bag directory')
-    path = _bag_file(bag)
-    limit, complete = complete_prefix(path)
-    size = path.stat().st_size
-    if complete:
-        meta = bag / 'metadata.yaml'
-        problem = damage(bag) if meta.is_file() else None
-        if meta.is_file() and problem is None:
-            return _result(bag, path, 'intact', *_copy_or_refuse(path, limit, None)[:1])
-        stats, metadata = _copy_or_refuse(path, limit, None)
-        info = bagfile_information(path.name, stats, _custom_data_of(metadata, bag))
-        if problem is not None:  # metadata that does not describe the file: kept aside
-            os.replace(meta, meta.with_name('metadata.yaml.damaged'))
-        write_metadata(bag, info)
-        result = _result(bag, path, 'metadata', stats)
-        result.metadata_problem = problem
-        return result
+    paths = bag_files(bag)
+    meta = bag / 'metadata.yaml'
+    problem = damage(bag) if meta.is_file() else None
+    if meta.is_file() and problem is None:
+        stats = {p.name: _copy_or_refuse(p, complete_prefix(p)[0], None)[0] for p in paths}
+        return _result(bag, paths, 'intact', stats)
+    stats: dict[str, BagStats] = {}
+    records: dict[str, dict[str, str]] = {}
+    recovered: list[tuple[Path, Path, int]] = []
+    for path in paths:
+        limit, complete = complete_prefix(path)
+        if complete:
+            stats[path.name], metadata = _copy_or_refuse(path, limit, None)
+        else:
+            stats[path.name], metadata, damaged = _recover(path, limit, bag)
+            recovered.append((path, damaged, damaged.stat().st_size - limit))
+        for name, values in metadata.items():
+            records.setdefault(name, values)
+    custom = _custom_data_of(records, bag)
+    info = bagfile_information(stats, custom)
+    if problem is not None:  # metadata that does not describe the files: kept aside
+        os.replace(meta, meta.with_name('metadata.yaml.damaged'))
+    write_metadata(bag, info)
+    result = _result(bag, paths, 'recovered' if recovered else 'metadata', stats)
+    result.metadata_problem = problem
+    if recovered:
+        result.file, result.damaged_copy = recovered[-1][0], recovered[-1][1]
+        result.damaged_copies = [d for _, d, _ in recovered]
+        result.dropped_bytes = sum(n for _, _, n in recovered)
+    return result
+
+
+def _recover(path: Path, limit: int, bag: Path) -> tuple[BagStats, dict, Path]:
+    """Copy the whole records of a truncated file into a complete one that replaces it;
+    (its counts, its metadata records, where the damaged original is kept)."""
     tmp = path.with_name(path.name + '.repairing')
     tmp.unlink(missing_ok=True)
     out = McapBagFile(tmp, flush_period=float('inf'))
@@ -224,8 +259,7 @@ def repair_bag(bag: str | Path) -> RepairResult:
         stats, metadata = _copy_or_refuse(path, limit, out)
         custom = _custom_data_of(metadata, bag)
         out.set_custom_data(custom)
-        info = bagfile_information(path.name, stats, custom)
-        out.close(info)
+        out.close(bagfile_information({path.name: stats}, custom))
     except BaseException:
         out.abort()
         tmp.unlink(missing_ok=True)
@@ -237,17 +271,15 @@ def repair_bag(bag: str | Path) -> RepairResult:
         damaged = path.with_name(f'{path.name}.damaged{n}')
     os.replace(path, damaged)
     os.replace(tmp, path)
-    write_metadata(bag, info)
-    result = _result(bag, path, 'recovered', stats)
-    result.dropped_bytes = size - limit
-    result.damaged_copy = damaged
-    return result
+    return stats, metadata, damaged
 
 
-def _result(bag: Path, path: Path, action: str, stats: BagStats) -> RepairResult:
-    return RepairResult(bag=bag, file=path, action=action,
-                        counts={t.name: t.count for t in stats.topics.values()},
-                        start_ns=stats.start_ns, end_ns=stats.end_ns)
+def _result(bag: Path, paths: list[Path], action: str,
+            stats: dict[str, BagStats]) -> RepairResult:
+    total = merged_stats(stats.values())
+    return RepairResult(bag=bag, file=paths[-1], action=action, files=list(paths),
+                        counts={t.name: t.count for t in total.topics.values()},
+                        start_ns=total.start_ns, end_ns=total.end_ns)
 
 
 def needs_repair(bag: str | Path) -> bool:
@@ -256,6 +288,6 @@ def needs_repair(bag: str | Path) -> bool:
     if not (bag / 'metadata.yaml').is_file():
         return True
     try:
-        return not complete_prefix(_bag_file(bag))[1]
+        return not all(complete_prefix(path)[1] for path in bag_files(bag))
     except (RepairError, OSError):
         return True

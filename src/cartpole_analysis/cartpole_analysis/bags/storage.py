@@ -1,15 +1,17 @@
-"""The storage of a rosbag2 bag: one MCAP file that survives a kill, and ``metadata.yaml``.
+"""The storage of a rosbag2 bag: MCAP files that survive a kill, and ``metadata.yaml``.
 
 The layout ROS 2 Jazzy's ``rosbag2_storage_mcap`` writes, so that
 ``ros2 bag info``, ``ros2 bag play``, Foxglove and ``rosbags`` read it:
 
-- ``<bag>/<bag name>.mcap``: MCAP profile ``ros2``; one schema a message type
+- ``<bag>/<bag name>_<i>.mcap`` (:func:`file_name`, i = 0, 1, ... when the
+  bag is split): MCAP profile ``ros2``; one schema a message type
   (encoding ``ros2msg``, the concatenated ``.msg`` definitions), one channel a
   topic (encoding ``cdr``, metadata ``offered_qos_profiles`` and
   ``topic_type_hash``), the messages with their log time; at the end a
   metadata record ``rosbag2`` holding the bag's metadata, and the summary and
   index that readers seek with;
-- ``<bag>/metadata.yaml``: ``rosbag2_bagfile_information``, version 9.
+- ``<bag>/metadata.yaml``: ``rosbag2_bagfile_information``, version 9; every
+  file in ``relative_file_paths`` and ``files`` (:func:`bagfile_information`).
 
 What makes it survive a kill (SIGKILL, power cut of the process): messages
 are grouped into MCAP chunks, and a chunk is finished and handed to the
@@ -27,7 +29,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Iterable, Mapping
 
 import yaml
 
@@ -72,16 +74,43 @@ class BagStats:
         return sum(t.count for t in self.topics.values())
 
 
-def bagfile_information(file_name: str, stats: BagStats,
-                        custom_data: Mapping[str, str] | None) -> dict:
-    """The ``rosbag2_bagfile_information`` mapping of ``metadata.yaml`` (version 9)."""
+def file_name(bag_name: str, index: int) -> str:
+    """The name of a bag's ``index``-th file, as rosbag2 names it: ``<bag name>_<index>.mcap``."""
+    return f'{bag_name}_{index}.mcap'
+
+
+def merged_stats(parts: Iterable[BagStats]) -> BagStats:
+    """The counts and time span of several files together (the topics in order of appearance)."""
+    total = BagStats()
+    for part in parts:
+        for name, topic in part.topics.items():
+            if name not in total.topics:
+                total.topics[name] = TopicInfo(topic.name, topic.msgtype, topic.type_hash,
+                                               topic.offered_qos_profiles)
+            total.topics[name].count += topic.count
+        for ns in (part.start_ns, part.end_ns):
+            if ns is not None:
+                total.start_ns = ns if total.start_ns is None else min(total.start_ns, ns)
+                total.end_ns = ns if total.end_ns is None else max(total.end_ns, ns)
+    return total
+
+
+def _span(stats: BagStats) -> tuple[int, int]:
     start = stats.start_ns or 0
-    duration = max(0, (stats.end_ns or 0) - start)
+    return start, max(0, (stats.end_ns or 0) - start)
+
+
+def bagfile_information(files: Mapping[str, BagStats],
+                        custom_data: Mapping[str, str] | None) -> dict:
+    """The ``rosbag2_bagfile_information`` mapping of ``metadata.yaml`` (version 9) of a bag
+    made of ``files`` (file name -> its counts, in order)."""
+    stats = merged_stats(files.values())
+    start, duration = _span(stats)
     count = stats.message_count
     return {
         'version': BAG_FORMAT_VERSION,
         'storage_identifier': 'mcap',
-        'relative_file_paths': [file_name],
+        'relative_file_paths': list(files),
         'duration': {'nanoseconds': duration},
         'starting_time': {'nanoseconds_since_epoch': start},
         'message_count': count,
@@ -93,8 +122,10 @@ def bagfile_information(file_name: str, stats: BagStats,
             for t in stats.topics.values()],
         'compression_format': '',
         'compression_mode': '',
-        'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
-                   'duration': {'nanoseconds': duration}, 'message_count': count}],
+        'files': [{'path': name, 'starting_time': {'nanoseconds_since_epoch': _span(part)[0]},
+                   'duration': {'nanoseconds': _span(part)[1]},
+                   'message_count': part.message_count}
+                  for name, part in files.items()],
         'custom_data': dict(custom_data) if custom_data else None,
         'ros_distro': 'jazzy',
     }
@@ -134,6 +165,8 @@ class McapBagFile:
 
         self.path = Path(path)
         self._stream = self.path.open('xb')
+        self.size = 0
+        """Bytes handed to the operating system so far (at each chunk's flush)."""
         self._writer = Writer(self._stream, compression=CompressionType.NONE)
         self._writer.start(profile='ros2', library=f'cartpole_bringup (mcap {version("mcap")})')
         self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
@@ -199,6 +232,7 @@ class McapBagFile:
         if not self.closed:
             self._writer.flush()
             self._chunk_since = None
+            self.size = self._stream.tell()
 
     def set_custom_data(self, custom_data: Mapping[str, str] | None) -> None:
         """Write the ``custom_data`` record now (a file created without one)."""

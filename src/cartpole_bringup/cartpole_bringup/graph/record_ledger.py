@@ -24,7 +24,9 @@ sequence number the ledger counts by. No ROS here; the recorder node feeds it.
   it implies is a message the recorder missed; counted once the stamp is
   ``horizon_ns`` older than the newest one. Only topics that had a message
   are implied (no ground truth on the rig). A sample missed on every topic
-  at once is not seen.
+  at once is not seen. A message implied before its topic's first message
+  reached the recorder (its publisher not yet discovered, in the first second
+  or so of a real-time run) is counted apart, in ``missed_at_start``.
 """
 from __future__ import annotations
 
@@ -67,12 +69,17 @@ class RecordLedger:
         self._last: dict[str, int] = {}
         self._seen: dict[int, int] = {}  # stamp -> bit mask of the topics seen with it
         self._ever = 0  # bit mask of the topics that had a message
+        self._first: dict[int, int] = {}  # topic index -> the stamp of its first message
         self._newest = -1
         self._horizon = int(horizon_ns)
         self.repeats = 0
         """Messages with the stamp their topic had last (not written when ``skip_repeats``)."""
         self.missed = 0
-        """Messages implied by another one of the same stamp that never came (counted so far)."""
+        """Messages implied by another one of the same stamp that never came, on a topic
+        that had already had a message at that stamp (counted so far)."""
+        self.missed_at_start = 0
+        """Implied messages that never came, stamped before their topic's first message
+        (its publisher not yet discovered)."""
 
     def take(self, topic: str, stamp_ns: int) -> bool:
         """Book one message; False when it is a repeat to skip (``skip_repeats``)."""
@@ -82,7 +89,10 @@ class RecordLedger:
             self.repeats += 1
             return not self.skip_repeats
         self._last[topic] = stamp_ns
-        bit = 1 << self._index[topic]
+        index = self._index[topic]
+        bit = 1 << index
+        if not self._ever & bit:
+            self._first[index] = stamp_ns
         self._ever |= bit
         self._seen[stamp_ns] = self._seen.get(stamp_ns, 0) | bit
         if stamp_ns > self._newest:
@@ -105,7 +115,13 @@ class RecordLedger:
                 if mask >> i & 1:
                     for j in self._implies[i]:
                         needed |= 1 << j
-            self.missed += bin(needed & ~mask & self._ever).count('1')
+            absent = needed & ~mask & self._ever
+            for j in range(len(self.topics)):
+                if absent >> j & 1:
+                    if stamp < self._first[j]:
+                        self.missed_at_start += 1
+                    else:
+                        self.missed += 1
 
     def finish(self) -> int:
         """Count what is still open (the recording ended); returns :attr:`missed`."""

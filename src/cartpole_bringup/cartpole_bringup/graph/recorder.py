@@ -7,10 +7,14 @@ message's own stamp (:mod:`cartpole_analysis.bags.writer`). Run alone next to
 a graph: ``ros2 run cartpole_bringup recorder --ros-args -p output:=runs/my_bag``.
 The bag is closed when the node is destroyed (Ctrl-C, SIGTERM); until then it
 is written in chunks at most ``flush_period`` old, so a SIGKILL loses at most
-that (``cartpole bag repair``). With ``lockstep:=true`` it publishes its
+that (``cartpole bag repair``); a new file is begun every ``max_bag_duration`` s
+(:mod:`cartpole_analysis.bags.writer`), so its memory stays bounded. In real time it
+runs at a SCHED_FIFO priority below the loop's (:mod:`cartpole_core.realtime`). With
+``lockstep:=true`` it publishes its
 progress on ``cartpole/recorder/progress`` and the simulator waits for it
 (:mod:`cartpole_bringup.graph.record_ledger`); in real time the messages it
-missed are counted by stamp (``recorder_missed`` in the bag's custom_data).
+missed are counted by stamp (``recorder_missed`` in the bag's custom_data; those
+before a publisher was discovered apart, ``recorder_missed_at_start``).
 In a namespace it records the graph's topics by the names they have there.
 """
 from __future__ import annotations
@@ -33,7 +37,8 @@ from cartpole_core.input_guard import InputGuard, declare_stamp_tolerance
 from cartpole_core.message_checks import COMMAND, SAMPLE, STATE, TRUTH, RigLimits
 from cartpole_core.node_runner import run_node
 
-from cartpole_analysis.bags.writer import FLUSH_PERIOD, TOPICS, BagWriter, cdr_stamp_ns, update_custom_data
+from cartpole_analysis.bags.writer import (FLUSH_PERIOD, MAX_BAG_DURATION, TOPICS, BagWriter,
+                                           cdr_stamp_ns, update_custom_data)
 from cartpole_core.namespaces import NAMESPACE_KEY, ROOT, relative
 from .progress import LockstepProgress
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
@@ -43,6 +48,11 @@ from .record_ledger import PROGRESS_TOPIC, RecordLedger
 JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
           '/cartpole/force_command': COMMAND, '/cartpole/true_state': TRUTH}
 """The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
+
+QUEUE_DEPTH = 200
+"""Default depth of each subscription's queue (1 s of a 200 Hz topic); the real-time
+priority keeps the recorder fed. 1000 was tried: a loop process stalled 330-340 ms early
+in 3 of 6 short soaks with it, 1 of 7 with 200 (docs/soak.md)."""
 
 WRITE_PERIOD = 0.01
 """Wall seconds between two looks of the writer thread at the queue."""
@@ -94,11 +104,22 @@ class RecorderNode(Node):
             description='Longest time [s] a received message waits in memory before it is '
                         'written to the file (what a SIGKILL can lose).', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
+        self.declare_parameter('max_bag_duration', MAX_BAG_DURATION, ParameterDescriptor(
+            description='Log time [s] a bag file spans before the next file is begun (as '
+                        '`ros2 bag record --max-bag-duration`); 0 never splits by time. A '
+                        "closed file's index leaves memory.", read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=86400.0,
+                                                     step=0.0)]))
+        self.declare_parameter('max_bag_size', 0, ParameterDescriptor(
+            description='Bytes a bag file holds before the next file is begun (as '
+                        '`ros2 bag record --max-bag-size`); 0 never splits by size.',
+            read_only=True,
+            integer_range=[IntegerRange(from_value=0, to_value=2**62, step=1)]))
         self.declare_parameter('lockstep', False, ParameterDescriptor(
             description='Lockstep: publish the progress the simulator waits for on '
                         f'{PROGRESS_TOPIC} and write a re-published sample once.',
             read_only=True))
-        self.declare_parameter('queue_depth', 200, ParameterDescriptor(
+        self.declare_parameter('queue_depth', QUEUE_DEPTH, ParameterDescriptor(
             description='Subscription queue depth (reliable QoS).', read_only=True,
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
         try:
@@ -138,7 +159,9 @@ class RecorderNode(Node):
         self.inputs.topics = tuple(relative(t) for t in topics if t in JUDGED)
         self._bag = BagWriter(Path(output), {self._recorded[t]: TOPICS[t] for t in topics},
                               custom, log_time=str(self.get_parameter('log_time').value),
-                              flush_period=flush_period)
+                              flush_period=flush_period,
+                              max_bag_duration=float(self.get_parameter('max_bag_duration').value),
+                              max_bag_size=int(self.get_parameter('max_bag_size').value))
         # The callbacks only queue what arrives; a thread writes it into the bag and
         # finishes the chunks on time (also while nothing arrives). The signal that stops
         # the recorder (a KeyboardInterrupt, cartpole_core.node_runner) can land anywhere in
@@ -220,9 +243,14 @@ class RecorderNode(Node):
         self._write_queued()
         self._bag.close()
         missed = self.ledger.finish()
-        update_custom_data(self._bag.path, {'recorder_missed': str(missed)})
+        at_start = self.ledger.missed_at_start
+        update_custom_data(self._bag.path, {'recorder_missed': str(missed),
+                                            'recorder_missed_at_start': str(at_start)})
         if missed:
             self.get_logger().warning(f'the recorder missed {missed} messages (by stamp)')
+        if at_start:
+            self.get_logger().info(f'{at_start} messages were published before the recorder '
+                                   'had discovered their publisher')
 
     def destroy_node(self) -> None:
         self.close()

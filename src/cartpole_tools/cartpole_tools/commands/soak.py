@@ -81,7 +81,8 @@ def markdown(result: dict) -> str:
           f'{", ".join(str(s["catch_after_s"]) for s in result["segments"])} s; largest '
           f'|theta_w| after settling {max([s["max_settled_deg"] for s in result["segments"]] or [0]):.2f} deg)',
           f'- bag complete: {result["bag_ok"]} (damage: {result["damage"] or "none"}, recorder '
-          f'missed {result["recorder_missed"]})',
+          f'missed {result["recorder_missed"]}; before discovering their publisher: '
+          f'{result.get("recorder_missed_at_start")})',
           f'- longest gap between two samples: {result["longest_sample_gap_s"] * 1e3:.1f} ms; '
           f'longest gap between two control cycles: {result["longest_cycle_gap_s"] * 1e3:.1f} ms',
           f'- memory growth judged: {result["memory_ok"]} (limit {result["memory_limit_mb_per_h"]:g} '

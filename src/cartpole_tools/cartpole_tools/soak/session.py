@@ -100,10 +100,11 @@ def bag_counts(bag: Path, windows: dict[str, dict]) -> dict[str, int]:
     """Messages per topic of the bag with a stamp in that topic's window (first..last ns)."""
     from mcap.reader import make_reader
 
+    from cartpole_analysis.bags.repair import bag_files
     from cartpole_analysis.bags.writer import cdr_stamp_ns
 
     counts = {topic: 0 for topic in windows}
-    for path in sorted(bag.glob('*.mcap')):
+    for path in bag_files(bag):
         with path.open('rb') as f:
             for _, channel, message in make_reader(f).iter_messages(topics=list(windows)):
                 w = windows[channel.topic]
@@ -199,9 +200,14 @@ def run_soak(config: SoakConfig, should_stop: Callable[[], bool] = lambda: False
     custom = (info or {}).get('custom_data') or {}
     missed = custom.get('recorder_missed')
     published = probe.published
+    bag_figures = bag_verdict(published, bag_counts(bag, published), damage(bag),
+                              None if missed is None else int(missed))
+    # published before the recorder had discovered the publisher: reported, not judged
+    # (the bag is compared with the probe from COUNT_FROM_S on)
+    at_start = custom.get('recorder_missed_at_start')
+    bag_figures['recorder_missed_at_start'] = None if at_start is None else int(at_start)
     return verdict(config, elapsed, graph.fault, warnings, events, judge, probe, samples,
-                   bag_verdict(published, bag_counts(bag, published), damage(bag),
-                               None if missed is None else int(missed)), bag)
+                   bag_figures, bag)
 
 
 def _switch(graph, name: str, now: float) -> dict:
