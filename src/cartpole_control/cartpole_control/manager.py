@@ -36,8 +36,8 @@ from .prediction import predict_over_commands
 from .rail_guard import BRAKING, STOPPED
 from .staging import StagedChange, Stager, plugin_gains
 
-__all__ = ['ControllerManager', 'DEFAULT_CONTROLLERS', 'FAULT', 'IDLE', 'LOOP_FIGURES', 'MODES',
-           'STABILIZING', 'STATUS_KEYS', 'SWINGUP_MODE', 'ManagerOutput', 'SetResult']
+__all__ = ['ControllerManager', 'DEFAULT_CONTROLLERS', 'FAULT', 'IDLE', 'LOOP_FIGURES',
+           'MODES', 'STABILIZING', 'STATUS_KEYS', 'SWINGUP_MODE', 'ManagerOutput', 'SetResult']
 
 logger = logging.getLogger(__name__)
 
@@ -349,6 +349,7 @@ class ControllerManager:
         gain, delay = values['actuator.gain'], values['actuator.delay']
         actuator = self.actuator
         self._gain = gain = actuator.compensation if gain == 'auto' else gain
+        estimate.delay_known = delay != 'auto' or actuator.delay_known
         delay = actuator.delay_compensation if delay == 'auto' else delay
         estimate.used_gain, estimate.used_delay = gain, delay
         horizon += delay
@@ -419,7 +420,7 @@ class ControllerManager:
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
         guard = self._guard
-        guard.set_actuator(gain, estimate.disturbance)
+        guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
