@@ -99,9 +99,9 @@ def test_without_commands_or_near_a_stop_nothing_is_learnt():
 
 
 def test_the_manager_divides_the_command_by_the_gain_within_the_amplifier_range():
-    m = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 0.5, 'predict.horizon': 0.0})
-    nominal = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 1.0,
-                                                        'predict.horizon': 0.0})
+    known = {'predict.horizon': 0.0, 'rail.actuator_dead_time': 0.0}
+    m = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 0.5}, **known)
+    nominal = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 1.0}, **known)
     for manager in (m, nominal):
         manager.update_values(0.0, 0.38, 0.002, 0.0, 0.0)   # catch (upright, at rest)
     weak = m.update_values(0.005, 0.38, 0.002, 0.0, 0.005)
