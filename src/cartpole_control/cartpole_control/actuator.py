@@ -177,6 +177,11 @@ class ActuatorEstimator:
         return max(self.delay - DELAY_DEADBAND_STEPS * DELAY_STEP, 0.0)
 
     @property
+    def delay_known(self) -> bool:
+        """The dead time is estimated (:data:`DELAY_READY_WINDOWS` excited windows taken)."""
+        return self.excited_windows >= DELAY_READY_WINDOWS
+
+    @property
     def gain_std(self) -> float:
         """The standard deviation of the gain estimate of the chosen dead time."""
         return math.sqrt(self._pgg[self._best])

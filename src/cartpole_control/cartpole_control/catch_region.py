@@ -48,6 +48,10 @@ FALL_TIGHTENING = 0.8
 """Each fall since the last reset multiplies the force budget the region is computed
 with by this (at least :data:`MIN_BUDGET` of it)."""
 MIN_BUDGET = 0.5
+DEAD_TIME_MAX = 0.02
+"""[s] The most of the guard's unmeasured dead time a simulated catch allows for: the
+guard's prior bounds the lag (40 ms), and with that much the model's LQR holds nothing;
+half of it is the lag expected of the combined benchmark's table (0-30 ms) and jitter."""
 
 
 class CatchRegion:
@@ -126,11 +130,15 @@ class CatchRegion:
         self._high = gain * p.force_max - FEEDFORWARD_SHARE
 
     def holds(self, x_err: float, x: float, theta_w: float, x_dot: float,
-              theta_dot: float) -> bool:
+              theta_dot: float, dead_time: float = 0.0, rail_margin: float | None = None
+              ) -> bool:
         """True if the LQR of the estimated plant, caught now, settles the pendulum on the rail.
 
         ``x_err = x - x*`` [m], ``x`` the cart position [m] (for the rail), the
-        rest the (predicted) state.
+        rest the (predicted) state. ``dead_time`` [s]: the actuator's dead time the
+        prediction leaves out (each command acts that much later, rounded to samples);
+        ``rail_margin`` [m]: keep the cart this far from the stops (default: the
+        region's ``rail_margin``).
         """
         self.checks += 1
         budget = max(FALL_TIGHTENING ** self.falls, MIN_BUDGET)
@@ -139,12 +147,18 @@ class CatchRegion:
         integral = 0.0
         acc = self._acc
         h = STEP
-        lo_x = self.rail_margin - x + x_err  # rail bounds in x_err coordinates
-        hi_x = self.plant.travel - self.rail_margin - x + x_err
+        margin = self.rail_margin if rail_margin is None else rail_margin
+        lo_x = margin - x + x_err  # rail bounds in x_err coordinates
+        hi_x = self.plant.travel - margin - x + x_err
         e, th, v, w = x_err, theta_w, x_dot, theta_dot
+        # the commands in flight: the first samples act with the command of before (0)
+        in_flight = [0.0] * int(round(dead_time / h))
         force = 0.0  # the first sample: the command of before (one sample late)
         settled = 0
         for _ in range(int(round(HORIZON / h))):
+            if in_flight:
+                in_flight.append(force)
+                force = in_flight.pop(0)
             # midpoint rule over the sample, the force held
             a1, b1 = acc(e, th, v, w, force)
             e_m, th_m = e + 0.5 * h * v, th + 0.5 * h * w
@@ -163,11 +177,21 @@ class CatchRegion:
                 settled = 0
         return abs(th) <= SETTLED_ANGLE and abs(w) <= SETTLED_RATE
 
-    def admits(self, state, x_ref: float, omega_sq: float, gain: float) -> bool:
+    def admits(self, state, x_ref: float, omega_sq: float, gain: float, guard=None) -> bool:
         """:meth:`holds` for a :class:`~cartpole_control.controller.ControllerState` on the plant
-        estimate (omega_0^2 [1/s^2], the actuator gain G), with the cart reference ``x_ref``."""
+        estimate (omega_0^2 [1/s^2], the actuator gain G), with the cart reference ``x_ref``.
+
+        With the manager's :class:`~cartpole_control.rail_guard.RailGuard`, the catch must
+        keep the cart inside its limiter's band (a cart held there cannot balance the
+        pendulum) under the actuator's dead time its envelope assumes.
+        """
         self.set_plant(omega_sq, gain)
-        return self.holds(state.x - x_ref, state.x, state.theta_w, state.x_dot, state.theta_dot)
+        if guard is None:
+            return self.holds(state.x - x_ref, state.x, state.theta_w, state.x_dot,
+                              state.theta_dot)
+        margin = guard.margin + (guard.limit_reserve if guard.limit else 0.0)
+        return self.holds(state.x - x_ref, state.x, state.theta_w, state.x_dot, state.theta_dot,
+                          min(guard.extra_dead_time, DEAD_TIME_MAX), margin)
 
     def value(self, x_err: float, theta_w: float, x_dot: float, theta_dot: float) -> float:
         """V = x' P x of the state (for the status and the docs' figures)."""

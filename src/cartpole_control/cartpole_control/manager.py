@@ -36,8 +36,8 @@ from .prediction import predict_over_commands
 from .rail_guard import BRAKING, STOPPED
 from .staging import StagedChange, Stager, plugin_gains
 
-__all__ = ['ControllerManager', 'DEFAULT_CONTROLLERS', 'FAULT', 'IDLE', 'LOOP_FIGURES', 'MODES',
-           'STABILIZING', 'STATUS_KEYS', 'SWINGUP_MODE', 'ManagerOutput', 'SetResult']
+__all__ = ['ControllerManager', 'DEFAULT_CONTROLLERS', 'FAULT', 'IDLE', 'LOOP_FIGURES',
+           'MODES', 'STABILIZING', 'STATUS_KEYS', 'SWINGUP_MODE', 'ManagerOutput', 'SetResult']
 
 logger = logging.getLogger(__name__)
 
@@ -79,13 +79,11 @@ class ControllerManager:
         self._upright_energy = plant.upright_energy
         self._registry = checked_registry(registry)
         self._specs = parameter_specs(plant, self.sample_time, self._registry)
-        self.plant_estimate = PlantEstimate(plant, self.sample_time)
+        self.plant_estimate = estimate = PlantEstimate(plant, self.sample_time)
         """What the loop has measured of the plant (:mod:`cartpole_control.plant_estimate`)."""
-        self.latency = self.plant_estimate.latency
-        self.natural_frequency = self.plant_estimate.natural_frequency
-        self.actuator = self.plant_estimate.actuator
+        self.latency, self.natural_frequency, self.actuator, self._in_flight = (
+            estimate.latency, estimate.natural_frequency, estimate.actuator, estimate.in_flight)
         self._gain = 1.0
-        self._in_flight = self.plant_estimate.in_flight
         self.catch_region = CatchRegion(plant, self.sample_time)
         """The stabiliser's region of attraction on the estimated plant (``catch.region``)."""
         self._stager = Stager(plant, self.sample_time, self._registry, self._specs, real_time,
@@ -349,6 +347,7 @@ class ControllerManager:
         gain, delay = values['actuator.gain'], values['actuator.delay']
         actuator = self.actuator
         self._gain = gain = actuator.compensation if gain == 'auto' else gain
+        estimate.delay_known = delay != 'auto' or actuator.delay_known
         delay = actuator.delay_compensation if delay == 'auto' else delay
         estimate.used_gain, estimate.used_delay = gain, delay
         horizon += delay
@@ -381,7 +380,8 @@ class ControllerManager:
         # (6.4), then the region the stabiliser holds on the estimated plant (catch.region)
         if mode == SWINGUP_MODE and trigger.energy_condition(energy, self._target) \
                 and trigger.angle_condition(theta) and (not values['catch.region'] or (
-                    self.catch_region.admits(state, values['x_ref'], estimate.omega_sq, gain))):
+                    self.catch_region.admits(state, values['x_ref'], estimate.omega_sq, gain,
+                                             self._guard))):
             self._set_mode(STABILIZING, state)
             self.catch_count += 1
             if self.catch_time is None:
@@ -419,7 +419,7 @@ class ControllerManager:
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
         guard = self._guard
-        guard.set_actuator(gain, estimate.disturbance)
+        guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:

@@ -16,6 +16,7 @@ from typing import Mapping
 from cartpole_core.model import CartPoleParameters
 
 from .controller import AUTO, KINDS, STABILIZER, SWINGUP, Controller, ParameterSpec
+from .rail_guard import ACTUATOR_DEAD_TIME
 from .registry import load_controllers
 
 logger = logging.getLogger(__name__)
@@ -122,6 +123,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
         ParameterSpec('rail.limit_reserve', 0.05, 'Rail guard: the limiter keeps the '
                       'stopping position this much further from the stops than the trip '
                       'test [m]', low=0.0, high=0.3),
+        ParameterSpec('rail.actuator_dead_time', ACTUATOR_DEAD_TIME, 'Rail guard: the '
+                      "actuator's dead time beyond the reported latency (a lag) that the braking "
+                      'envelope assumes until the plant estimate has measured it (with actuator.delay '
+                      'auto; a number there counts as measured) [s]', low=0.0, high=0.2),
         ParameterSpec('predict.horizon', AUTO, 'Delay compensation: the controllers and the '
                       'catch trigger see the estimate predicted this far ahead under the '
                       'commands in flight (cartpole_control.prediction) [s]; auto = the '

@@ -67,6 +67,8 @@ class PlantEstimate:
         """The actuator gain G the manager divided the last command by (``actuator.gain``)."""
         self.used_delay = 0.0
         """The extra dead time the manager's last prediction covered [s] (``actuator.delay``)."""
+        self.delay_known = False
+        """The actuator's dead time is measured (or ``actuator.delay`` fixes it)."""
 
     @property
     def disturbance(self) -> float:
@@ -99,6 +101,15 @@ class PlantEstimate:
     def dead_time(self) -> float:
         """The loop's latency plus the actuator's extra dead time the manager compensates [s]."""
         return self.latency.latency + self.used_delay
+
+    @property
+    def uncovered_dead_time(self) -> float | None:
+        """The actuator's dead time the manager's prediction leaves out [s]: the estimate
+        beyond :attr:`used_delay` (its dead band), None while not :attr:`delay_known` (the
+        rail guard then assumes its prior, ``rail.actuator_dead_time``)."""
+        if not self.delay_known:
+            return None
+        return max(self.actuator.delay - self.used_delay, 0.0)
 
     @property
     def omega_sq(self) -> float:

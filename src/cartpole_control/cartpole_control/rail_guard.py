@@ -22,6 +22,10 @@ BRAKING = 'braking'
 STOPPED = 'stopped'
 LIMIT_ITERATIONS = 24
 """Bisection steps of the limited force (resolution ``(F + F_b) / 2**24``, micro-newtons)."""
+ACTUATOR_DEAD_TIME = 0.04
+"""[s] The actuator's dead time beyond the reported latency (a lag, a filter: the combined
+benchmark draws first-order lags up to 30 ms and latency jitter up to 5 ms) that the envelope
+assumes until the plant estimate has measured it (``rail.actuator_dead_time``)."""
 DISTURBANCE_MAX = 5.0
 """[N] The guard counts the estimated unmodelled force up to this: a cable or a hand
 leaning on the cart; the estimate of a push lags it by a window and is left out."""
@@ -66,12 +70,17 @@ class RailGuard:
     limit_reserve
         The limiter keeps the stopping position this much [m] further from
         the stops than the trip test does.
+    actuator_dead_time
+        The actuator's extra dead time [s] assumed until :meth:`set_actuator`
+        reports it measured (0: the model's actuator; the manager's default is
+        :data:`ACTUATOR_DEAD_TIME`).
     """
 
     def __init__(self, params: CartPoleParameters, margin: float = 0.02,
                  max_brake_force: float = 30.0, latency: float | None = None,
                  rest_speed: float = 0.02, creep_speed: float = 0.1,
-                 limit: bool = True, limit_reserve: float = 0.05) -> None:
+                 limit: bool = True, limit_reserve: float = 0.05,
+                 actuator_dead_time: float = 0.0) -> None:
         self.params = params
         self.margin = float(margin)
         self.max_brake_force = float(max_brake_force)
@@ -80,6 +89,11 @@ class RailGuard:
         self.limit = bool(limit)
         self.creep_speed = float(creep_speed)
         self.limit_reserve = float(limit_reserve)
+        self.actuator_dead_time = float(actuator_dead_time)
+        if not (math.isfinite(self.actuator_dead_time) and self.actuator_dead_time >= 0.0):
+            raise ValueError(f'actuator_dead_time must be >= 0, got {actuator_dead_time!r}')
+        self.extra_dead_time = self.actuator_dead_time
+        """The actuator's dead time the envelope adds [s]: the prior until measured (:meth:`set_actuator`)."""
         if not (math.isfinite(self.limit_reserve) and
                 0.0 <= self.limit_reserve < 0.5 * params.travel - self.margin):
             raise ValueError(f'limit_reserve must be in [0, travel/2 - margin), got {limit_reserve!r}')
@@ -124,8 +138,9 @@ class RailGuard:
     # -- the estimate ---------------------------------------------------------------
     @property
     def dead_time(self) -> float:
-        """T_d: latency plus the current loop's time constant 1/a of (4.4) [s]."""
-        return self.latency + 1.0 / self.params.actuator_pole
+        """T_d: latency plus the current loop's time constant 1/a of (4.4) plus the
+        actuator's dead time the manager's prediction does not cover [s]."""
+        return self.latency + 1.0 / self.params.actuator_pole + self.extra_dead_time
 
     def brake_force(self, direction: float) -> float:
         """Magnitude of the brake at the cart against motion in ``direction`` (sign of x_dot) [N]:
@@ -134,18 +149,27 @@ class RailGuard:
         actuator = -p.force_min if direction > 0.0 else p.force_max
         return min(self.max_brake_force, self.gain * actuator)
 
-    def set_actuator(self, gain: float, disturbance: float = 0.0) -> None:
-        """The plant estimate's actuator gain G and unmodelled force D on the cart [N].
+    def set_actuator(self, gain: float, disturbance: float = 0.0,
+                     dead_time: float | None = 0.0) -> None:
+        """The plant estimate's actuator gain G, unmodelled force D on the cart [N] and the
+        actuator's dead time its prediction leaves out [s] (None: not measured yet, the
+        prior ``actuator_dead_time`` stands).
 
         The brake is what the amplifier can deliver at the cart (G times its
         limits); a force D that pushes the cart on in its direction of motion
-        shortens the deceleration (one that helps is not counted).
+        shortens the deceleration (one that helps is not counted). A brake
+        commanded now acts only after the dead time: the cart runs on meanwhile.
         """
-        if gain == self.gain and disturbance == self.disturbance:
+        extra = self.actuator_dead_time if dead_time is None else dead_time
+        if gain == self.gain and disturbance == self.disturbance \
+                and extra == self.extra_dead_time:
             return
-        if not (math.isfinite(gain) and gain > 0.0 and math.isfinite(disturbance)):
-            raise ValueError(f'gain must be > 0 and disturbance finite, got {gain!r}, '
-                             f'{disturbance!r}')
+        if not (math.isfinite(gain) and gain > 0.0 and math.isfinite(disturbance)
+                and math.isfinite(extra) and extra >= 0.0):
+            raise ValueError(f'gain must be > 0, disturbance finite and dead time >= 0, got '
+                             f'{gain!r}, {disturbance!r}, {dead_time!r}')
+        self.extra_dead_time = float(extra)
+        self._dead_time = self.dead_time
         self.gain = float(gain)
         self.disturbance = min(max(float(disturbance), -DISTURBANCE_MAX), DISTURBANCE_MAX)
         self._brake_pos = self.brake_force(1.0)

@@ -119,7 +119,8 @@ class Stager:
                           max_brake_force=v['rail.max_brake_force'],
                           latency=v['rail.latency'], rest_speed=v['rail.rest_speed'],
                           creep_speed=v['rail.creep_speed'], limit=v['rail.limit'],
-                          limit_reserve=v['rail.limit_reserve'])
+                          limit_reserve=v['rail.limit_reserve'],
+                          actuator_dead_time=v['rail.actuator_dead_time'])
         return trigger, friction_feedforward(v), guard
 
     def plugin(self, kind: str, name: str, values: Mapping[str, Any],

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from cartpole_control.actuator import ActuatorEstimator
+from cartpole_control.actuator import DELAY_READY_WINDOWS, DELAY_STEP, ActuatorEstimator
 from cartpole_control.manager import ControllerManager
 from cartpole_core.model import CartPoleParameters, accelerations
 
@@ -99,9 +99,9 @@ def test_without_commands_or_near_a_stop_nothing_is_learnt():
 
 
 def test_the_manager_divides_the_command_by_the_gain_within_the_amplifier_range():
-    m = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 0.5, 'predict.horizon': 0.0})
-    nominal = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 1.0,
-                                                        'predict.horizon': 0.0})
+    known = {'predict.horizon': 0.0, 'rail.actuator_dead_time': 0.0}
+    m = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 0.5}, **known)
+    nominal = ControllerManager(P, stabilizer='lqg', **{'actuator.gain': 1.0}, **known)
     for manager in (m, nominal):
         manager.update_values(0.0, 0.38, 0.002, 0.0, 0.0)   # catch (upright, at rest)
     weak = m.update_values(0.005, 0.38, 0.002, 0.0, 0.005)
@@ -111,6 +111,23 @@ def test_the_manager_divides_the_command_by_the_gain_within_the_amplifier_range(
     assert weak.force == pytest.approx(2.0 * ref.force)
     big = m.update_values(0.010, 0.38, 0.2, 0.0, 1.0)     # wants more than 0.5 x 34 N
     assert P.force_min <= big.force <= P.force_max
+
+
+def test_the_rail_guard_allows_for_the_dead_time_prior_until_the_estimate_measures_it():
+    """The guard's envelope and the prediction use one estimate: until the actuator's dead
+    time is measured the guard adds ``rail.actuator_dead_time``; then only what the prediction
+    leaves out (half a candidate step); a fixed ``actuator.delay`` counts as measured."""
+    m = ControllerManager(P, **{'rail.actuator_dead_time': 0.03})
+    m.update_values(0.0, 0.0, math.pi, 0.0, 0.0)
+    assert m.plant_estimate.uncovered_dead_time is None
+    assert m._guard.extra_dead_time == 0.03
+    m.actuator.excited_windows, m.actuator.delay = DELAY_READY_WINDOWS, 0.02
+    m.update_values(0.005, 0.0, math.pi, 0.0, 0.0)
+    assert m.plant_estimate.used_delay == pytest.approx(0.02 - 0.5 * DELAY_STEP)
+    assert m._guard.extra_dead_time == pytest.approx(0.5 * DELAY_STEP)
+    fixed = ControllerManager(P, **{'actuator.delay': 0.0})
+    fixed.update_values(0.0, 0.0, math.pi, 0.0, 0.0)
+    assert fixed._guard.extra_dead_time == 0.0
 
 
 @pytest.mark.slow

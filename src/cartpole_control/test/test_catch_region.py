@@ -66,8 +66,9 @@ def test_the_manager_waits_inside_the_thesis_window_until_the_region_holds():
     theta = math.radians(20.0)
     # the energy E* at 20 deg: theta_dot^2 = 2 g / l (1 - cos theta), falling away (> 0)
     theta_dot = math.sqrt(2.0 * P.g / P.l * (1.0 - math.cos(theta)))
-    with_region = ControllerManager(P, **{'predict.horizon': 0.0})
-    thesis = ControllerManager(P, **{'predict.horizon': 0.0, 'catch.region': False})
+    known = {'predict.horizon': 0.0, 'rail.actuator_dead_time': 0.0}
+    with_region = ControllerManager(P, **known)
+    thesis = ControllerManager(P, **known, **{'catch.region': False})
     a = with_region.update_values(0.0, X_REF, theta, 1.5, theta_dot)
     b = thesis.update_values(0.0, X_REF, theta, 1.5, theta_dot)
     assert b.mode == STABILIZING and b.catch_count == 1
@@ -82,3 +83,30 @@ def test_the_estimated_pendulum_changes_the_gain():
     region.set_plant(P.g / (1.15 * P.l), 1.0)
     assert region.estimated.l == pytest.approx(1.15 * P.l)
     assert region.gain != nominal
+
+
+def test_a_dead_time_the_prediction_leaves_out_shrinks_the_region():
+    """Each command acting 20 ms later (a lag not measured yet): the time-optimal plan's
+    hand-over still holds, a pendulum 0.2 rad off at rest no longer does; with 40 ms the
+    model's LQR holds nothing (why the catch allows for at most 20 ms)."""
+    region = CatchRegion(P, P.sample_time)
+    assert holds(region, 0.2, 0.0)
+    assert not region.holds(0.0, X_REF, 0.2, 0.0, 0.0, dead_time=0.02)
+    assert region.holds(0.13, X_REF + 0.13, 0.45, 0.0, -3.1, dead_time=0.02)
+    assert not region.holds(0.0, X_REF, 0.02, 0.0, 0.0, dead_time=0.04)
+
+
+def test_the_catch_keeps_the_cart_inside_the_guards_limiter_band():
+    """A catch transient that needs the rail beyond the guard's limiter band (5 cm inside its
+    margin) is refused: the limiter would hold the cart there and drop the pendulum."""
+    from cartpole_control.rail_guard import RailGuard
+    from cartpole_control.controller import ControllerState
+
+    region = CatchRegion(P, P.sample_time)
+    x, theta, x_dot, theta_dot = 0.6, 0.3, 0.2, -2.0
+    assert region.holds(x - X_REF, x, theta, x_dot, theta_dot)          # the stops' margin: yes
+    guard = RailGuard(P)
+    state = ControllerState(0.0, x, theta, x_dot, theta_dot)
+    assert not region.admits(state, X_REF, P.g / P.l, 1.0, guard)        # the limiter's band: no
+    assert region.admits(ControllerState(0.0, X_REF, theta, 0.0, theta_dot), X_REF,
+                         P.g / P.l, 1.0, guard)

@@ -297,7 +297,7 @@ def test_hooks_without_super_keep_the_managers_bookkeeping_through_catch_fall_an
     registry = {SWINGUP: {'forgetful_swingup': ForgetfulSwingUp},
                 STABILIZER: {'forgetful': Forgetful, 'hold_a': HoldA}}
     m = ControllerManager(P, TS, registry=registry, swingup='forgetful_swingup',
-                          stabilizer='forgetful')
+                          stabilizer='forgetful', **{'rail.actuator_dead_time': 0.0})
     m.update(state(0.0))
     swing, stab = plugin(m, SWINGUP), plugin(m, STABILIZER)
     assert swing.active and not stab.active and swing.started == 1

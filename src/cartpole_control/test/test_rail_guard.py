@@ -321,3 +321,43 @@ def test_a_5_n_s_cart_push_on_a_weak_amplifier_never_reaches_an_end_stop(gain, i
     if gain >= 0.7:  # at 0.4 the catch waits for a region the weak amplifier holds
         assert run.catch_time is not None and run.catch_time < 8.0
     assert not run.end_stop_contact
+
+
+def test_until_the_actuator_dead_time_is_measured_the_envelope_assumes_its_prior():
+    """A lag the plant cannot report: a brake commanded now acts only after it. Until the plant
+    estimate has measured the actuator's dead time the envelope adds the prior (the cart runs
+    on at v for that long); a measured one replaces it, and None brings the prior back."""
+    guard = RailGuard(P, actuator_dead_time=0.04)
+    bare = RailGuard(P)
+    x, v = 0.3, 1.5
+    assert guard.extra_dead_time == 0.04 and bare.extra_dead_time == 0.0
+    longer = guard.stopping_position(x, v, 0.0, 0.0) - bare.stopping_position(x, v, 0.0, 0.0)
+    assert longer == pytest.approx(v * 0.04, rel=1e-9)
+    guard.set_actuator(1.0, 0.0, 0.01)  # measured: what the prediction leaves out
+    assert guard.dead_time == pytest.approx(bare.dead_time + 0.01)
+    assert guard.stopping_position(x, v, 0.0, 0.0) == pytest.approx(
+        bare.stopping_position(x, v, 0.0, 0.0) + v * 0.01)
+    guard.set_actuator(1.0, 0.0, None)
+    assert guard.extra_dead_time == 0.04
+    with pytest.raises(ValueError, match='dead time'):
+        guard.set_actuator(1.0, 0.0, -0.01)
+    with pytest.raises(ValueError, match='actuator_dead_time'):
+        RailGuard(P, actuator_dead_time=float('nan'))
+
+
+@pytest.mark.parametrize('prior, faults', [(0.0, True), (0.04, False)])
+def test_a_lagging_strong_amplifier_the_guard_allows_for_is_limited_not_tripped(prior, faults):
+    """The swing-up's first stroke from the left stop on an amplifier 25 % strong with a 25 ms
+    lag nobody has measured yet (the combined benchmark's most common fault): a guard that
+    takes the brake as acting at once limits too late and must trip; one that allows for the
+    prior dead time bends the stroke early enough. Neither lets the cart reach a stop."""
+    plant = Plant(P, Scenario(actuator_gain=1.25, actuator_tau=0.025))
+    guard = RailGuard(P, actuator_dead_time=prior)
+    tripped = False
+    for _ in range(int(1.5 / P.sample_time)):
+        x, theta, x_dot, theta_dot = plant.true_state()
+        force, trip = guard.command(x, x_dot, theta_dot, 24.0, theta)  # pushes right, on and on
+        tripped |= trip
+        plant.step(force)
+    assert tripped == faults
+    assert not plant.end_stop_contact
