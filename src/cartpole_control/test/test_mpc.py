@@ -177,6 +177,31 @@ def test_every_predicted_force_of_a_pushed_state_is_inside_the_amplifier():
     assert np.sum(plan[1:] <= low + 1e-3) >= 20  # the bound is what shapes the plan
 
 
+def test_the_force_bounds_follow_the_plant_estimate_of_the_amplifier():
+    """A weak amplifier (gain 0.8 estimated): every predicted force within what it delivers
+    at the cart, 0.8 x the limits of Appendix C less the feedforward, and the plan uses it
+    (at 0.6 this pushed state has no bounded plan: the pendulum is lost)."""
+    from dataclasses import replace
+    from cartpole_control.plant_estimate import PlantEstimate
+    estimate = PlantEstimate(P, P.sample_time)
+    plugin = MpcStabilizer()
+    plugin.configure({'budget_us': 1e6}, replace(CONTEXT, plant_estimate=estimate))
+    plugin.activate(PUSHED)
+    plugin.update(PUSHED)
+    nominal_low = plugin._later_bounds()[0]
+    estimate.used_gain = 0.8
+    plugin.activate(PUSHED)
+    u = plugin.update(PUSHED)
+    assert plugin.force_limits == pytest.approx((0.8 * P.force_min, 0.8 * P.force_max))
+    low, high = plugin._later_bounds()
+    assert low == pytest.approx(0.8 * P.force_min + CONTEXT.feedforward.c_left)
+    assert nominal_low < low - 7.0
+    plan = plugin.qp.predicted_forces()
+    assert plugin.last_source == 'qp' and plan[0] == pytest.approx(u)
+    assert np.all(plan[1:] >= low - 1e-4) and np.all(plan[1:] <= high + 1e-4)
+    assert np.sum(plan[1:] <= low + 1e-3) >= 20
+
+
 def _failing(plugin):
     plugin.qp.backend.solve = lambda: (None, False, 'injected failure')
 

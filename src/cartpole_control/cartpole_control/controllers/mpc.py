@@ -16,9 +16,6 @@ without a solve is a fault. Design notes and measurements: docs/controllers.md.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol
-
 import numpy as np
 
 from cartpole_core.model import linearise_upright
@@ -36,24 +33,6 @@ DEFAULT_FREE_STEPS = 40
 """Steps whose forces are moves of their own (200 ms: a push's saturated braking)."""
 DEFAULT_BLOCK = 10
 """Steps a correction to the terminal LQR is held after them (50 ms)."""
-
-
-class Amplifier(Protocol):
-    """What the MPC's force bounds need of the actuator: the cart gets ``gain`` x the command,
-    and the command is limited to ``[force_min, force_max]`` [N]."""
-
-    gain: float
-    force_min: float
-    force_max: float
-
-
-@dataclass(frozen=True)
-class NominalAmplifier:
-    """The amplifier of the model (Appendix C): gain 1."""
-
-    force_min: float
-    force_max: float
-    gain: float = 1.0
 
 
 class MpcStabilizer(Controller):
@@ -122,8 +101,9 @@ class MpcStabilizer(Controller):
         self.qp: CondensedQp | None = None
         self.gain = np.zeros(PLANT_STATES)
         """K_d of the terminal LQR on s (its first five entries act on z)."""
-        self.amplifier: Amplifier | None = None
-        """The gain and limits the force bounds are built from (nominal until wired)."""
+        self.force_limits = (0.0, 0.0)
+        """(low, high) [N]: the force at the cart the amplifier delivers, which the bounds of
+        the last cycle were built from (the plant estimate's, else the nominal Appendix C)."""
         self._integral = ConditionalIntegrator()
         self._clock = StepClock()
         self._s = np.zeros(PLANT_STATES)
@@ -156,8 +136,8 @@ class MpcStabilizer(Controller):
         a, b = augmented_model(*linearise_upright(p))
         model = prediction_model(a, b, q, float(self.gains['r']), float(ctx.sample_time),
                                  float(self.gains['lag']), float(self.gains['dead_time']))
-        self.amplifier = NominalAmplifier(p.force_min, p.force_max)
         self._feedforward = ctx.feedforward
+        self.force_limits = (p.force_min, p.force_max)
         low, high = self._later_bounds()
         inset = ctx.rail_margin + ctx.rail_reserve + float(self.gains['rail_clearance'])
         x_low, x_high = inset - ctx.x_ref, p.travel - inset - ctx.x_ref
@@ -182,18 +162,27 @@ class MpcStabilizer(Controller):
         self._actuator_b = model.b_d[act, 0].copy()
         self._actuator_state = np.zeros(model.states - PLANT_STATES)
 
+    def _amplifier(self) -> tuple[float, float]:
+        """The force at the cart the amplifier delivers, (low, high) [N]: the manager's plant
+        estimate's (its gain times the limits of Appendix C), nominal outside a manager."""
+        estimate = self.context.plant_estimate
+        if estimate is not None:
+            self.force_limits = estimate.force_limits()
+        return self.force_limits
+
     def _later_bounds(self) -> tuple[float, float]:
         """The raw force range whatever the feedforward's sign: every step after the first."""
-        amp, ff = self.amplifier, self._feedforward
-        return amp.gain * amp.force_min + ff.c_left, amp.gain * amp.force_max - ff.c_right
+        low, high = self.force_limits
+        ff = self._feedforward
+        return low + ff.c_left, high - ff.c_right
 
     def _first_bounds(self, x_dot: float) -> tuple[float, float]:
         """The raw force range of this cycle's move: the amplifier's less the feedforward.
 
         A cart moving beyond the velocity band gets its kinetic friction along the velocity
         whatever the command; a cart at rest either Coulomb level."""
-        amp, ff = self.amplifier, self._feedforward
-        low, high = amp.gain * amp.force_min, amp.gain * amp.force_max
+        low, high = self.force_limits
+        ff = self._feedforward
         band = ff.velocity_band
         if band > 0.0 and x_dot > band:
             return low - ff.c_right, high - ff.c_right
@@ -218,6 +207,7 @@ class MpcStabilizer(Controller):
         s = self._s
         s[0], s[1], s[2], s[3], s[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
         s[PLANT_STATES:] = self._actuator_state
+        self._amplifier()
         first = self._first_bounds(state.x_dot)
         self._bounds = first
         solution = self.qp.solve(s, first, self._later_bounds())
