@@ -250,6 +250,26 @@ def test_a_late_solve_is_not_used(monkeypatch):
     assert u == pytest.approx(plan[1]) and plugin.fallbacks == 1
 
 
+def test_a_batch_run_uses_every_solve_however_long_it_took(monkeypatch):
+    """Not paced by the wall clock (``real_time`` False: offline, lockstep), a run must not
+    depend on how busy the machine is: no budget, no solver time limit."""
+    from dataclasses import replace
+    clock = {'now': 0.0}
+
+    def perf_counter():  # every call 1.5 s later
+        clock['now'] += 1.5
+        return clock['now']
+    monkeypatch.setattr(mpc_qp.time, 'perf_counter', perf_counter)
+    plugin = MpcStabilizer()
+    plugin.configure({}, replace(CONTEXT, real_time=False))
+    assert plugin.qp.settings.budget == 0.0
+    plugin.activate(PUSHED)
+    for k in range(3):
+        plugin.update(replace(PUSHED, t=PUSHED.t + k * P.sample_time))
+        assert plugin.last_source == 'qp' and plugin.solve_us > 1e6
+    assert plugin.fallbacks == 0
+
+
 def test_without_a_plan_a_failure_gives_the_bounded_lqr_and_a_used_up_plan_is_a_fault():
     plugin = configured(budget_us=1e6, horizon=20, free_steps=10, block=5)
     plugin.activate(PUSHED)

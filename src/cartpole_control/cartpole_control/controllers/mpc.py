@@ -84,12 +84,21 @@ class MpcStabilizer(Controller):
         ParameterSpec('budget_us', 1000.0,
                       'solve time [us] (wall, Python calls included) above which the '
                       'solution is not used: the previous plan shifted by one step instead, '
-                      'counted in mpc_fallbacks', low=50.0, high=1e6),
-        ParameterSpec('rail_penalty', 1e4,
-                      'penalty weight rho on the rail slack [cost per m of excursion per '
-                      'constrained point] (l1, exact above the rail constraint\'s multipliers); '
-                      'much larger (1e5) parks a cart that reached the boundary at rest there',
+                      'counted in mpc_fallbacks; only in a real-time loop (a batch or '
+                      'lockstep run is not paced by the wall clock, so its solves are always '
+                      'used and the run is the same however busy the machine)',
+                      low=50.0, high=1e6),
+        ParameterSpec('rail_penalty', 1e6,
+                      'penalty weight rho on the rail slack beyond rail_tolerance [cost per m '
+                      'of excursion per group of constrained points] (l1, exact above the rail '
+                      'constraint\'s multipliers): the guard enforces its boundary anyway, so a '
+                      'plan that needs to cross it is not one the cart can follow',
                       low=1.0, high=1e9),
+        ParameterSpec('rail_tolerance', 0.005,
+                      'the first part of each rail slack [m] that costs only 1e4 per m: a cart '
+                      'at rest on the boundary must first move towards it to come back (the '
+                      'pendulum leans away first); 0: rail_penalty throughout', low=0.0,
+                      high=0.1),
         ParameterSpec('rail_clearance', 0.0,
                       'extra distance [m] kept inside the rail guard\'s limiter boundary '
                       '[margin + reserve, travel - margin - reserve]; negative lets the MPC '
@@ -151,7 +160,9 @@ class MpcStabilizer(Controller):
         g = self.gains
         settings = QpSettings(int(g['horizon']), low, high, x_low, x_high,
                               float(g['rail_penalty']), solver=str(g['solver']),
-                              budget=1e-6 * float(g['budget_us']), block=int(g['block']),
+                              rail_tolerance=float(g['rail_tolerance']),
+                              budget=1e-6 * float(g['budget_us']) if ctx.real_time else 0.0,
+                              block=int(g['block']),
                               free_steps=int(g['free_steps']),
                               braking_time=float(g['braking_time']))
         self.qp = CondensedQp(model, settings)
