@@ -124,18 +124,21 @@ def _after_a_6_ns_cart_push(stabilizer):
 
 @pytest.mark.slow
 def test_after_a_6_ns_cart_push_the_mpc_never_drives_the_cart_into_an_end_stop():
-    """Safety first, whether the pendulum is kept or not (it is in 2 of 12 seeds:
-    docs/controllers.md): the rail constraint and the guard keep the cart off the stops."""
+    """Safety first, whether the pendulum is kept or not: the rail constraint and the guard
+    keep the cart off the stops. And the plan that stays inside the guard's boundary keeps
+    the pendulum in 4 of 12 seeds, where lqg keeps none (docs/controllers.md): with the
+    rail's penalty of before (1e4) the MPC kept 1."""
     runs = _after_a_6_ns_cart_push('mpc')
     assert not any(contact for _, contact in runs)
-    assert 0 < sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
+    assert 3 <= sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 2 of 12 seeds '
-                   'only (lqg: 3 of 3 of seeds 0-2): planning inside the amplifier and the rail '
-                   'guard\'s stopping-point boundary, the MPC keeps pushing towards the stop '
-                   'where the saturated LQR lets the guard brake and swings the pendulum back '
+@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 4 of 12 seeds: '
+                   'the EKF shows the push 40-50 ms late, and with a 40 ms reaction no '
+                   'controller behind the rail guard recovers more than 5.80 N s (cartpole '
+                   'bound --case push_cart --guard --reaction 0.04); fed the true state, or the '
+                   'EKF with q_force 3e6, the MPC recovers 4 of 4 and 11 of 12 '
                    '(docs/controllers.md, the mpc section)')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
     assert all(recovered for recovered, _ in _after_a_6_ns_cart_push('mpc'))
