@@ -68,9 +68,10 @@ class QpSettings:
     """[s] The rail rows bound ``x_k - x* + braking_time x_dot_k`` (a linear bound of the rail
     guard's stopping position) instead of the cart position alone."""
     rail_tolerance: float = 0.0
-    """[m] The first this much of each rail slack costs only ``rail_tolerance_penalty``: a
-    cart at rest on the boundary may move towards it by a few millimetres, as it must to
-    come back (the pendulum first leans away), while beyond it rho keeps the plan inside."""
+    """[m] The first this much of the rail slack of the first ``RAIL_GROUP`` steps costs only
+    ``rail_tolerance_penalty``: a cart at rest on the boundary may move towards it by a few
+    millimetres, as it must to come back (the pendulum first leans away), while beyond it,
+    and later in the horizon, rho keeps the plan inside."""
     rail_tolerance_penalty: float = 1e4
     """rho_t [cost per m] of the slack within ``rail_tolerance``."""
     force_penalty: float = 1e6
@@ -182,7 +183,7 @@ class CondensedQp:
         n_p, n_o, n_b = groups[-1] + 1, len(later), len(starts)
         n_t = 1 if settings.rail_tolerance > 0.0 else 0
         # w = [v (m moves), one rail slack a group of steps (n_p), one slack a block of c (n_b),
-        #      the tolerated part of each rail slack (n_t, bounded by rail_tolerance)]
+        #      the tolerated part of the first group's rail slack (n_t, up to rail_tolerance)]
         n_s = n_p + n_b + n_t
         nv = m + n_s
         self.h = np.zeros((nv, nv))

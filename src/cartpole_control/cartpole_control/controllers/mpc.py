@@ -3,9 +3,9 @@
 The LQI of :mod:`.lqg` (the linearisation (8.13)/(8.14) with the integral of
 the cart error, the weights of (8.15)) made to respect what the LQR
 (8.16)-(8.18) cannot see: every predicted force inside what the amplifier
-gives (Appendix C, scaled by its gain) less the friction feedforward (6.12)
-the manager adds, and the cart inside the rail guard's limiter boundary
-(soft). Its model may hold the actuator's lag and a dead time
+gives (Appendix C, scaled by the gain of the manager's plant estimate) less
+the friction feedforward (6.12) the manager adds, and the cart inside the
+rail guard's limiter boundary (soft, heavily weighted: the guard holds it). Its model may hold the actuator's lag and a dead time
 (:mod:`cartpole_control.mpc_model`); each cycle the QP of
 :mod:`cartpole_control.mpc_qp`, built once per configure, is solved warm and
 its first move applied (Mayne et al., Automatica 36, 2000). The terminal cost
@@ -95,10 +95,10 @@ class MpcStabilizer(Controller):
                       'plan that needs to cross it is not one the cart can follow',
                       low=1.0, high=1e9),
         ParameterSpec('rail_tolerance', 0.005,
-                      'the first part of each rail slack [m] that costs only 1e4 per m: a cart '
-                      'at rest on the boundary must first move towards it to come back (the '
-                      'pendulum leans away first); 0: rail_penalty throughout', low=0.0,
-                      high=0.1),
+                      'the first part of the rail slack of the first 10 steps [m] that costs '
+                      'only 1e4 per m: a cart at rest on the boundary must first move towards '
+                      'it to come back (the pendulum leans away first); 0: rail_penalty '
+                      'throughout', low=0.0, high=0.1),
         ParameterSpec('rail_clearance', 0.0,
                       'extra distance [m] kept inside the rail guard\'s limiter boundary '
                       '[margin + reserve, travel - margin - reserve]; negative lets the MPC '
@@ -173,13 +173,12 @@ class MpcStabilizer(Controller):
         self._actuator_b = model.b_d[act, 0].copy()
         self._actuator_state = np.zeros(model.states - PLANT_STATES)
 
-    def _amplifier(self) -> tuple[float, float]:
-        """The force at the cart the amplifier delivers, (low, high) [N]: the manager's plant
-        estimate's (its gain times the limits of Appendix C), nominal outside a manager."""
+    def _read_amplifier(self) -> None:
+        """:attr:`force_limits` for this cycle: the manager's plant estimate's (its gain times
+        the limits of Appendix C); outside a manager they stay nominal."""
         estimate = self.context.plant_estimate
         if estimate is not None:
             self.force_limits = estimate.force_limits()
-        return self.force_limits
 
     def _later_bounds(self) -> tuple[float, float]:
         """The raw force range whatever the feedforward's sign: every step after the first."""
@@ -218,7 +217,7 @@ class MpcStabilizer(Controller):
         s = self._s
         s[0], s[1], s[2], s[3], s[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
         s[PLANT_STATES:] = self._actuator_state
-        self._amplifier()
+        self._read_amplifier()
         first = self._first_bounds(state.x_dot)
         self._bounds = first
         solution = self.qp.solve(s, first, self._later_bounds())
