@@ -58,7 +58,8 @@ class QpSettings:
     """rho, the exact penalty's weight on the rail slacks [cost per m]."""
     solver: str = 'daqp'
     budget: float = 0.001
-    """Solve time [s] above which the result is not used (the shifted plan instead)."""
+    """Solve time [s] above which the result is not used (the shifted plan instead); 0: no
+    budget (a simulated loop, whose wall time says nothing of the plant)."""
     block: int = 1
     """Steps a correction c to the terminal LQR is held, after the free moves."""
     free_steps: int = 1
@@ -66,9 +67,17 @@ class QpSettings:
     braking_time: float = 0.0
     """[s] The rail rows bound ``x_k - x* + braking_time x_dot_k`` (a linear bound of the rail
     guard's stopping position) instead of the cart position alone."""
-    force_penalty: float = 1e4
-    """rho_F, the exact l_inf penalty on sigma [cost per N]: 1 N outside the amplifier
-    weighs like 1 m of rail."""
+    rail_tolerance: float = 0.0
+    """[m] The first this much of the rail slack of the first ``RAIL_GROUP`` steps costs only
+    ``rail_tolerance_penalty``: a cart at rest on the boundary may move towards it by a few
+    millimetres, as it must to come back (the pendulum first leans away), while beyond it,
+    and later in the horizon, rho keeps the plan inside."""
+    rail_tolerance_penalty: float = 1e4
+    """rho_t [cost per m] of the slack within ``rail_tolerance``."""
+    force_penalty: float = 1e6
+    """rho_F, the exact l_inf penalty on sigma [cost per N]: as the rail's beyond its
+    tolerance, so that a plan with no bounded solution still keeps its forces inside the
+    amplifier (1 N outside it weighs like 1 m of rail)."""
 
 
 @dataclass
@@ -172,14 +181,20 @@ class CondensedQp:
         later = list(range(free, big_n))
         groups = [(k - 1) // self.RAIL_GROUP for k in position_steps]
         n_p, n_o, n_b = groups[-1] + 1, len(later), len(starts)
-        # w = [v (m moves), one rail slack a group of steps (n_p), one slack a block of c (n_b)]
-        nv = m + n_p + n_b
+        n_t = 1 if settings.rail_tolerance > 0.0 else 0
+        # w = [v (m moves), one rail slack a group of steps (n_p), one slack a block of c (n_b),
+        #      the tolerated part of the first group's rail slack (n_t, up to rail_tolerance)]
+        n_s = n_p + n_b + n_t
+        nv = m + n_s
         self.h = np.zeros((nv, nv))
         self.h[:m, :m] = 0.5 * (h + h.T)
-        self.h[m:, m:] = self.SLACK_WEIGHT * np.eye(n_p + n_b)
-        slack_p = np.zeros((len(position_steps), n_p + n_b))
+        self.h[m:, m:] = self.SLACK_WEIGHT * np.eye(n_s)
+        slack_p = np.zeros((len(position_steps), n_s))
         slack_p[np.arange(len(position_steps)), groups] = 1.0
-        slack_o = np.zeros((n_o, n_p + n_b))
+        if n_t:  # the near future only: the first group's points
+            near = [i for i, group in enumerate(groups) if group == 0]
+            slack_p[near, n_p + n_b] = 1.0
+        slack_o = np.zeros((n_o, n_s))
         for i, k in enumerate(later):
             slack_o[i, n_p + move_of[k] - free] = 1.0
         position_z, position_c = np.array(position_z), np.array(position_c)
@@ -200,11 +215,13 @@ class CondensedQp:
         self.n_vars, self.n_rows, self.horizon, self.moves, self.free = \
             nv, self.a.shape[0], big_n, m, free
         self.variable_low = np.array([settings.force_min] * free + [-INFINITY] * n_b
-                                     + [0.0] * (n_p + n_b))
-        self.variable_high = np.array([settings.force_max] * free + [INFINITY] * (n_b + n_p + n_b))
+                                     + [0.0] * n_s)
+        self.variable_high = np.array([settings.force_max] * free + [INFINITY] * (n_b + n_p + n_b)
+                                      + [settings.rail_tolerance] * n_t)
         self.penalty = np.zeros(nv)
         self.penalty[m:m + n_p] = settings.rail_penalty
-        self.penalty[m + n_p:] = settings.force_penalty
+        self.penalty[m + n_p:m + n_p + n_b] = settings.force_penalty
+        self.penalty[m + n_p + n_b:] = settings.rail_tolerance_penalty
         self.f = self.penalty.copy()
         self.row_low = self.bound_low.copy()
         self.row_high = self.bound_high.copy()
@@ -263,7 +280,7 @@ class CondensedQp:
             if not math.isfinite(force):
                 ok, reason = False, 'non-finite solution'
         elapsed = clock() - start
-        if ok and elapsed > s.budget:
+        if ok and 0.0 < s.budget < elapsed:
             ok, reason = False, f'over budget ({elapsed * 1e6:.0f} us)'
         if ok:
             self._plan_z[:] = z

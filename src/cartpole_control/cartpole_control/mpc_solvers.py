@@ -50,7 +50,7 @@ class DaqpBackend:
         self.lower = np.concatenate([qp.variable_low, qp.row_low])
         self.sense = np.zeros(qp.n_vars + qp.n_rows, dtype=np.int32)
         self.model = daqp.Model()
-        self.model.settings = {'time_limit': qp.settings.budget}
+        self.model.settings = {'time_limit': qp.settings.budget}  # 0: none
         flag, _ = self.model.setup(qp.h, qp.f, qp.a, self.upper, self.lower, self.sense)
         if flag < 0:
             raise ValueError(f'DAQP refused the QP (setup exit flag {flag})')
@@ -96,7 +96,7 @@ class OsqpBackend:
         self.solver.setup(P=sparse.triu(qp.h).tocsc(), q=qp.f, A=a, l=self.lower, u=self.upper,
                           verbose=False, eps_abs=1e-7, eps_rel=1e-7, polishing=True,
                           warm_starting=True, max_iter=4000,
-                          time_limit=qp.settings.budget)
+                          time_limit=qp.settings.budget or 1e10)  # must be > 0
         self._solved = osqp.SolverStatus.OSQP_SOLVED if hasattr(osqp, 'SolverStatus') else 1
 
     def reset(self) -> None:

@@ -124,18 +124,21 @@ def _after_a_6_ns_cart_push(stabilizer):
 
 @pytest.mark.slow
 def test_after_a_6_ns_cart_push_the_mpc_never_drives_the_cart_into_an_end_stop():
-    """Safety first, whether the pendulum is kept or not (it is in 2 of 12 seeds:
-    docs/controllers.md): the rail constraint and the guard keep the cart off the stops."""
+    """Safety first, whether the pendulum is kept or not: the rail constraint and the guard
+    keep the cart off the stops. And the plan that stays inside the guard's boundary keeps
+    the pendulum in 4 of 12 seeds, where lqg keeps none (docs/controllers.md): with the
+    rail's penalty of before (1e4) the MPC kept 1."""
     runs = _after_a_6_ns_cart_push('mpc')
     assert not any(contact for _, contact in runs)
-    assert 0 < sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
+    assert 3 <= sum(recovered for recovered, _ in runs) < len(runs)  # the level is marginal
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 2 of 12 seeds '
-                   'only (lqg: 3 of 3 of seeds 0-2): planning inside the amplifier and the rail '
-                   'guard\'s stopping-point boundary, the MPC keeps pushing towards the stop '
-                   'where the saturated LQR lets the guard brake and swings the pendulum back '
+@pytest.mark.xfail(strict=True, reason='the 6 N s cart push is recovered in 4 of 12 seeds: '
+                   'the EKF shows the push 40-50 ms late, and with a 40 ms reaction no '
+                   'controller behind the rail guard recovers more than 5.80 N s (cartpole '
+                   'bound --case push_cart --guard --reaction 0.04); fed the true state, or the '
+                   'EKF with q_force 3e6, the MPC recovers 4 of 4 and 11 of 12 '
                    '(docs/controllers.md, the mpc section)')
 def test_the_mpc_recovers_from_a_6_ns_cart_push():
     assert all(recovered for recovered, _ in _after_a_6_ns_cart_push('mpc'))
@@ -175,6 +178,31 @@ def test_every_predicted_force_of_a_pushed_state_is_inside_the_amplifier():
     assert np.all(plan[1:] >= low - 1e-4) and np.all(plan[1:] <= high + 1e-4), \
         (plan.min(), plan.max(), low, high)
     assert np.sum(plan[1:] <= low + 1e-3) >= 20  # the bound is what shapes the plan
+
+
+def test_the_force_bounds_follow_the_plant_estimate_of_the_amplifier():
+    """A weak amplifier (gain 0.8 estimated): every predicted force within what it delivers
+    at the cart, 0.8 x the limits of Appendix C less the feedforward, and the plan uses it
+    (at 0.6 this pushed state has no bounded plan: the pendulum is lost)."""
+    from dataclasses import replace
+    from cartpole_control.plant_estimate import PlantEstimate
+    estimate = PlantEstimate(P, P.sample_time)
+    plugin = MpcStabilizer()
+    plugin.configure({'budget_us': 1e6}, replace(CONTEXT, plant_estimate=estimate))
+    plugin.activate(PUSHED)
+    plugin.update(PUSHED)
+    nominal_low = plugin._later_bounds()[0]
+    estimate.used_gain = 0.8
+    plugin.activate(PUSHED)
+    u = plugin.update(PUSHED)
+    assert plugin.force_limits == pytest.approx((0.8 * P.force_min, 0.8 * P.force_max))
+    low, high = plugin._later_bounds()
+    assert low == pytest.approx(0.8 * P.force_min + CONTEXT.feedforward.c_left)
+    assert nominal_low < low - 7.0
+    plan = plugin.qp.predicted_forces()
+    assert plugin.last_source == 'qp' and plan[0] == pytest.approx(u)
+    assert np.all(plan[1:] >= low - 1e-4) and np.all(plan[1:] <= high + 1e-4)
+    assert np.sum(plan[1:] <= low + 1e-3) >= 20
 
 
 def _failing(plugin):
@@ -223,6 +251,26 @@ def test_a_late_solve_is_not_used(monkeypatch):
     u = plugin.update(quiet)
     assert plugin.last_source == 'plan' and 'over budget (1500000 us)' in plugin.last_reason
     assert u == pytest.approx(plan[1]) and plugin.fallbacks == 1
+
+
+def test_a_batch_run_uses_every_solve_however_long_it_took(monkeypatch):
+    """Not paced by the wall clock (``real_time`` False: offline, lockstep), a run must not
+    depend on how busy the machine is: no budget, no solver time limit."""
+    from dataclasses import replace
+    clock = {'now': 0.0}
+
+    def perf_counter():  # every call 1.5 s later
+        clock['now'] += 1.5
+        return clock['now']
+    monkeypatch.setattr(mpc_qp.time, 'perf_counter', perf_counter)
+    plugin = MpcStabilizer()
+    plugin.configure({}, replace(CONTEXT, real_time=False))
+    assert plugin.qp.settings.budget == 0.0
+    plugin.activate(PUSHED)
+    for k in range(3):
+        plugin.update(replace(PUSHED, t=PUSHED.t + k * P.sample_time))
+        assert plugin.last_source == 'qp' and plugin.solve_us > 1e6
+    assert plugin.fallbacks == 0
 
 
 def test_without_a_plan_a_failure_gives_the_bounded_lqr_and_a_used_up_plan_is_a_fault():

@@ -3,9 +3,9 @@
 The LQI of :mod:`.lqg` (the linearisation (8.13)/(8.14) with the integral of
 the cart error, the weights of (8.15)) made to respect what the LQR
 (8.16)-(8.18) cannot see: every predicted force inside what the amplifier
-gives (Appendix C, scaled by its gain) less the friction feedforward (6.12)
-the manager adds, and the cart inside the rail guard's limiter boundary
-(soft). Its model may hold the actuator's lag and a dead time
+gives (Appendix C, scaled by the gain of the manager's plant estimate) less
+the friction feedforward (6.12) the manager adds, and the cart inside the
+rail guard's limiter boundary (soft, heavily weighted: the guard holds it). Its model may hold the actuator's lag and a dead time
 (:mod:`cartpole_control.mpc_model`); each cycle the QP of
 :mod:`cartpole_control.mpc_qp`, built once per configure, is solved warm and
 its first move applied (Mayne et al., Automatica 36, 2000). The terminal cost
@@ -15,9 +15,6 @@ plan shifted by one step, counted (``mpc_fallbacks``); a whole horizon
 without a solve is a fault. Design notes and measurements: docs/controllers.md.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
@@ -36,24 +33,6 @@ DEFAULT_FREE_STEPS = 40
 """Steps whose forces are moves of their own (200 ms: a push's saturated braking)."""
 DEFAULT_BLOCK = 10
 """Steps a correction to the terminal LQR is held after them (50 ms)."""
-
-
-class Amplifier(Protocol):
-    """What the MPC's force bounds need of the actuator: the cart gets ``gain`` x the command,
-    and the command is limited to ``[force_min, force_max]`` [N]."""
-
-    gain: float
-    force_min: float
-    force_max: float
-
-
-@dataclass(frozen=True)
-class NominalAmplifier:
-    """The amplifier of the model (Appendix C): gain 1."""
-
-    force_min: float
-    force_max: float
-    gain: float = 1.0
 
 
 class MpcStabilizer(Controller):
@@ -105,12 +84,21 @@ class MpcStabilizer(Controller):
         ParameterSpec('budget_us', 1000.0,
                       'solve time [us] (wall, Python calls included) above which the '
                       'solution is not used: the previous plan shifted by one step instead, '
-                      'counted in mpc_fallbacks', low=50.0, high=1e6),
-        ParameterSpec('rail_penalty', 1e4,
-                      'penalty weight rho on the rail slack [cost per m of excursion per '
-                      'constrained point] (l1, exact above the rail constraint\'s multipliers); '
-                      'much larger (1e5) parks a cart that reached the boundary at rest there',
+                      'counted in mpc_fallbacks; only in a real-time loop (a batch or '
+                      'lockstep run is not paced by the wall clock, so its solves are always '
+                      'used and the run is the same however busy the machine)',
+                      low=50.0, high=1e6),
+        ParameterSpec('rail_penalty', 1e6,
+                      'penalty weight rho on the rail slack beyond rail_tolerance [cost per m '
+                      'of excursion per group of constrained points] (l1, exact above the rail '
+                      'constraint\'s multipliers): the guard enforces its boundary anyway, so a '
+                      'plan that needs to cross it is not one the cart can follow',
                       low=1.0, high=1e9),
+        ParameterSpec('rail_tolerance', 0.005,
+                      'the first part of the rail slack of the first 10 steps [m] that costs '
+                      'only 1e4 per m: a cart at rest on the boundary must first move towards '
+                      'it to come back (the pendulum leans away first); 0: rail_penalty '
+                      'throughout', low=0.0, high=0.1),
         ParameterSpec('rail_clearance', 0.0,
                       'extra distance [m] kept inside the rail guard\'s limiter boundary '
                       '[margin + reserve, travel - margin - reserve]; negative lets the MPC '
@@ -122,8 +110,9 @@ class MpcStabilizer(Controller):
         self.qp: CondensedQp | None = None
         self.gain = np.zeros(PLANT_STATES)
         """K_d of the terminal LQR on s (its first five entries act on z)."""
-        self.amplifier: Amplifier | None = None
-        """The gain and limits the force bounds are built from (nominal until wired)."""
+        self.force_limits = (0.0, 0.0)
+        """(low, high) [N]: the force at the cart the amplifier delivers, which the bounds of
+        the last cycle were built from (the plant estimate's, else the nominal Appendix C)."""
         self._integral = ConditionalIntegrator()
         self._clock = StepClock()
         self._s = np.zeros(PLANT_STATES)
@@ -156,8 +145,8 @@ class MpcStabilizer(Controller):
         a, b = augmented_model(*linearise_upright(p))
         model = prediction_model(a, b, q, float(self.gains['r']), float(ctx.sample_time),
                                  float(self.gains['lag']), float(self.gains['dead_time']))
-        self.amplifier = NominalAmplifier(p.force_min, p.force_max)
         self._feedforward = ctx.feedforward
+        self.force_limits = (p.force_min, p.force_max)
         low, high = self._later_bounds()
         inset = ctx.rail_margin + ctx.rail_reserve + float(self.gains['rail_clearance'])
         x_low, x_high = inset - ctx.x_ref, p.travel - inset - ctx.x_ref
@@ -171,7 +160,9 @@ class MpcStabilizer(Controller):
         g = self.gains
         settings = QpSettings(int(g['horizon']), low, high, x_low, x_high,
                               float(g['rail_penalty']), solver=str(g['solver']),
-                              budget=1e-6 * float(g['budget_us']), block=int(g['block']),
+                              rail_tolerance=float(g['rail_tolerance']),
+                              budget=1e-6 * float(g['budget_us']) if ctx.real_time else 0.0,
+                              block=int(g['block']),
                               free_steps=int(g['free_steps']),
                               braking_time=float(g['braking_time']))
         self.qp = CondensedQp(model, settings)
@@ -182,18 +173,26 @@ class MpcStabilizer(Controller):
         self._actuator_b = model.b_d[act, 0].copy()
         self._actuator_state = np.zeros(model.states - PLANT_STATES)
 
+    def _read_amplifier(self) -> None:
+        """:attr:`force_limits` for this cycle: the manager's plant estimate's (its gain times
+        the limits of Appendix C); outside a manager they stay nominal."""
+        estimate = self.context.plant_estimate
+        if estimate is not None:
+            self.force_limits = estimate.force_limits()
+
     def _later_bounds(self) -> tuple[float, float]:
         """The raw force range whatever the feedforward's sign: every step after the first."""
-        amp, ff = self.amplifier, self._feedforward
-        return amp.gain * amp.force_min + ff.c_left, amp.gain * amp.force_max - ff.c_right
+        low, high = self.force_limits
+        ff = self._feedforward
+        return low + ff.c_left, high - ff.c_right
 
     def _first_bounds(self, x_dot: float) -> tuple[float, float]:
         """The raw force range of this cycle's move: the amplifier's less the feedforward.
 
         A cart moving beyond the velocity band gets its kinetic friction along the velocity
         whatever the command; a cart at rest either Coulomb level."""
-        amp, ff = self.amplifier, self._feedforward
-        low, high = amp.gain * amp.force_min, amp.gain * amp.force_max
+        low, high = self.force_limits
+        ff = self._feedforward
         band = ff.velocity_band
         if band > 0.0 and x_dot > band:
             return low - ff.c_right, high - ff.c_right
@@ -218,6 +217,7 @@ class MpcStabilizer(Controller):
         s = self._s
         s[0], s[1], s[2], s[3], s[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
         s[PLANT_STATES:] = self._actuator_state
+        self._read_amplifier()
         first = self._first_bounds(state.x_dot)
         self._bounds = first
         solution = self.qp.solve(s, first, self._later_bounds())

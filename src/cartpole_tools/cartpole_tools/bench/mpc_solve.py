@@ -10,6 +10,12 @@ the MPC runs count (after the catch). By default each run gets cart pushes
 (a 4 N s one right at 8 s and left at 14 s) so that the constraints become
 active and the solver works, not only the unconstrained cycles.
 
+By default the cycles are paced at the sample time, as the controller
+manager runs them (a cycle every 5 ms, idle in between); ``--flat-out``
+runs them back to back, a process that never sleeps, which a busy machine's
+scheduler pre-empts in the middle of solves: its wall-time tail measures
+the machine's load more than the solver.
+
 ``python -m cartpole_tools.bench.mpc_solve --solvers daqp casadi_qpoases
 --horizons 100 200`` prints the table of docs/controllers.md (p50 / p99 / p99.9 / max
 per solver and horizon, with the load average); ``cartpole bench loop``
@@ -21,6 +27,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -35,12 +42,16 @@ DEFAULT_PUSHES = (Push(8.0, 'cart', 40.0, 0.1), Push(14.0, 'cart', -40.0, 0.1))
 
 
 def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 30.0,
-                seed: int = 1, pushes: Sequence[Push] = DEFAULT_PUSHES) -> dict[str, Any]:
+                seed: int = 1, pushes: Sequence[Push] = DEFAULT_PUSHES,
+                paced: bool = True) -> dict[str, Any]:
     """Closed loop with ``stabilizer: mpc`` and ``parameters``; solve-time statistics [us].
 
     Returns the cycles counted, p50 / p99 / p99.9 / max of ``mpc_solve_us``, the
-    fall-backs, and whether the pendulum stayed up (no fall, no fault).
+    fall-backs, whether the pendulum stayed up (no fall, no fault), the load average
+    (1 min) before and after, and ``paced``: each cycle started on the sample clock
+    (``duration`` of wall time), else back to back.
     """
+    load_before = os.getloadavg()[0]
     nominal = CartPoleParameters()
     scenario = Scenario(noise=True, seed=seed, pushes=tuple(pushes))
     plant = Plant(nominal, scenario)
@@ -51,7 +62,13 @@ def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 3
     force = 0.0
     falls = faults = 0
     fallbacks = 0
-    for k in range(int(round(duration / nominal.sample_time)) + 1):
+    clock, period = time.perf_counter, nominal.sample_time
+    start = clock()
+    for k in range(int(round(duration / period)) + 1):
+        if paced:  # the manager's cycle: on the sample clock, idle in between
+            wait = start + k * period - clock()
+            if wait > 0.0:
+                time.sleep(wait)
         meas = plant.measure()
         est = ekf.update(meas.t, meas.x, meas.theta, force)
         out = manager.update_values(est.t, est.x, est.theta, est.x_dot, est.theta_dot)
@@ -70,21 +87,25 @@ def solve_times(parameters: Mapping[str, Any] | None = None, duration: float = 3
             'p999_us': float(np.percentile(t, 99.9)) if t.size else None,
             'max_us': float(t.max()) if t.size else None,
             'fallbacks': fallbacks, 'falls': int(falls), 'faults': faults,
-            'balanced': bool(t.size and falls == 0 and faults == 0)}
+            'balanced': bool(t.size and falls == 0 and faults == 0), 'paced': paced,
+            'load_before': load_before, 'load_after': os.getloadavg()[0]}
 
 
 def table(rows: Sequence[dict[str, Any]]) -> str:
     """Markdown table of :func:`solve_times` results (each with ``solver`` and ``horizon``)."""
     out = ['| solver | horizon | cycles | p50 [us] | p99 [us] | p99.9 [us] | max [us] | fall-backs '
-           '| balanced |',
-           '|---|---|---|---|---|---|---|---|---|']
+           '| balanced | clock | load before / after |',
+           '|---|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         if r.get('error'):
-            out.append(f'| {r["solver"]} | {r["horizon"]} | {r["error"]} | | | | | | |')
+            out.append(f'| {r["solver"]} | {r["horizon"]} | {r["error"]} | | | | | | | | |')
             continue
         out.append(f'| {r["solver"]} | {r["horizon"]} | {r["cycles"]} | {r["p50_us"]:.0f} | '
                    f'{r["p99_us"]:.0f} | {r["p999_us"]:.0f} | {r["max_us"]:.0f} | {r["fallbacks"]} | '
-                   f'{"yes" if r["balanced"] else "no"} |')
+                   f'{"yes" if r["balanced"] else "no"} | '
+                   f'{"paced" if r.get("paced", True) else "flat out"} | '
+                   f'{r.get("load_before", float("nan")):.2f} / '
+                   f'{r.get("load_after", float("nan")):.2f} |')
     return '\n'.join(out) + '\n'
 
 
@@ -96,6 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--budget-us', type=float, default=1e6,
                         help='mpc.budget_us for the measurement (default 1e6: no fall-back, '
                              'so that every solve is timed)')
+    parser.add_argument('--flat-out', action='store_true',
+                        help='cycles back to back instead of on the 5 ms sample clock')
     parser.add_argument('--json', action='store_true')
     args = parser.parse_args(argv)
     rows = []
@@ -105,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             params = {'mpc.solver': solver, 'mpc.horizon': horizon,
                       'mpc.budget_us': args.budget_us}
             try:
-                r = solve_times(params, duration=args.duration)
+                r = solve_times(params, duration=args.duration, paced=not args.flat_out)
             except Exception as error:  # a solver that cannot run is a row, not an abort
                 r = {'error': f'{type(error).__name__}: {error}'[:120]}
             rows.append({'solver': solver, 'horizon': horizon, **r})
