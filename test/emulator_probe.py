@@ -1,8 +1,9 @@
 """The emulated rig in its own process, logging what the device received and its output.
 
-Usage: ``python test/emulator_probe.py LINK SECONDS OUT.json [DELAY]``. Opens the
-emulator on a pseudo-terminal linked at LINK (with the scenario's command delay
-DELAY seconds, default 0) and prints ``port <pty>``; runs until SECONDS have
+Usage: ``python test/emulator_probe.py LINK SECONDS OUT.json [DELAY [WATCHDOG]]``. Opens
+the emulator on a pseudo-terminal linked at LINK (with the scenario's command delay
+DELAY seconds, default 0, and the device watchdog WATCHDOG seconds, default the
+firmware's 0.05) and prints ``port <pty>``; runs until SECONDS have
 passed or SIGINT/SIGTERM arrives, then writes the timeline (monotonic time, the
 ``U``/``E`` lines received, the changes of the output between zero and non-zero)
 and ``applied``, the device's record of its last 1000 tagged commands
@@ -24,6 +25,8 @@ def main() -> None:
     link, seconds, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
     delay = float(sys.argv[4]) if len(sys.argv) > 4 else 0.0
     emulator = Emulator(Scenario(delay=delay), link=link)
+    if len(sys.argv) > 5:
+        emulator.device.watchdog_us = round(float(sys.argv[5]) * 1e6)
     timeline = []
     handle, step = emulator.device.handle_line, emulator.sample_period
     zero_before = [None]

@@ -137,10 +137,16 @@ SUMMARY_KEYS = ('catch_time_s', 'upright_time_s', 'theta_amp_deg', 'x_err_max_m'
                 'mse_theta', 'end_stop_contact', 'success', 'fault', 'controllers')
 
 
-def test_processes_lockstep_is_deterministic():
+def test_processes_lockstep_is_deterministic(tmp_path):
     """Two identical runs, one process a node: the same summary to the last bit (the EKF
     waits for the previous command in lockstep, the controller manager for the state's own
-    sample: a message that overtook another would make two runs differ)."""
+    sample: a message that overtook another would make two runs differ).
+
+    The simulator's ``lockstep_timeout`` (1 s wall by default) is the liveness fallback for a
+    dead controller: it steps with the held command, which no run repeats. A 2-core CI
+    machine running a second test worker stalled a node that long once, so here it is 60 s."""
+    params = tmp_path / 'lockstep.yaml'
+    params.write_text('sim:\n  ros__parameters:\n    lockstep_timeout: 60.0\n')
     summaries = []
     for _ in range(2):
         # The summary's window (the last 1.5 s of 5) starts after the catch (2.8 s) and
@@ -148,7 +154,7 @@ def test_processes_lockstep_is_deterministic():
         # (docs/running.md, "Recording"): a window that took them in (the 10 s window of an 8 s run)
         # made two such runs differ in mse_x (0.016449 vs 0.016415).
         code, out, err = run(['run', '--sim', '--processes', '--lockstep', '--duration', '5',
-                              '--window', '1.5', '--json'], timeout=150)
+                              '--window', '1.5', '--params', str(params), '--json'], timeout=150)
         assert code == 0, err
         result = json.loads([line for line in out.splitlines() if line.startswith('{')][-1])
         summaries.append({k: result[k] for k in SUMMARY_KEYS})
