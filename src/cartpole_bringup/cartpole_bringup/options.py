@@ -107,15 +107,44 @@ def load_ros_parameters(path: Path | None, node_name: str) -> dict[str, Any]:
     return boundary.ros_parameters(path, node_name)
 
 
-def manager_parameters(nominal: CartPoleParameters, args: argparse.Namespace) -> dict[str, Any]:
-    """controller_manager parameters: the ``--params`` file's section, then ``--swingup`` and
-    ``--stabilizer``; InputError with the manager's reason, naming the file or the option."""
+MANAGER_NODE_PARAMETERS = {'lockstep': (None, None), 'use_sim_time': (None, None),
+                           'lockstep_wait': (0.001, 10.0), 'stamp_tolerance': (0.0, 86400.0)}
+"""The controller_manager node's own parameters a ``ros2 param dump`` holds, with their ranges
+(None: a boolean); the node applies them, the offline loop has no use for them."""
+
+
+def _node_value(value: Any, low: float | None, high: float | None, source: str) -> None:
+    if low is None:
+        if not isinstance(value, bool):
+            raise boundary.InputError(f'{source}: expected true or false, got {value!r}')
+    elif isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not low <= value <= high:
+        raise boundary.InputError(f'{source}: expected a number in [{low:g}, {high:g}], '
+                                  f'got {value!r}')
+
+
+def manager_section(nominal: CartPoleParameters, args: argparse.Namespace) -> dict[str, Any]:
+    """The ``--params`` file's controller_manager section without the node's own parameters.
+
+    The construction parameters stay when they differ from what the loop uses (a copy of
+    the installed controller_manager.yaml has them at those values), and are refused then;
+    :data:`MANAGER_NODE_PARAMETERS` are checked against their ranges and taken out.
+    """
     params = dict(load_ros_parameters(getattr(args, 'params', None), 'controller_manager'))
-    # The node's own construction parameters, at the values the loop uses anyway (a copy of
-    # the installed controller_manager.yaml); other values stay and are refused below.
     for name, same in (('plant_params_file', ''), ('sample_time', nominal.sample_time)):
         if params.get(name) == same:
             del params[name]
+    for name, (low, high) in MANAGER_NODE_PARAMETERS.items():
+        if name in params:
+            _node_value(params.pop(name), low, high,
+                        f'--params {args.params}: controller_manager: {name}')
+    return params
+
+
+def manager_parameters(nominal: CartPoleParameters, args: argparse.Namespace) -> dict[str, Any]:
+    """controller_manager parameters: the ``--params`` file's section, then ``--swingup`` and
+    ``--stabilizer``; InputError with the manager's reason, naming the file or the option."""
+    params = manager_section(nominal, args)
     if params:
         _manager_takes(nominal, params, f'--params {args.params}: controller_manager')
     for name in ('swingup', 'stabilizer'):

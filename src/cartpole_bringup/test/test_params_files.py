@@ -145,3 +145,20 @@ def test_cartpole_params_reads_the_installed_file(tmp_path):
                      ['ros__parameters'].items()}
     assert found['stabilizer'] == 'smc'
     assert ros_parameters(path, 'ekf') == {}
+
+
+def test_the_installed_manager_file_is_a_params_file_offline_takes(tmp_path, capsys):
+    # The file holds the node's own parameters (lockstep, lockstep_wait, stamp_tolerance):
+    # the offline loop checks them against their ranges and does not hand them to the
+    # manager, which has none of them (it refused 'lockstep' before).
+    from cartpole_bringup import cli
+
+    installed = Path(__file__).parents[2] / 'cartpole_control' / 'config' / 'controller_manager.yaml'
+    assert cli.main(['offline', '--duration', '0.5', '--json', '--params', str(installed)]) == 0
+    assert 'error' not in capsys.readouterr().err
+    bad = tmp_path / 'manager.yaml'
+    bad.write_text(installed.read_text().replace('lockstep_wait: 0.5', 'lockstep_wait: 20.0'))
+    assert cli.main(['offline', '--duration', '0.5', '--params', str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert 'controller_manager: lockstep_wait: expected a number in [0.001, 10], got 20.0' in err
+    assert len(err.strip().splitlines()) == 1

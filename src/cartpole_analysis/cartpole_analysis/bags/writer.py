@@ -1,25 +1,20 @@
 """Writing rosbag2 bags (MCAP storage) from serialized messages, without ROS.
 
 The ROS-free half of the recorder (:mod:`cartpole_bringup.graph.recorder`): the table
-of the graph's topics (docs/architecture.md), the log-time rule and a writer
-on top of :class:`cartpole_analysis.bags.storage.McapBagFile` (an MCAP file
-that survives a kill). Messages arrive already
-serialized (ROS 2 CDR, as rclpy hands them to a ``raw=True`` subscription)
-and are written as they are, never deserialized.
+of the graph's topics (docs/architecture.md), the log-time rule and a writer on top of
+:class:`cartpole_analysis.bags.storage.McapBagFile` (an MCAP file that survives a kill).
+Messages arrive serialized (ROS 2 CDR, from a ``raw=True`` subscription) and are written
+as they are.
 
-Log time of a message (``log_time``): by default ``'stamp'``, its own stamp
-(``header.stamp`` of JointState and DiagnosticArray, ``clock`` of
-rosgraph_msgs/Clock; in both cases the first eight bytes of the CDR payload),
-so a lockstep run is recorded in simulated time (sample 0 at t = 0) and a
-real-time run in the publisher's clock; ``'receive'`` uses the receive time
-the caller gives instead.
+Log time (``log_time``): ``'stamp'`` (default) takes the message's own stamp (the first
+eight bytes of the CDR payload of JointState, DiagnosticArray and Clock), so a lockstep
+run is recorded in simulated time; ``'receive'`` takes the receive time the caller gives.
 
-Splitting (``ros2 bag record --max-bag-duration/--max-bag-size``): a new file
-``<bag>_<i>.mcap`` is begun once the open one spans ``max_bag_duration`` s of log
-time or holds ``max_bag_size`` bytes; the closed file gets its summary and
-``metadata.yaml`` is rewritten to list every file, the new one included. A
-closed file's index leaves memory, so a recorder's memory stays bounded
-however long it runs (:data:`MAX_BAG_DURATION`).
+Splitting (as ``ros2 bag record --max-bag-duration/--max-bag-size``): a new file
+``<bag>_<i>.mcap`` begins once the open one spans ``max_bag_duration`` s of log time or
+holds ``max_bag_size`` bytes, and ``metadata.yaml`` is rewritten to list every file. A
+closed file's index leaves memory, so the recorder's memory stays bounded
+(:data:`MAX_BAG_DURATION`; docs/running.md, "Recording").
 """
 from __future__ import annotations
 

@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def manager_parameters_from_args(args: argparse.Namespace) -> dict:
     """controller_manager parameters: the --params file's section, then --swingup/--stabilizer."""
-    params = dict(options.load_ros_parameters(args.params, 'controller_manager'))
+    params = options.manager_section(options.nominal_parameters(args), args)
     if args.swingup:
         params['swingup'] = args.swingup
     if args.stabilizer:

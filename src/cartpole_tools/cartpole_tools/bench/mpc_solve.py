@@ -1,25 +1,20 @@
 """Solve time of the ``mpc`` stabiliser per control cycle, in the closed loop.
 
-The offline closed loop (plant with noise, EKF, controller manager; the same
-blocks as :func:`cartpole_bringup.offline.closed_loop.run_closed_loop`),
-stepped here so that the running stabiliser's
-:meth:`~cartpole_control.controller.Controller.status_values` can be read
-after every cycle: ``mpc_solve_us`` (wall time of the QP solve with its
-Python calls, :func:`time.perf_counter`) and ``mpc_fallbacks``. Only cycles
-the MPC runs count (after the catch). By default each run gets cart pushes
-(a 4 N s one right at 8 s and left at 14 s) so that the constraints become
-active and the solver works, not only the unconstrained cycles.
+The offline closed loop (plant with noise, EKF, controller manager; the blocks of
+:func:`cartpole_bringup.offline.closed_loop.run_closed_loop`), stepped here so that the
+stabiliser's :meth:`~cartpole_control.controller.Controller.status_values` are read after
+every cycle: ``mpc_solve_us`` (wall time of the QP solve with its Python calls) and
+``mpc_fallbacks``, over the cycles the MPC runs (after the catch). By default each run gets
+cart pushes (4 N s right at 8 s, left at 14 s) so that the constraints become active.
 
-By default the cycles are paced at the sample time, as the controller
-manager runs them (a cycle every 5 ms, idle in between); ``--flat-out``
-runs them back to back, a process that never sleeps, which a busy machine's
-scheduler pre-empts in the middle of solves: its wall-time tail measures
+Cycles are paced at the sample time, as the controller manager runs them; ``--flat-out``
+runs them back to back, and a busy scheduler then pre-empts solves, so its tail measures
 the machine's load more than the solver.
 
-``python -m cartpole_tools.bench.mpc_solve --solvers daqp casadi_qpoases
---horizons 100 200`` prints the table of docs/controllers.md (p50 / p99 / p99.9 / max
-per solver and horizon, with the load average); ``cartpole bench loop``
-uses :func:`solve_times` when the stabiliser is mpc. No ROS.
+``python -m cartpole_tools.bench.mpc_solve --solvers daqp casadi_qpoases --horizons 100
+200`` prints the table of docs/controllers.md (p50 / p99 / p99.9 / max per solver and
+horizon, with the load average); ``cartpole bench loop`` uses :func:`solve_times` when the
+stabiliser is mpc. No ROS.
 """
 from __future__ import annotations
 
