@@ -1,4 +1,4 @@
-"""`cartpole soak`: its judgments on made-up inputs, and a 2-minute soak of the real graph."""
+"""`cartpole soak`: its judgments on made-up inputs, and a 40-second soak of the real graph."""
 import json
 import math
 import subprocess
@@ -113,28 +113,38 @@ def test_bad_options_are_refused_in_one_line(argv, message):
     assert len(run.stderr.strip().splitlines()) == 1
 
 
+STALL_FAULT = ('stale', 'controller manager in fault for')
+"""The faults a host stall makes: the manager's 50 ms stale-state check (docs/soak.md)."""
+
+
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason='on the shared development VM the host takes a vCPU away '
-                   'for ~100 ms now and then (measured: /proc/stat steal, docs/soak.md); the '
-                   "loop's processes on it stop and the manager's 50 ms stale check faults")
-def test_two_minutes_of_soak_pass(tmp_path):
-    """The suite's soak: switch every 20 s, restart at 60 s; no fault, up, the bag whole."""
+def test_forty_seconds_of_soak_pass(tmp_path):
+    """The suite's soak (`cartpole soak` runs the long ones): switch every 10 s, restart at
+    20 s; the switches and the restart accepted, the bag whole, no process lost, up.
+
+    On the shared development VM the host takes a vCPU away for ~100 ms now and then
+    (/proc/stat steal, docs/soak.md) and the manager's stale check faults: such a fault is
+    accepted only with the stall measured by the soak's own probe (a gap over 50 ms in the
+    samples), and then the pendulum's verdict is not judged; any other fault fails."""
     out = tmp_path / 'soak'
     run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'soak',
-                          '--duration', '120', '--switch-every', '20', '--restart-every', '60',
-                          '--settle', '30', '--out', str(out), '--json'],
-                         capture_output=True, text=True, timeout=400)
+                          '--duration', '40', '--switch-every', '10', '--restart-every', '20',
+                          '--settle', '10', '--out', str(out), '--json'],
+                         capture_output=True, text=True, timeout=300)
     result = json.loads(run.stdout)
-    assert result['faults'] == [], run.stderr[-3000:]
-    assert result['ran_to_the_end'] is True
-    assert result['switches'] == 5 and result['restarts'] == 1
-    assert result['up_ok'] is True, result['segments']
-    assert len(result['segments']) == 2 and all(s['catch_after_s'] for s in result['segments'])
+    assert result['ran_to_the_end'] is True, run.stderr[-3000:]
+    assert result['switches'] == 3 and result['restarts'] == 1, result['events']
     assert result['bag_ok'] is True, result['topics']
-    assert all(t['recorded'] > 10_000 for t in result['topics'].values())
+    assert all(t['recorded'] > 3_000 for t in result['topics'].values())
     assert set(result['processes']) == {'sim', 'ekf', 'controller_manager', 'recorder',
                                         'cartpole soak'}
-    assert result['memory_ok'] is None  # 90 s after settling: too short to judge
+    assert result['memory_ok'] is None  # 30 s after settling: too short to judge
+    assert (out / 'soak.md').read_text().startswith('Soak of 4')
+    if result['faults']:
+        assert all(any(k in f for k in STALL_FAULT) for f in result['faults']), result['faults']
+        assert result['longest_sample_gap_s'] > 0.05, (result['faults'], run.stderr[-3000:])
+        return
+    assert result['up_ok'] is True, result['segments']
+    assert len(result['segments']) == 2 and all(s['catch_after_s'] for s in result['segments'])
     assert run.returncode == 0 and result['ok'] is True
-    assert (out / 'soak.md').read_text().startswith('Soak of 12')
