@@ -42,16 +42,6 @@ list only shrinks."""
 
 MAX_DOCSTRING_LINES = 20
 
-LONG_DOCSTRING_KNOWN = {
-    'src/cartpole_analysis/cartpole_analysis/bags/repair.py',
-    'src/cartpole_analysis/cartpole_analysis/bags/storage.py',
-    'src/cartpole_bringup/cartpole_bringup/graph/record_ledger.py',
-    'src/cartpole_control/cartpole_control/catch_region.py',
-    'src/cartpole_control/cartpole_control/mpc_model.py',
-}
-"""Modules whose docstring other work in progress shortens; the merge that shortens one
-removes it here. A listed module whose docstring fits fails the test too, so the list
-only shrinks."""
 
 
 def _modules() -> dict[str, Path]:
@@ -189,8 +179,7 @@ def test_no_module_docstring_over_20_lines():
     lengths = {str(p.relative_to(ROOT)): _docstring_lines(p) for p in _python_files()
                if p.is_relative_to(SRC) and 'test' not in p.relative_to(SRC).parts}
     too_long = {name for name, n in lengths.items() if n > MAX_DOCSTRING_LINES}
-    assert sorted(f'{n}: {lengths[n]} lines' for n in too_long - LONG_DOCSTRING_KNOWN) == []
-    assert sorted(LONG_DOCSTRING_KNOWN - too_long) == [], 'fits: remove from LONG_DOCSTRING_KNOWN'
+    assert sorted(f'{n}: {lengths[n]} lines' for n in too_long) == []
 
 
 def test_the_docstring_count_sees_a_long_one(tmp_path):

@@ -1,23 +1,16 @@
 """The catch the stabiliser can hold: its region of attraction on the estimated plant (beyond (6.4)).
 
-The thesis's catch trigger (6.4) (:mod:`cartpole_control.catch`) is a fixed
-window, whatever the amplifier, the delay and the pendulum. Here it stays the
-outer gate; inside it the catch waits until the state is in the region of
-attraction of the stabiliser on the plant the loop has measured
-(:mod:`cartpole_control.plant_estimate`): the closed loop of the LQR of that
-plant, solved by the Riccati equation (8.18), under the force the amplifier
-can deliver (G times its limits, less the friction feedforward's share), held
-over each sample and started one sample late, is simulated with the
-nonlinear model (4.18) from the state to catch; the catch is taken if it
-settles upright with the cart on the rail. A level set of ``V = x' P x``
-certifies only a region hundreds of times smaller than what the loop holds
-(the saturated LQR's ellipsoid, ``V <= 0.25`` against ``V = 50`` for a
-pendulum 0.3 rad off with the energy E*), so the simulation decides.
-Hysteresis: the fall detector hands back only beyond ``fall.angle_deg``; every
-fall makes the next catch wait for a region held with a tighter force budget.
-Design and figures: docs/controller_manager.md ("The catch the stabiliser can hold").
-
-No ROS import.
+The thesis's catch trigger (6.4) (:mod:`cartpole_control.catch`), a fixed window, stays the
+outer gate; inside it the catch waits until the state is in the region of attraction of the
+stabiliser on the plant the loop has measured (:mod:`cartpole_control.plant_estimate`). The
+closed loop of that plant's LQR (Riccati equation (8.18)), under the force the amplifier can
+deliver (G times its limits, less the friction feedforward's share), held over each sample
+and started one sample late, is simulated with the nonlinear model (4.18); the catch is taken
+if it settles upright with the cart on the rail. A level set of ``V = x' P x`` certifies a
+region hundreds of times smaller than what the loop holds, so the simulation decides.
+Hysteresis: the fall detector hands back only beyond ``fall.angle_deg``, and every fall makes
+the next catch wait for a region held with a tighter force budget.
+Design and figures: docs/controller_manager.md ("The catch the stabiliser can hold"). No ROS.
 """
 from __future__ import annotations
 

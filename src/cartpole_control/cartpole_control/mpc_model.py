@@ -1,24 +1,20 @@
 """The prediction model of the ``mpc`` stabiliser: plant, actuator lag and dead time, sampled.
 
-The plant part is the upright linearisation (8.13)/(8.14) augmented with the
-integral of the cart error (the LQI of :mod:`.controllers.lqg`), ``z = [x -
-x*, theta_w, x_dot, theta_dot, xi]`` driven by the force on the cart F. The
-actuator between the command u and F:
+The plant: the upright linearisation (8.13)/(8.14) with the integral of the cart error (the
+LQI of :mod:`.controllers.lqg`), ``z = [x - x*, theta_w, x_dot, theta_dot, xi]``, driven by the
+force on the cart F. Between the command u and F:
 
-- a first-order lag ``tau F_dot = u - F`` (``lag``): an amplifier slower than
-  the current loop (4.4), whose 0.1 ms is nothing at Ts and stays out; the
-  state grows by F;
-- a dead time ``d`` (``dead_time``): the command acts d after it was
-  computed. Exactly sampled with u held (Astrom and Wittenmark,
-  "Computer-Controlled Systems", 3rd ed., section 2.3): with ``d = (l - 1) Ts
-  + d'``, ``0 < d' <= Ts``, ``s_{k+1} = Phi s_k + Gamma_1 u_{k-l} + Gamma_0
-  u_{k-l+1}``; the state grows by the l commands in flight.
+- a first-order lag ``tau F_dot = u - F`` (``lag``; the current loop's 0.1 ms (4.4) stays
+  out); the state grows by F;
+- a dead time ``d`` (``dead_time``), sampled exactly with u held (Astrom and Wittenmark,
+  "Computer-Controlled Systems", 3rd ed., section 2.3): with ``d = (l - 1) Ts + d'``,
+  ``0 < d' <= Ts``, ``s_{k+1} = Phi s_k + Gamma_1 u_{k-l} + Gamma_0 u_{k-l+1}``; the state
+  grows by the l commands in flight.
 
-Both 0 (the default) leave the five states of (8.13): the manager already
-predicts the state over the measured latency, so ``dead_time`` is only what
-that does not cover. The cost (8.15) over one sample is exact
-(:func:`sampled_cost`; with a dead time less its O(Ts^2) cross term), the
-terminal cost the discrete Riccati solution (:func:`terminal_lqr`). No ROS.
+Both 0 by default: the manager already predicts over the measured latency, so ``dead_time``
+is only what that does not cover. The cost (8.15) over a sample is exact
+(:func:`sampled_cost`; with a dead time less its O(Ts^2) cross term), the terminal cost the
+discrete Riccati solution (:func:`terminal_lqr`). No ROS.
 """
 from __future__ import annotations
 

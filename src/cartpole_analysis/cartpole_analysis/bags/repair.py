@@ -1,26 +1,17 @@
 """Recovering a bag whose recorder was killed (``cartpole bag repair BAG``), without ROS.
 
-The equivalent of ``ros2 bag reindex``, for the MCAP files of
-:mod:`cartpole_analysis.bags.storage`. A recorder killed with SIGKILL (or a run
-whose process was) leaves an MCAP file without its summary and footer, and no
-``metadata.yaml``: ``rosbags``, ``cartpole analyze`` and ``ros2 bag info``
-refuse it. The file holds every chunk written before the kill (at most
-:data:`~cartpole_analysis.bags.storage.FLUSH_PERIOD` is lost), and possibly the
-beginning of one more record.
+The equivalent of ``ros2 bag reindex`` for the MCAP files of
+:mod:`cartpole_analysis.bags.storage`. A SIGKILL leaves a file without summary and footer and
+no ``metadata.yaml``, which ``rosbags``, ``cartpole analyze`` and ``ros2 bag info`` refuse; the
+file still holds every chunk written before the kill (at most
+:data:`~cartpole_analysis.bags.storage.FLUSH_PERIOD` lost) and perhaps part of one record.
 
-:func:`repair_bag`, for each file of the bag (a split bag has several; the
-files ``metadata.yaml`` lists, else every ``*.mcap`` in the order of its index):
-
-1. walks the file's records by their length fields up to the last complete
-   one (a record cut short by the kill is dropped, and counted);
-2. a complete file (footer present) is left as it is; otherwise its records
-   (schemas, channels, messages, the ``custom_data`` record) are copied, in
-   order, into a new MCAP file with summary and index, which replaces the
-   original; the original is kept next to it as ``<file>.damaged``;
-
-then writes ``metadata.yaml`` (every file, counts, time span, topics,
-``custom_data`` from the old ``metadata.yaml`` or from the files) unless an
-intact bag already has one.
+:func:`repair_bag`, for each file (those ``metadata.yaml`` lists, else every ``*.mcap`` in
+index order): walks the records by their length fields up to the last complete one (a cut
+record is dropped and counted); leaves a complete file (footer present) as it is, else copies
+its records in order into a new MCAP file with summary and index and keeps the original as
+``<file>.damaged``; then writes ``metadata.yaml`` (files, counts, time span, topics,
+``custom_data``) unless an intact bag already has one.
 """
 from __future__ import annotations
 

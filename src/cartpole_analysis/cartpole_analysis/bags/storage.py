@@ -1,27 +1,17 @@
 """The storage of a rosbag2 bag: MCAP files that survive a kill, and ``metadata.yaml``.
 
-The layout ROS 2 Jazzy's ``rosbag2_storage_mcap`` writes, so that
-``ros2 bag info``, ``ros2 bag play``, Foxglove and ``rosbags`` read it:
+The layout ROS 2 Jazzy's ``rosbag2_storage_mcap`` writes (``ros2 bag info|play``, Foxglove
+and ``rosbags`` read it): ``<bag>/<bag name>_<i>.mcap`` (:func:`file_name`; i counts the
+files of a split bag), MCAP profile ``ros2``, one ``ros2msg`` schema a type, one ``cdr``
+channel a topic (with ``offered_qos_profiles`` and ``topic_type_hash``), a ``rosbag2``
+metadata record, summary and index at the end; and ``<bag>/metadata.yaml``
+(``rosbag2_bagfile_information`` version 9, every file listed: :func:`bagfile_information`).
 
-- ``<bag>/<bag name>_<i>.mcap`` (:func:`file_name`, i = 0, 1, ... when the
-  bag is split): MCAP profile ``ros2``; one schema a message type
-  (encoding ``ros2msg``, the concatenated ``.msg`` definitions), one channel a
-  topic (encoding ``cdr``, metadata ``offered_qos_profiles`` and
-  ``topic_type_hash``), the messages with their log time; at the end a
-  metadata record ``rosbag2`` holding the bag's metadata, and the summary and
-  index that readers seek with;
-- ``<bag>/metadata.yaml``: ``rosbag2_bagfile_information``, version 9; every
-  file in ``relative_file_paths`` and ``files`` (:func:`bagfile_information`).
-
-What makes it survive a kill (SIGKILL, power cut of the process): messages
-are grouped into MCAP chunks, and a chunk is finished and handed to the
-operating system (``flush``) once it is :data:`FLUSH_PERIOD` old in wall
-time or spans that much log time, so a killed writer loses at most that much
-of the recording (plus what it had not yet received). The run description
-(``custom_data``) is written as a metadata record ``custom_data`` at the start
-of the file, so it survives too. What is lost with a kill is the summary at
-the end and ``metadata.yaml``; :mod:`cartpole_analysis.bags.repair`
-(``cartpole bag repair BAG``) rebuilds both from what is on disk.
+Surviving a kill: messages go into MCAP chunks, and a chunk is flushed to the operating
+system once it is :data:`FLUSH_PERIOD` old in wall time or spans that much log time, so a
+SIGKILL loses at most that much. The run description (``custom_data``) is a metadata record
+at the start of the file. A kill loses the summary and ``metadata.yaml``;
+:mod:`cartpole_analysis.bags.repair` (``cartpole bag repair BAG``) rebuilds both.
 """
 from __future__ import annotations
 

@@ -1,32 +1,20 @@
 """What the recorder has of each sample: lockstep progress, repeats, and the messages it missed.
 
-Every 200 Hz topic of the graph carries the stamp of the sample it belongs to
-(docs/architecture.md, "ROS interfaces": the estimate and the force command copy it):
-``/joint_states``, ``/cartpole/true_state``, ``/clock`` (the plant),
-``/cartpole/state`` (EKF), ``/cartpole/force_command`` and
-``/cartpole/controller_status`` (controller manager). That stamp is the
-sequence number the ledger counts by. No ROS here; the recorder node feeds it.
+Every 200 Hz topic carries the stamp of its sample (``/joint_states``, ``/cartpole/true_state``,
+``/clock``, ``/cartpole/state``, ``/cartpole/force_command``, ``/cartpole/controller_status``);
+that stamp is the sequence number the ledger counts by. No ROS; the recorder node feeds it.
 
-- **Progress** (lockstep): the oldest of the newest stamps taken on each of
-  these topics that is recorded. When it reaches sample k's stamp the
-  recorder holds every message of every sample up to k; the simulator does
-  not step more than a few samples ahead of it (``recorder_window``), so the
-  publishers' queues never overflow and nothing is lost, on any load.
-- **Repeats** (lockstep): while the graph starts, sample 0 is re-published
-  until a controller answers, and the EKF and the manager answer a repeated
-  sample again; a message with the stamp its topic had last is not a new
-  message and is not written twice. (In real time such a repeat, e.g. the
-  manager's last zero force at the stop, is written.)
-- **Missed** (real time, where nobody waits for the recorder): a message
-  implies the ones it was computed from (a status implies the force command
-  and the estimate of its cycle, a force command the estimate, an estimate
-  the encoder sample, a sample the simulator's ground truth). A stamp seen on one topic but absent on a topic
-  it implies is a message the recorder missed; counted once the stamp is
-  ``horizon_ns`` older than the newest one. Only topics that had a message
-  are implied (no ground truth on the rig). A sample missed on every topic
-  at once is not seen. A message implied before its topic's first message
-  reached the recorder (its publisher not yet discovered, in the first second
-  or so of a real-time run) is counted apart, in ``missed_at_start``.
+- **Progress** (lockstep): the oldest of the newest stamps recorded on each topic. At sample
+  k's stamp the recorder holds every message up to k; the simulator steps at most
+  ``recorder_window`` samples ahead, so no queue overflows on any load.
+- **Repeats** (lockstep): sample 0 is re-published until a controller answers; a message with
+  its topic's last stamp is not written twice (in real time such a repeat is written).
+- **Missed** (real time): a message implies the ones it was computed from (status -> force
+  command -> estimate -> encoder sample -> ground truth). A stamp absent on a topic it implies,
+  once ``horizon_ns`` older than the newest, is a missed message; one implied before its
+  topic's first message arrived (publisher not yet discovered) counts in ``missed_at_start``.
+  Only topics that had a message are implied; a sample missed on every topic is not seen.
+Details: docs/running.md ("Recording").
 """
 from __future__ import annotations
 
