@@ -38,10 +38,13 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 # The firmware tests on the emulated Cortex-M3 need gcc-arm-none-eabi, libnewlib-arm-none-eabi and
 # qemu-system-arm: installed here when missing and we are root (CI); else those tests skip, naming them.
 # Two xdist workers: the ROS-graph tests (marker ros) run one after another on one of them, the
-# rest spread over both at a lower CPU priority (conftest.py). TEST_ARGS adds pytest options.
+# rest spread over both at a lower CPU priority (conftest.py). Then the tests marked alone (the
+# real-time soak) with the machine to themselves (exit 5: TEST_ARGS selected none of them).
+# TEST_ARGS adds pytest options.
 TEST_ARGS ?=
 test: $(STAMP_BUILD) firmware-deps $(STAMP_TRAIN)
-	source ./env.sh && python -m pytest -q -n 2 --dist loadgroup $(TEST_ARGS)
+	source ./env.sh && python -m pytest -q -n 2 --dist loadgroup -m "not alone" $(TEST_ARGS) && \
+	    { python -m pytest -q -m alone $(TEST_ARGS); rc=$$?; [ $$rc -eq 0 ] || [ $$rc -eq 5 ]; }
 
 # The day-to-day loop: no rclpy/DDS (marker ros), no long closed-loop runs (marker slow).
 test-fast: $(STAMP_BUILD)

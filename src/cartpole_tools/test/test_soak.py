@@ -119,14 +119,18 @@ STALL_FAULT = ('stale', 'controller manager in fault for')
 
 @pytest.mark.ros
 @pytest.mark.slow
+@pytest.mark.alone
 def test_forty_seconds_of_soak_pass(tmp_path):
     """The suite's soak (`cartpole soak` runs the long ones): switch every 10 s, restart at
     20 s; the switches and the restart accepted, the bag whole, no process lost, up.
 
-    On the shared development VM the host takes a vCPU away for ~100 ms now and then
-    (/proc/stat steal, docs/soak.md) and the manager's stale check faults: such a fault is
-    accepted only with the stall measured by the soak's own probe (a gap over 50 ms in the
-    samples), and then the pendulum's verdict is not judged; any other fault fails."""
+    ``make test`` runs it alone, after the rest: beside a CPU-bound neighbour at nice 10
+    this soak faulted on a stale state in 2 of 4 runs and its recorder lost the first
+    0.34 s in one more (docs/soak.md). A stall of the loop over 50 ms (a stolen vCPU on the
+    shared VM) still makes the manager fault on a stale state and command zero force, its
+    designed reaction: such a fault is accepted with the stall in the manager's longest
+    cycle gap, and then the pendulum and the recorder's by-stamp count are not judged; any
+    other fault fails."""
     out = tmp_path / 'soak'
     run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'soak',
                           '--duration', '40', '--switch-every', '10', '--restart-every', '20',
@@ -135,16 +139,21 @@ def test_forty_seconds_of_soak_pass(tmp_path):
     result = json.loads(run.stdout)
     assert result['ran_to_the_end'] is True, run.stderr[-3000:]
     assert result['switches'] == 3 and result['restarts'] == 1, result['events']
-    assert result['bag_ok'] is True, result['topics']
+    # Nothing the probe received is missing from the bag, and the bag is whole.
+    assert result['damage'] is None and all(t['missing'] == 0 for t in result['topics'].values()), \
+        (result['damage'], result['topics'], run.stderr[-2000:])
     assert all(t['recorded'] > 3_000 for t in result['topics'].values())
     assert set(result['processes']) == {'sim', 'ekf', 'controller_manager', 'recorder',
                                         'cartpole soak'}
     assert result['memory_ok'] is None  # 30 s after settling: too short to judge
     assert (out / 'soak.md').read_text().startswith('Soak of 4')
     if result['faults']:
+        # A stall: the manager's zero force and status at its stale fault carry its clock,
+        # a stamp no estimate has, which the recorder's ledger counts as missed (docs/soak.md).
         assert all(any(k in f for k in STALL_FAULT) for f in result['faults']), result['faults']
-        assert result['longest_sample_gap_s'] > 0.05, (result['faults'], run.stderr[-3000:])
+        assert result['longest_cycle_gap_s'] > 0.05, (result['faults'], run.stderr[-3000:])
         return
+    assert result['bag_ok'] is True and result['recorder_missed'] == 0, run.stderr[-2000:]
     assert result['up_ok'] is True, result['segments']
     assert len(result['segments']) == 2 and all(s['catch_after_s'] for s in result['segments'])
     assert run.returncode == 0 and result['ok'] is True
