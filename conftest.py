@@ -4,7 +4,9 @@ Every test session gets its own ROS_DOMAIN_ID and localhost-only discovery, so
 concurrent runs on one machine (and the network) never see each other. Set
 before any rclpy import and inherited by every subprocess a test starts.
 """
+import atexit
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -24,6 +26,7 @@ os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 os.environ.setdefault('MPLBACKEND', 'Agg')
 # time_optimal's plan cache: a fresh one per session, never the user's ~/.cache.
 os.environ['CARTPOLE_CACHE_DIR'] = tempfile.mkdtemp(prefix='cartpole-test-cache-')
+atexit.register(shutil.rmtree, os.environ['CARTPOLE_CACHE_DIR'], True)
 
 ROS_GRAPH_GROUP = 'ros_graph'
 """The xdist group of every ``ros`` test: one worker runs them one after another, so no two

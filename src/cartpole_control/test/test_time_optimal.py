@@ -73,6 +73,7 @@ def test_a_second_run_reuses_the_cached_plan(cold_plan_run):
     assert json.loads(again.stdout) == json.loads(first.stdout)
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_activation_only_looks_the_prepared_plan_up(cache_dir, monkeypatch):
     c = configured(cache_dir)  # configure read the plan and built its gains
     assert c.law == 'time_optimal'  # not activated yet: nothing decided
@@ -91,6 +92,7 @@ def test_activation_only_looks_the_prepared_plan_up(cache_dir, monkeypatch):
     assert c.mode == FALLBACK and c.law == 'time_optimal:fallback(not at hanging rest)'
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_a_start_without_a_loaded_plan_loads_it_off_the_cycle_for_the_next_swingup(cache_dir):
     c = configured(cache_dir, precompute=False, plan_on_activation=True)
     start = ControllerState(0.0, 0.0, math.pi, 0.0, 0.0)
@@ -124,6 +126,7 @@ def test_a_start_without_a_loaded_plan_loads_it_off_the_cycle_for_the_next_swing
     assert c.law == 'time_optimal:plan'  # the next one from there: the plan
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_prepare_returns_the_gains_that_load_the_plan_and_solves_nothing_cached(
         cache_dir, monkeypatch):
     from cartpole_control.manager import ControllerManager
@@ -141,6 +144,7 @@ def test_prepare_returns_the_gains_that_load_the_plan_and_solves_nothing_cached(
     assert out.swingup_law == 'time_optimal:plan'
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_plan_is_on_the_control_grid_and_within_its_limits(cache_dir):
     c = configured(cache_dir)
     problem = c.problem_for(0.0)
@@ -156,6 +160,7 @@ def test_plan_is_on_the_control_grid_and_within_its_limits(cache_dir):
     assert problem.start == (0.0, math.pi, 0.0, 0.0)
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_tracking_error_invalidates_the_plan(cache_dir):
     c = configured(cache_dir)
     c.activate(ControllerState(1.0, 0.0, math.pi, 0.0, 0.0))
@@ -170,6 +175,7 @@ def test_tracking_error_invalidates_the_plan(cache_dir):
     assert c.law == 'time_optimal:fallback(tracking error)'  # what ran, kept after the catch
 
 
+@pytest.mark.slow  # cache_dir: the plan solved this session (~10 s of CPU)
 def test_raw_force_leaves_room_for_the_manager_feedforward(cache_dir):
     """raw + B_ff(x_dot, raw) (6.12) is the plan's force at the plan's state."""
     c = configured(cache_dir)

@@ -37,6 +37,7 @@ def bounds():
             for case in to.BOUND_CASES}
 
 
+@pytest.mark.slow  # the bounds fixture solves the optimisation (seconds of CPU)
 @pytest.mark.parametrize('case', to.BOUND_CASES)
 def test_optimiser_reproduces_the_reference_bounds_within_3_percent(bounds, case):
     traj = bounds[case]
@@ -44,6 +45,7 @@ def test_optimiser_reproduces_the_reference_bounds_within_3_percent(bounds, case
     assert traj.final_time == pytest.approx(to.ISSUE_BOUNDS[case], rel=0.03)
 
 
+@pytest.mark.slow  # the bounds fixture solves the optimisation (seconds of CPU)
 @pytest.mark.parametrize('case', to.BOUND_CASES)
 def test_bound_solutions_respect_limits_and_reach_the_region(bounds, case):
     traj = bounds[case]
@@ -103,6 +105,7 @@ def test_problem_round_trips_through_its_json_description():
     assert again == problem and again.key(0.005) == problem.key(0.005)
 
 
+@pytest.mark.slow  # the bounds fixture solves the optimisation (seconds of CPU)
 def test_tracking_gains_stabilise_the_linearised_error(bounds):
     """TV-LQR along a bound solution: a perturbed start converges to the plan on the model."""
     problem = to.bound_problem('middle', P)
