@@ -107,20 +107,21 @@ def load_ros_parameters(path: Path | None, node_name: str) -> dict[str, Any]:
     return boundary.ros_parameters(path, node_name)
 
 
-MANAGER_NODE_PARAMETERS = {'lockstep': (None, None), 'use_sim_time': (None, None),
-                           'lockstep_wait': (0.001, 10.0), 'stamp_tolerance': (0.0, 86400.0)}
-"""The controller_manager node's own parameters a ``ros2 param dump`` holds, with their ranges
-(None: a boolean); the node applies them, the offline loop has no use for them."""
+def manager_node_parameters() -> dict[str, tuple[float | None, float | None]]:
+    """The controller_manager node's own parameters a ``ros2 param dump`` holds, with the
+    ranges it declares them with (None: a boolean); the node applies them, the offline loop
+    has no use for them. (Imported here: the manager's modules are slow for every command.)"""
+    from cartpole_control.manager_parameters import LOCKSTEP_WAIT_RANGE
+    from cartpole_core.message_checks import STAMP_TOLERANCE_RANGE
+    return {'lockstep': (None, None), 'use_sim_time': (None, None),
+            'lockstep_wait': LOCKSTEP_WAIT_RANGE, 'stamp_tolerance': STAMP_TOLERANCE_RANGE}
 
 
 def _node_value(value: Any, low: float | None, high: float | None, source: str) -> None:
-    if low is None:
-        if not isinstance(value, bool):
-            raise boundary.InputError(f'{source}: expected true or false, got {value!r}')
-    elif isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not low <= value <= high:
-        raise boundary.InputError(f'{source}: expected a number in [{low:g}, {high:g}], '
-                                  f'got {value!r}')
+    if low is not None:
+        boundary.number(source, value, low, high)
+    elif not isinstance(value, bool):
+        raise boundary.InputError(f'{source} must be true or false, got {value!r}')
 
 
 def manager_section(nominal: CartPoleParameters, args: argparse.Namespace) -> dict[str, Any]:
@@ -128,13 +129,13 @@ def manager_section(nominal: CartPoleParameters, args: argparse.Namespace) -> di
 
     The construction parameters stay when they differ from what the loop uses (a copy of
     the installed controller_manager.yaml has them at those values), and are refused then;
-    :data:`MANAGER_NODE_PARAMETERS` are checked against their ranges and taken out.
+    :func:`manager_node_parameters` are checked against their ranges and taken out.
     """
     params = dict(load_ros_parameters(getattr(args, 'params', None), 'controller_manager'))
     for name, same in (('plant_params_file', ''), ('sample_time', nominal.sample_time)):
         if params.get(name) == same:
             del params[name]
-    for name, (low, high) in MANAGER_NODE_PARAMETERS.items():
+    for name, (low, high) in manager_node_parameters().items():
         if name in params:
             _node_value(params.pop(name), low, high,
                         f'--params {args.params}: controller_manager: {name}')

@@ -177,14 +177,16 @@ def invoke(argv: list[str]) -> tuple[int | None, str, BaseException | None]:
 
 def children() -> list[str]:
     """The command lines of this process's living children (a viewer left running, say)."""
+    from cartpole_tools.bench.procfs import children as child_pids, stat_fields
+
     found = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
+    for pid in child_pids(os.getpid()):
+        fields = stat_fields(pid)
         try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-            if int(fields[1]) == os.getpid() and fields[0] != 'Z':
-                found.append((stat.parent / 'cmdline').read_bytes().replace(b'\0', b' ')
+            if fields is not None and fields[0] != 'Z':
+                found.append(Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ')
                              .decode(errors='replace')[:120])
-        except (OSError, IndexError, ValueError):
+        except OSError:
             continue   # gone meanwhile
     return found
 

@@ -43,6 +43,7 @@ from cartpole_core.ros_logging import route_to_node
 
 from .controller import ControllerState
 from .manager import FAULT, IDLE, STATUS_KEYS, ControllerManager, ManagerOutput
+from .manager_parameters import LOCKSTEP_WAIT_RANGE
 from .parameter_descriptors import descriptor_for, manager_value, ros_value
 from .status_message import NODE_NAME, status_message
 
@@ -104,7 +105,8 @@ class ControllerManagerNode(Node):
         self.declare_parameter('lockstep_wait', 0.5, ParameterDescriptor(
             description='Lockstep: longest wait for that sample [wall s]; then the cycle runs '
                         'without it.', read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0, step=0.0)]))
+            floating_point_range=[FloatingPointRange(from_value=LOCKSTEP_WAIT_RANGE[0],
+                                                     to_value=LOCKSTEP_WAIT_RANGE[1], step=0.0)]))
         self.declare_parameter('sample_time', 0.005, ParameterDescriptor(
             description='Control period Ts [s] the plugins are designed for', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=1e-4, to_value=0.1, step=0.0)]))

@@ -24,6 +24,9 @@ logger = logging.getLogger(__name__)
 DEFAULT_CONTROLLERS = {SWINGUP: 'pendulum_energy', STABILIZER: 'lqg'}
 """Default plugins (the thesis's pairing in section 9.2.1)."""
 
+LOCKSTEP_WAIT_RANGE = (0.001, 10.0)
+"""[wall s] The range of the node's read-only ``lockstep_wait`` (manager_node)."""
+
 MANAGER_PREFIXES = ('actuator', 'catch', 'fall', 'feedforward', 'predict', 'rail')
 """Parameter groups of the manager itself; a plugin cannot take these names."""
 

@@ -18,7 +18,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 
 from .diagnostics import OK, WARN, Health
-from .message_checks import InputJudge, RigLimits
+from .message_checks import STAMP_TOLERANCE_RANGE, InputJudge, RigLimits
 
 GRAPH_NODES = frozenset({'sim', 'hw_bridge', 'ekf', 'controller_manager', 'recorder', 'viewer',
                          'viewer_tap', 'cartpole_run', 'pulse_player'})
@@ -38,7 +38,8 @@ def declare_stamp_tolerance(node: Node, default: float = STAMP_TOLERANCE) -> flo
         description='Messages stamped further than this from the node clock [s], or with a '
                     'zero stamp, are dropped and counted (refused_inputs); 0 = stamps not '
                     'judged (synthetic or replayed stamps).', read_only=True,
-        floating_point_range=[FloatingPointRange(from_value=0.0, to_value=86400.0, step=0.0)]))
+        floating_point_range=[FloatingPointRange(from_value=STAMP_TOLERANCE_RANGE[0],
+                                                   to_value=STAMP_TOLERANCE_RANGE[1], step=0.0)]))
     return float(node.get_parameter('stamp_tolerance').value)
 
 

@@ -22,6 +22,9 @@ from dataclasses import dataclass
 
 from .model import CartPoleParameters
 
+STAMP_TOLERANCE_RANGE = (0.0, 86400.0)
+"""[s] The range of every node's ``stamp_tolerance`` parameter (0: stamps not judged)."""
+
 CART, PENDULUM = 'cart', 'pendulum'
 
 SAMPLE, STATE, TRUTH, COMMAND = 'sample', 'state', 'truth', 'command'
