@@ -144,12 +144,11 @@ def test_processes_lockstep_is_deterministic(tmp_path):
 
     The lockstep waits are liveness fallbacks in wall seconds (the simulator's
     ``lockstep_timeout``, 1 s; the EKF's and the controller manager's ``lockstep_wait``,
-    0.5 s): past one a node goes on without the message, which no run repeats. A 2-core CI
-    machine running a second test worker twice made two such runs differ, so here they are
-    60 s and 10 s. The runs are recorded (as ``make run`` does) and summarised from their
-    bags: without a bag the summary comes from the run monitor's own series, and in 2 of
-    about 12 runs under xdist that series differed in its last window (a monitor-side
-    loss, not the loop: the same runs recorded agree to the last bit)."""
+    0.5 s): past one a node goes on without the message, which no run repeats, and a loaded
+    2-core machine can stall a node that long; here they are 60 s and 10 s. The runs are
+    recorded (as ``make run`` does) and summarised from their bags: the run monitor's own
+    series, the summary without a bag, has differed in its last window under load
+    (docs/running.md, "`cartpole run`"), which is not the loop's determinism."""
     params = tmp_path / 'lockstep.yaml'
     params.write_text('sim:\n  ros__parameters:\n    lockstep_timeout: 60.0\n'
                       'ekf:\n  ros__parameters:\n    lockstep_wait: 10.0\n'

@@ -5,7 +5,8 @@ the cart error, the weights of (8.15)) made to respect what the LQR
 (8.16)-(8.18) cannot see: every predicted force inside what the amplifier
 gives (Appendix C, scaled by the gain of the manager's plant estimate) less
 the friction feedforward (6.12) the manager adds, and the cart inside the
-rail guard's limiter boundary (soft, heavily weighted: the guard holds it). Its model may hold the actuator's lag and a dead time
+rail guard's limiter boundary (soft, heavily weighted: the guard holds it).
+Its model may hold the actuator's lag and a dead time
 (:mod:`cartpole_control.mpc_model`); each cycle the QP of
 :mod:`cartpole_control.mpc_qp`, built once per configure, is solved warm and
 its first move applied (Mayne et al., Automatica 36, 2000). The terminal cost
