@@ -23,8 +23,11 @@ rclpy.init()
 node = Node('intruder')
 topics = ('joint_states', 'cartpole/force_command', 'cartpole/state')
 pubs = {t: node.create_publisher(JointState, t, 10) for t in topics}
+# every subscriber of the graph matched (their counts in argv), not only the first one
+expected = dict(zip(topics, (int(n) for n in sys.argv[2:5])))
 deadline = time.monotonic() + 20.0
-while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
+while time.monotonic() < deadline and not all(
+        pubs[t].get_subscription_count() >= max(expected[t], 1) for t in topics):
     rclpy.spin_once(node, timeout_sec=0.05)
 print('ready', flush=True)
 sys.stdin.readline()   # go: the pendulum balances
@@ -103,7 +106,9 @@ def test_a_foreign_node_s_bad_messages_are_dropped_while_the_pendulum_balances(
         # Started once the graph balances: a publisher on the graph's topics before the run
         # has claimed its namespace is another graph to the run's duplicate check, which
         # then refuses to start (as it should).
-        intruder = subprocess.Popen([sys.executable, '-c', INTRUDER, str(ROUNDS)],
+        subscribers = [str(probe.count_subscribers('/' + t))
+                       for t in ('joint_states', 'cartpole/force_command', 'cartpole/state')]
+        intruder = subprocess.Popen([sys.executable, '-c', INTRUDER, str(ROUNDS), *subscribers],
                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
         assert intruder.stdout.readline().strip() == 'ready', intruder.stderr.read()
