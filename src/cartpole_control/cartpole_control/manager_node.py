@@ -4,9 +4,9 @@ Wiring only; every decision is the manager's. Each ``cartpole/state``
 (JointState, joints ``cart``/``pendulum``) runs one control cycle at once and
 publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp) and
 ``cartpole/controller_status``; a repeated stamp gets the same answer again.
-With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``) for
-the encoders' sample it was estimated from, so lockstep runs are the same run
-whatever the delivery order. The plugins' parameters are ROS parameters:
+With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``; the
+first one, while the graph discovers, up to 10 s) for the encoders' sample it
+was estimated from, so lockstep runs are the same run whatever the delivery order. The plugins' parameters are ROS parameters:
 validated (and the new plugin staged) in the on-set callback, queued in the
 post-set callback, swapped in between two cycles. A stale-state timer on the
 node clock faults with zero force when the states stop for ``state_timeout``
@@ -56,6 +56,10 @@ STALE_CHECK_PERIOD = 0.01
 STALE_CHECK_SLACK = 2 * STALE_CHECK_PERIOD
 """Most of one interval between two stale checks counted as time without a state [s];
 a longer interval is a stall of this process (module docstring)."""
+STARTUP_SAMPLE_WAIT = 10.0
+"""Lockstep: wall seconds the first state waits for its sample before any has arrived (the
+graph may still be discovering: up to about 3 s with Fast DDS); later states wait
+``lockstep_wait``."""
 LAST_COMMAND_ACK_TIMEOUT = 1.0
 """Longest wait on shutdown for every subscriber to acknowledge the last zero force [s]
 (a dead subscriber never does; the node goes after this)."""
@@ -149,6 +153,8 @@ class ControllerManagerNode(Node):
         self._newest_sample_ns: int | None = None
         """Stamp of the newest encoders' sample received on joint_states [ns]."""
         self._held_state: JointState | None = None
+        self._held_since = 0.0
+        """time.monotonic() when the held state's stamp was first held [s]."""
         """Lockstep: a state whose sample has not arrived yet (see _on_state)."""
         self.lockstep_timeouts = 0
         """Lockstep: states run without their sample after lockstep_wait."""
@@ -222,11 +228,18 @@ class ControllerManagerNode(Node):
             return
         if self._lockstep:
             newest = self._newest_sample_ns
-            if newest is None or newest < _stamp_ns(msg.header.stamp):
-                if self._held_state is not None:  # a newer state: the old one runs now
-                    self._release_held_state()
+            stamp_ns = _stamp_ns(msg.header.stamp)
+            if newest is None or newest < stamp_ns:
+                held = self._held_state
+                if held is None or _stamp_ns(held.header.stamp) != stamp_ns:
+                    # The same state again (the simulator re-publishes sample 0 until the
+                    # loop answers) keeps waiting on the first one's timer; a newer one
+                    # releases the old.
+                    if held is not None:
+                        self._release_held_state()
+                    self._hold_timer.reset()
+                    self._held_since = time.monotonic()
                 self._held_state = msg
-                self._hold_timer.reset()
                 self._last_state_ns = self.get_clock().now().nanoseconds  # the EKF is not silent
                 self._silent_ns = 0
                 return
@@ -241,6 +254,9 @@ class ControllerManagerNode(Node):
         if self._held_state is None:
             self._hold_timer.cancel()
             return
+        if self._newest_sample_ns is None and \
+                time.monotonic() - self._held_since < STARTUP_SAMPLE_WAIT:
+            return  # the graph may still be discovering: joint_states not yet matched
         self.lockstep_timeouts += 1
         self.get_logger().warning(
             f'lockstep: the sample of the state at t = '
@@ -301,8 +317,9 @@ class ControllerManagerNode(Node):
         if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
             return
         stamp_ns = _stamp_ns(msg.header.stamp)
-        if self._newest_sample_ns is None or stamp_ns > self._newest_sample_ns:
-            self._newest_sample_ns = stamp_ns
+        if self._newest_sample_ns is not None and stamp_ns <= self._newest_sample_ns:
+            return  # a re-published sample 0, or one overtaken: the estimates have it or a newer
+        self._newest_sample_ns = stamp_ns
         try:
             self._measured(msg)
         finally:
