@@ -9,6 +9,9 @@ STAMP_BUILD := install/.built
 STAMP_TRAIN := $(VENV)/.train-installed
 PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
+# Byte-code caches on (git ignores them): without them every test run re-writes the tests'
+# asserts (5 s a collection) and every `cartpole` subprocess compiles the packages again.
+unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: run test test-fast docs train-deps build venv clean bench help firmware-deps
 
@@ -48,7 +51,7 @@ test: $(STAMP_BUILD) firmware-deps $(STAMP_TRAIN)
 
 # The day-to-day loop: no rclpy/DDS (marker ros), no long closed-loop runs (marker slow).
 test-fast: $(STAMP_BUILD)
-	source ./env.sh && python -m pytest -q -n 2 -m "not ros and not slow" $(TEST_ARGS)
+	source ./env.sh && python -m pytest -q -n 2 --dist loadscope -m "not ros and not slow" $(TEST_ARGS)
 
 # The documentation site (Sphinx, MyST Markdown, the API reference from the docstrings).
 docs: $(STAMP_BUILD)

@@ -145,10 +145,26 @@ def cold_plan_run(tmp_path_factory):
     cache (a fresh directory): ``(cache directory, CompletedProcess)``.
 
     The run solves the default start's plan first (about 10 s); tests that need that
-    plan use this cache directory instead of solving it again.
+    plan use this cache directory instead of solving it again. Under xdist the first
+    worker that needs it runs it (the others wait on a lock) and each worker gets its
+    own copy of the cache it left.
     """
+    import fcntl
+    import json
+
+    mine = tmp_path_factory.getbasetemp()
+    shared = mine.parent if _WORKER else mine   # xdist: <session>/popen-gwN
+    solved, record = shared / 'plan-cache-cold', shared / 'plan-cache-cold.json'
+    with open(shared / 'plan-cache-cold.lock', 'w') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not record.exists():
+            solved.mkdir()
+            run = subprocess.run(
+                [sys.executable, '-m', 'cartpole_bringup.cli', 'offline', '--swingup',
+                 'time_optimal', '--json'], capture_output=True, text=True, timeout=900,
+                env=dict(os.environ, CARTPOLE_CACHE_DIR=str(solved)))
+            record.write_text(json.dumps([run.args, run.returncode, run.stdout, run.stderr]))
+    args, code, out, err = json.loads(record.read_text())
     cache = tmp_path_factory.mktemp('plan-cache')
-    run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'offline', '--swingup',
-                          'time_optimal', '--json'], capture_output=True, text=True, timeout=900,
-                         env=dict(os.environ, CARTPOLE_CACHE_DIR=str(cache)))
-    return cache, run
+    shutil.copytree(solved, cache, dirs_exist_ok=True)
+    return cache, subprocess.CompletedProcess(args, code, out, err)
