@@ -61,10 +61,17 @@ def test_the_prediction_saves_lqg_under_25_ms_of_delay():
     scenario = Scenario(noise=True, seed=0, delay=0.025, jitter=0.005)
     plain = run_closed_loop(P, scenario, duration=20.0, stop_on_failure=True,
                             manager_parameters={'stabilizer': 'lqg', 'predict.horizon': 0.0,
-                                                'actuator.delay': 0.0})
+                                                'actuator.delay': 0.0,
+                                                'lqg.dead_time_weight_max': 1.0})
     predicted = run_closed_loop(P, scenario, duration=20.0,
                                 manager_parameters={'stabilizer': 'lqg',
-                                                    'predict.horizon': 0.015})
+                                                    'predict.horizon': 0.015,
+                                                    'lqg.dead_time_weight_max': 1.0})
     assert not plain.summary['success']
     assert predicted.summary['success']
     assert not predicted.end_stop_contact
+    # The gain solved at the catch for the measured dead time (R x 5) saves it too.
+    weighted = run_closed_loop(P, scenario, duration=20.0,
+                               manager_parameters={'stabilizer': 'lqg', 'predict.horizon': 0.0,
+                                                   'actuator.delay': 0.0})
+    assert weighted.summary['success'] and not weighted.end_stop_contact
