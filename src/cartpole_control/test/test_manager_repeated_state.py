@@ -62,10 +62,10 @@ def _sample(t):
     return msg
 
 
-def test_in_lockstep_a_state_waits_for_its_own_sample(ros_context, spin_until):
-    """``lockstep:=true``: the cycle of the state at t runs once the encoders' sample at t
-    has arrived on joint_states (so the samples and reports before it are taken first,
-    whatever the delivery order); a sample that never comes holds it ``lockstep_wait``."""
+@pytest.fixture
+def lockstep_manager(ros_context, spin_until):
+    """A ``lockstep:=true`` controller manager (``lockstep_wait`` 0.5 s) and a test node that
+    publishes states and samples to it: ``(manager, executor, states, samples, commands)``."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
@@ -89,66 +89,49 @@ def test_in_lockstep_a_state_waits_for_its_own_sample(ros_context, spin_until):
         assert spin_until(executor, lambda: states.get_subscription_count() == 1
                           and samples.get_subscription_count() == 1
                           and node.count_publishers('/cartpole/force_command') == 1, 10.0)
-        states.publish(_state(0.0))
-        assert spin_until(executor, lambda: manager._held_state is not None, 5.0)
-        assert commands == [] and manager.manager.catch_count == 0
-        samples.publish(_sample(0.0))
-        assert spin_until(executor, lambda: len(commands) == 1, 5.0)
-        assert manager._held_state is None and manager.lockstep_timeouts == 0
-        # The sample of 5 ms never comes: the state runs after lockstep_wait, counted.
-        states.publish(_state(0.005))
-        assert spin_until(executor, lambda: len(commands) == 2, 5.0)
-        assert manager.lockstep_timeouts == 1
+        yield manager, executor, states, samples, commands
     finally:
         executor.shutdown()
         manager.destroy_node()
         node.destroy_node()
+
+
+def test_in_lockstep_a_state_waits_for_its_own_sample(lockstep_manager, spin_until):
+    """``lockstep:=true``: the cycle of the state at t runs once the encoders' sample at t
+    has arrived on joint_states (so the samples and reports before it are taken first,
+    whatever the delivery order); a sample that never comes holds it ``lockstep_wait``."""
+    manager, executor, states, samples, commands = lockstep_manager
+    states.publish(_state(0.0))
+    assert spin_until(executor, lambda: manager._held_state is not None, 5.0)
+    assert commands == [] and manager.manager.catch_count == 0
+    samples.publish(_sample(0.0))
+    assert spin_until(executor, lambda: len(commands) == 1, 5.0)
+    assert manager._held_state is None and manager.lockstep_timeouts == 0
+    # The sample of 5 ms never comes: the state runs after lockstep_wait, counted.
+    states.publish(_state(0.005))
+    assert spin_until(executor, lambda: len(commands) == 2, 5.0)
+    assert manager.lockstep_timeouts == 1
     assert [c.header.stamp.nanosec for c in commands] == [0, 5_000_000]
 
 
-def test_in_lockstep_a_repeated_state_keeps_waiting_for_its_sample(ros_context, spin_until):
+def test_in_lockstep_a_repeated_state_keeps_waiting_for_its_sample(lockstep_manager, spin_until):
     """The simulator re-publishes sample 0 until the loop answers, and the EKF its estimate:
     a second state 0 that arrives before the manager's joint_states subscription has matched
-    keeps waiting; it once released the first, which ran without sample 0, so the natural
-    frequency estimate of two lockstep runs differed (mse_x 0.005469 vs 0.005383)."""
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.parameter import Parameter
-    from sensor_msgs.msg import JointState
-
-    from cartpole_control.manager_node import ControllerManagerNode
-
-    manager = ControllerManagerNode(context=ros_context, parameter_overrides=[
-        Parameter('lockstep', value=True), Parameter('lockstep_wait', value=0.5),
-        Parameter('stamp_tolerance', value=0.0)])  # synthetic stamps from t = 0
-    node = Node('repeat_hold_test', context=ros_context)
-    commands = []
-    node.create_subscription(JointState, '/cartpole/force_command', commands.append, 100)
-    states = node.create_publisher(JointState, '/cartpole/state', 10)
-    samples = node.create_publisher(JointState, '/joint_states', 10)
-    executor = SingleThreadedExecutor(context=ros_context)
-    for n in (manager, node):
-        executor.add_node(n)
-    try:
-        assert spin_until(executor, lambda: states.get_subscription_count() == 1
-                          and samples.get_subscription_count() == 1
-                          and node.count_publishers('/cartpole/force_command') == 1, 10.0)
-        states.publish(_state(0.0))
-        assert spin_until(executor, lambda: manager._held_state is not None, 5.0)
-        first = manager._held_state
-        states.publish(_state(0.0))
-        assert spin_until(executor, lambda: manager._held_state is not first, 5.0)
-        assert manager._last_command is None  # no cycle ran without sample 0
-        for _ in range(2):  # sample 0, then its re-publication (taken once)
-            samples.publish(_sample(0.0))
-        assert spin_until(executor, lambda: len(commands) == 1, 5.0)
-        samples.publish(_sample(0.005))
-        states.publish(_state(0.005))
-        assert spin_until(executor, lambda: len(commands) == 2, 5.0)
-    finally:
-        executor.shutdown()
-        manager.destroy_node()
-        node.destroy_node()
+    keeps waiting, and sample 0 is taken once, so that the natural-frequency estimate of every
+    lockstep run starts from the same samples (docs/running.md, "`cartpole run`")."""
+    manager, executor, states, samples, commands = lockstep_manager
+    states.publish(_state(0.0))
+    assert spin_until(executor, lambda: manager._held_state is not None, 5.0)
+    first = manager._held_state
+    states.publish(_state(0.0))
+    assert spin_until(executor, lambda: manager._held_state is not first, 5.0)
+    assert manager._last_command is None  # no cycle ran without sample 0
+    for _ in range(2):  # sample 0, then its re-publication (taken once)
+        samples.publish(_sample(0.0))
+    assert spin_until(executor, lambda: len(commands) == 1, 5.0)
+    samples.publish(_sample(0.005))
+    states.publish(_state(0.005))
+    assert spin_until(executor, lambda: len(commands) == 2, 5.0)
     assert manager.lockstep_timeouts == 0
     window = manager.manager.plant_estimate.natural_frequency.window
     assert list(window.t) == [0.0]  # sample 0 taken once, by the cycle at 5 ms

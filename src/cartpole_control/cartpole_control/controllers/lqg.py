@@ -67,11 +67,9 @@ gain is solved again at the catch."""
 DEAD_TIME_SCALE = 0.01
 """[s] The loop's measured dead time D weighs the input by R (1 + (D / this)^2) at the catch
 (docs/robustness.md, "The stabiliser's gain and the dead time")."""
-
-
 DEAD_TIME_WEIGHT_MAX = 5.0
 """The most the dead time multiplies R by (``lqg.dead_time_weight_max``): softer, the cart
-wanders under stiction (x 10: 174 of 200 combined runs, x 5: 178, x 3: 176)."""
+wanders under stiction (docs/robustness.md)."""
 
 
 def dead_time_weight(r: float, dead_time: float,
@@ -80,10 +78,9 @@ def dead_time_weight(r: float, dead_time: float,
     most ``most`` R.
 
     The prediction over the measured latency is only as good as the model, and the
-    amplifier's lag is not in it: the faster the gain, the less of that it tolerates. On
-    the combined benchmark's runs with 12-25 ms of delay and up to 30 ms of lag the thesis's
-    R (8.23) left limit cycles of 2.4-6.5 deg that R x 10 removes; with no dead time
-    (the thesis's rig, 5 ms sampling) R stays.
+    amplifier's lag is not in it: the faster the gain, the less of that it tolerates. With
+    no dead time R stays. Why 10 ms and 5 R: docs/robustness.md ("The stabiliser's gain and
+    the dead time").
     """
     return r * min(1.0 + (max(dead_time, 0.0) / DEAD_TIME_SCALE) ** 2, most)
 
@@ -105,7 +102,7 @@ class LqgStabilizer(Controller):
                       low=1e-8, high=1e6),
         ParameterSpec('dead_time_weight_max', DEAD_TIME_WEIGHT_MAX,
                       'at the catch R is solved again as R (1 + (D / 10 ms)^2) for the loop\'s '
-                      'measured dead time D, at most this many times R; 1 keeps R',
+                      'measured dead time D, at most this many times R; 1 keeps R [-]',
                       low=1.0, high=100.0),
     )
 
