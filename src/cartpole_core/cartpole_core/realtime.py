@@ -15,6 +15,7 @@ Design notes, log lines and measurements: (docs/realtime.md, "Real-time priority
 """
 from __future__ import annotations
 
+import ctypes
 import gc
 import os
 import resource
@@ -161,6 +162,8 @@ class LoopHygiene:
     _previous_rttime: tuple[int, int] | None = field(default=None, repr=False)
     _previous_xcpu: object = field(default=None, repr=False)
     _left: bool = field(default=False, repr=False)
+    memory_locked: bool = False
+    """The pages mapped at start-up are locked in memory (:func:`lock_memory`)."""
 
     def demote(self, why: str) -> None:
         """Back to normal scheduling for every thread (idempotent); logs ``why``."""
@@ -189,6 +192,9 @@ class LoopHygiene:
             except OSError:
                 pass
             self.priority = 0
+        if self.memory_locked:
+            unlock_memory()
+            self.memory_locked = False
         if self._previous_rttime is not None:
             try:
                 resource.setrlimit(resource.RLIMIT_RTTIME, self._previous_rttime)
@@ -202,6 +208,36 @@ class LoopHygiene:
         if self._previous_thresholds is not None:
             gc.set_threshold(*self._previous_thresholds)
             gc.unfreeze()
+
+
+MCL_CURRENT, MCL_ONFAULT = 1, 4
+"""mlockall(2) flags: what is mapped now, locked as it is touched (nothing pre-faulted)."""
+
+
+def lock_memory() -> str | None:
+    """Lock the pages mapped now (the interpreter, the libraries, DDS) in memory, each as it is
+    touched: None on success, else why not.
+
+    A real-time thread that touches a code page the kernel evicted waits for the disk: a
+    neighbour that reads many files (a test suite, a build) evicts them, and a loop process
+    stopped for 330-355 ms (docs/soak.md). Later mappings (heap growth) are not locked, so
+    no allocation can fail on ``RLIMIT_MEMLOCK``.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.mlockall(MCL_CURRENT | MCL_ONFAULT) == 0:
+            return None
+        return os.strerror(ctypes.get_errno())
+    except (OSError, AttributeError) as error:
+        return str(error)
+
+
+def unlock_memory() -> None:
+    """Undo :func:`lock_memory`."""
+    try:
+        ctypes.CDLL(None, use_errno=True).munlockall()
+    except (OSError, AttributeError):
+        pass
 
 
 def _guard_runaway(hygiene: LoopHygiene) -> bool:
@@ -273,6 +309,14 @@ def enter_loop(priority: int | None = None, *, log: Callable[[str], None] = prin
             parts.insert(0, f'SCHED_FIFO priority {priority} on {threads} threads'
                          + (f' (back to normal after {RUNAWAY_LIMIT:g} s without blocking)'
                             if guarded else ''))
+            refused = lock_memory()
+            if refused is None:
+                hygiene.memory_locked = True
+                parts.insert(1, 'memory locked')
+            else:
+                problems.append(f'memory not locked ({refused}): a page evicted under load '
+                                'stalls the loop; allow it with CAP_IPC_LOCK or a memlock '
+                                'limit (ulimit -l unlimited, /etc/security/limits.conf)')
     hygiene.message = f'{what}: real-time: ' + '; '.join(parts + problems)
     (warn if problems else log)(hygiene.message)
     return hygiene

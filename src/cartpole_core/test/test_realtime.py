@@ -124,6 +124,47 @@ def test_fifo_on_every_thread_then_normal_again():
     assert lines[2] == f'after [{os.SCHED_OTHER}]'
 
 
+def test_in_real_time_the_pages_mapped_are_locked_then_unlocked():
+    """mlockall(MCL_CURRENT | MCL_ONFAULT): nothing evicted under a neighbour's file reads
+    stalls the loop, and nothing is faulted in for it (the resident size stays)."""
+    if not fifo_permitted():
+        pytest.skip('SCHED_FIFO not permitted here')
+    result = run_child('''
+        from cartpole_core import realtime
+
+        def status(key):
+            for line in open('/proc/self/status'):
+                if line.startswith(key + ':'):
+                    return int(line.split()[1])
+        rss = status('VmRSS')
+        hygiene = realtime.enter_loop(5, log=print)
+        print('during', hygiene.memory_locked, status('VmLck') > 0,
+              status('VmRSS') < rss + 20_000)
+        hygiene.leave()
+        print('after', hygiene.memory_locked, status('VmLck'))
+    ''')
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert 'memory locked' in lines[0], lines[0]
+    assert lines[1:] == ['during True True True', 'after False 0']
+
+
+def test_memory_not_locked_says_how_to_allow_it(monkeypatch):
+    if not fifo_permitted():
+        pytest.skip('SCHED_FIFO not permitted here')
+    monkeypatch.setattr(realtime, 'lock_memory', lambda: 'Cannot allocate memory')
+    monkeypatch.setattr(realtime, '_set_policy', lambda policy, priority: 1)
+    warnings = []
+    hygiene = realtime.enter_loop(20, log=print, warn=warnings.append, what='sim')
+    try:
+        assert hygiene.priority == 20 and not hygiene.memory_locked
+        (line,) = warnings
+        assert 'memory not locked (Cannot allocate memory)' in line and 'ulimit -l' in line
+    finally:
+        hygiene.priority = 0  # nothing was really changed
+        hygiene.leave()
+
+
 def test_a_runaway_thread_drops_the_process_back_to_normal_priority():
     """RLIMIT_RTTIME: a real-time thread that never blocks cannot starve the machine."""
     if not fifo_permitted():
