@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import daqp  # the default solver, loaded with the plugins: not read from disk at a switch
 import numpy as np
 
 SOLVERS = ('daqp', 'osqp', 'casadi_daqp', 'casadi_qpoases', 'casadi_osqp', 'casadi_proxqp')
@@ -44,7 +45,6 @@ class DaqpBackend:
     """DAQP's exit flag when ``time_limit`` stopped it."""
 
     def __init__(self, qp: Any) -> None:
-        import daqp
         self.qp = qp
         self.upper = np.concatenate([qp.variable_high, qp.row_high])
         self.lower = np.concatenate([qp.variable_low, qp.row_low])

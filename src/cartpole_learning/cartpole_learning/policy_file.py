@@ -19,6 +19,9 @@ with the reason; :meth:`Policy.force` is the forward pass.
 """
 from __future__ import annotations
 
+# zipfile decodes the .npz's member names with cp437: imported with the plugin, not read
+# from disk in the manager's executor while a switch loads a policy file.
+import encodings.cp437  # noqa: F401
 import json
 import math
 import os
