@@ -6,7 +6,8 @@ publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp) and
 ``cartpole/controller_status``; a repeated stamp gets the same answer again.
 With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``; the
 first one, while the graph discovers, up to 10 s) for the encoders' sample it
-was estimated from, so lockstep runs are the same run whatever the delivery order. The plugins' parameters are ROS parameters:
+was estimated from, so lockstep runs are the same run whatever the delivery
+order. The plugins' parameters are ROS parameters:
 validated (and the new plugin staged) in the on-set callback, queued in the
 post-set callback, swapped in between two cycles. A stale-state timer on the
 node clock faults with zero force when the states stop for ``state_timeout``
@@ -153,9 +154,9 @@ class ControllerManagerNode(Node):
         self._newest_sample_ns: int | None = None
         """Stamp of the newest encoders' sample received on joint_states [ns]."""
         self._held_state: JointState | None = None
+        """Lockstep: a state whose sample has not arrived yet (see _on_state)."""
         self._held_since = 0.0
         """time.monotonic() when the held state's stamp was first held [s]."""
-        """Lockstep: a state whose sample has not arrived yet (see _on_state)."""
         self.lockstep_timeouts = 0
         """Lockstep: states run without their sample after lockstep_wait."""
         self._hold_timer = None

@@ -135,7 +135,6 @@ def test_changing_q_recomputes_the_gain():
     assert np.all(np.abs(lqg.gain) < np.abs(expected))  # costlier input -> smaller gains
 
 
-
 def test_at_the_catch_the_loop_s_dead_time_weighs_r_and_none_leaves_the_gain():
     """R (1 + (D / 10 ms)^2), at most 5 R: with the 20 ms the manager measured the gain is
     solved for 5 R (a slower loop, less of the amplifier's lag excited); without dead time the
@@ -166,6 +165,7 @@ def test_at_the_catch_the_loop_s_dead_time_weighs_r_and_none_leaves_the_gain():
                         weights[4])[0]
     assert controller.gain == pytest.approx(expected[:4])
     assert abs(controller.gain[1]) < 0.6 * abs(configured_gain[1])
+
 
 @pytest.mark.parametrize('gains, reason', [
     ({'q': (100.0, 400.0, 100.0)}, 'needs 4 entries'),

@@ -132,12 +132,11 @@ class LqgStabilizer(Controller):
         self.solved_for = self.context.plant
         """The plant model of the gain in use (the nominal one, or the estimate at the catch)."""
 
-    def _solve(self, plant, dead_time: float = 0.0) -> None:
+    def _solve(self, plant, r_factor: float = 1.0) -> None:
         weights = [float(v) for v in self.gains['q']]
         a, b = linearise_upright(plant)
         q_i = weights[4] if len(weights) == 5 else 0.0
-        r = np.array([[dead_time_weight(float(self.gains['r']), dead_time,
-                                        float(self.gains['dead_time_weight_max']))]])
+        r = np.array([[r_factor * float(self.gains['r'])]])
         k_aug = lqi_gain(a, b, np.diag(weights[:4]), r, q_i)[0]
         self.gain = k_aug[:4]
         self.integral_gain = float(k_aug[4])
@@ -157,12 +156,12 @@ class LqgStabilizer(Controller):
         self._clock.reset(state.t)
         estimate = self.context.plant_estimate
         plant = estimate.estimated_plant() if estimate is not None else self.context.plant
-        dead_time = estimate.dead_time if estimate is not None else 0.0
-        most = float(self.gains['dead_time_weight_max'])
+        r_factor = dead_time_weight(1.0, estimate.dead_time if estimate is not None else 0.0,
+                                    float(self.gains['dead_time_weight_max']))
         if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE or \
-                dead_time_weight(1.0, dead_time, most) > 1.0 + RESOLVE_TOLERANCE:
+                r_factor > 1.0 + RESOLVE_TOLERANCE:
             try:
-                self._solve(plant, dead_time)
+                self._solve(plant, r_factor)
                 self.solved_for = plant
                 return
             except ValueError:
