@@ -22,6 +22,11 @@ from .processes import stop_node_process
 
 ZERO_FORCE_TIMEOUT = 2.0
 """Wall seconds to wait for the zero force command after disabling the controllers."""
+ZERO_FORCE_APPLIED_TIMEOUT = 2.0
+"""Wall seconds to wait for a simulator sample with the zero force applied, in real time."""
+LOCKSTEP_ZERO_FORCE_APPLIED_TIMEOUT = 10.0
+"""The same in lockstep, where the simulator steps only as fast as the recorder takes
+its samples (``recorder_window``): on a loaded machine that can be seconds behind."""
 EXIT_TIMEOUT = 5.0
 """Wall seconds a child process gets after SIGINT (then SIGTERM, and SIGKILL 2 s later)."""
 RECORDER_EXIT_TIMEOUT = 15.0
@@ -109,7 +114,11 @@ class StopSequence:
             warnings.append('no zero force command seen after disabling the controller '
                             '(the plant watchdog zeroes the force)')
         elif self.spec.plant == 'sim':
-            self.wait(lambda: m.zero_force_samples > applied_before, ZERO_FORCE_TIMEOUT)
+            timeout = LOCKSTEP_ZERO_FORCE_APPLIED_TIMEOUT if self.spec.lockstep \
+                else ZERO_FORCE_APPLIED_TIMEOUT
+            if not self.wait(lambda: m.zero_force_samples > applied_before, timeout):
+                warnings.append(f'no simulator sample with the zero force applied within '
+                                f'{timeout:g} s; stopping the simulator without one')
         return warnings
 
     def _destroy_in_order(self, order: list[str]) -> None:
