@@ -25,6 +25,10 @@ GRAPH_NODES = frozenset({'sim', 'hw_bridge', 'ekf', 'controller_manager', 'recor
 """The names of the graph's nodes (and of the tools that publish on its topics):
 any other publisher on a topic the graph owns is foreign."""
 
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
+"""The node name DDS gives a publisher whose node it has not discovered yet (a graph's own
+node at start-up, too): not named foreign until its name is known."""
+
 FOREIGN_CHECK_PERIOD = 1.0
 """Seconds between two looks at a topic's publishers (graph introspection is not free)."""
 
@@ -101,7 +105,8 @@ class InputGuard:
             except Exception:  # noqa: BLE001 - the context is going: nothing to name
                 return self._foreign
             nodes = sorted({f'{info.node_namespace.rstrip("/")}/{info.node_name}'
-                            for info in infos if info.node_name not in GRAPH_NODES})
+                            for info in infos
+                            if info.node_name not in GRAPH_NODES and info.node_name != UNKNOWN_NODE})
             if nodes:
                 found[topic] = nodes
                 for who in nodes:
