@@ -159,6 +159,33 @@ def test_the_qp_is_built_once_per_configure_and_never_in_update():
     assert CondensedQp.constructions == before + 2
 
 
+def test_at_the_catch_the_qp_is_built_for_the_measured_dead_time_and_none_keeps_it():
+    """As lqg's gain: with 20 ms of measured dead time the QP (and its terminal LQR) is built
+    again for 5 R at activation, a slower loop; without dead time the configured QP stays."""
+    from dataclasses import replace
+
+    from cartpole_control.plant_estimate import PlantEstimate
+
+    estimate = PlantEstimate(P, P.sample_time)
+    plugin = MpcStabilizer()
+    plugin.configure({}, replace(CONTEXT, plant_estimate=estimate))
+    nominal_qp, nominal_gain = plugin.qp, plugin.gain.copy()
+    upright = ControllerState(0.0, P.x_middle, 0.0, 0.0, 0.0)
+    plugin.activate(upright)
+    assert plugin.qp is nominal_qp and np.array_equal(plugin.gain, nominal_gain)
+    for source in range(50):  # commands act 20 ms after the sample they were computed from
+        estimate.latency.report(source * 0.005, source * 0.005 + 0.02)
+    plugin.deactivate()
+    plugin.activate(upright)
+    weighted = configured(r=5 * plugin.gains['r'])
+    assert plugin.qp is not nominal_qp
+    np.testing.assert_allclose(plugin.gain, weighted.gain, rtol=1e-9)
+    assert abs(plugin.gain[1]) < 0.6 * abs(nominal_gain[1])
+    state = ControllerState(0.005, P.x_middle + 0.01, 0.01, 0.0, 0.0)
+    u = plugin.update(state)  # no constraint active: the weighted terminal LQR's move
+    assert u == pytest.approx(-float(weighted.gain @ z_of(plugin, state)), abs=1e-6)
+
+
 PUSHED = ControllerState(12.12, P.x_middle + 0.0537, 0.1594, 0.3958, 1.374)
 """The estimate 120 ms into a 6 N s cart push (seed 1 of the push test): the terminal LQR asks
 for -299 N, and the amplifier's bound is active over dozens of predicted steps."""

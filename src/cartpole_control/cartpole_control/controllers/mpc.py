@@ -8,7 +8,8 @@ the friction feedforward (6.12) the manager adds, and the cart inside the
 rail guard's limiter boundary (soft, heavily weighted: the guard holds it).
 Its model may hold the actuator's lag and a dead time
 (:mod:`cartpole_control.mpc_model`); each cycle the QP of
-:mod:`cartpole_control.mpc_qp`, built once per configure, is solved warm and
+:mod:`cartpole_control.mpc_qp`, built once per configure (and at the catch again for
+the plant the manager estimated, as ``lqg`` solves its gain again), is solved warm and
 its first move applied (Mayne et al., Automatica 36, 2000). The terminal cost
 is the discrete Riccati solution, so without an active constraint the move is
 the terminal LQR's ``-K_d s``. A failed or late solve applies the previous
@@ -26,7 +27,8 @@ from ..mpc_model import PLANT_STATES, prediction_model
 from ..mpc_qp import NONE, CondensedQp, QpSettings
 from ..mpc_solvers import SOLVERS
 from . import ConditionalIntegrator, StepClock
-from .lqg import augmented_model
+from .lqg import (DEAD_TIME_WEIGHT_MAX, RESOLVE_TOLERANCE, augmented_model,
+                  dead_time_weight)
 
 DEFAULT_HORIZON = 200
 """Prediction steps (1 s at 5 ms); see docs/controllers.md for the measurement behind it."""
@@ -53,6 +55,10 @@ class MpcStabilizer(Controller):
                       'the sampled optimum of the same weights is about 9 % softer: with 0.008 '
                       'the terminal LQR K_d equals lqg\'s continuous gain within 0.6 %',
                       low=1e-8, high=1e6),
+        ParameterSpec('dead_time_weight_max', DEAD_TIME_WEIGHT_MAX,
+                      'at the catch the QP is built again with R (1 + (D / 10 ms)^2) for the '
+                      'loop\'s measured dead time D, at most this many times R, as '
+                      'lqg.dead_time_weight_max; 1 keeps R [-]', low=1.0, high=100.0),
         ParameterSpec('horizon', DEFAULT_HORIZON,
                       'prediction horizon N [samples of Ts] over which the force and rail '
                       'constraints are imposed; beyond it the terminal LQR cost', low=1, high=400),
@@ -137,28 +143,35 @@ class MpcStabilizer(Controller):
     def on_configure(self) -> None:
         """Build the prediction model, solve the discrete Riccati equation, build the QP (once)."""
         ctx = self.context
-        p = ctx.plant
         q = [float(v) for v in self.gains['q']]
         if q[4] <= 0.0:
             raise ValueError('mpc: the integral weight q[4] must be > 0 (the integrator\'s mode '
                              'must be seen by the cost for the Riccati equation to have a '
                              'stabilising solution)')
-        a, b = augmented_model(*linearise_upright(p))
-        model = prediction_model(a, b, q, float(self.gains['r']), float(ctx.sample_time),
-                                 float(self.gains['lag']), float(self.gains['dead_time']))
-        self._feedforward = ctx.feedforward
-        self.force_limits = (p.force_min, p.force_max)
-        low, high = self._later_bounds()
-        inset = ctx.rail_margin + ctx.rail_reserve + float(self.gains['rail_clearance'])
-        x_low, x_high = inset - ctx.x_ref, p.travel - inset - ctx.x_ref
-        if not x_low < 0.0 < x_high:
-            raise ValueError(f'mpc: x* = {ctx.x_ref:g} m is outside the rail bounds '
-                             f'[{inset:g}, {p.travel - inset:g}] m')
         for name in ('block', 'free_steps'):
             if int(self.gains[name]) > int(self.gains['horizon']):
                 raise ValueError(f'mpc: {name} ({self.gains[name]}) must not exceed the '
                                  f'horizon ({self.gains["horizon"]})')
+        self._feedforward = ctx.feedforward
+        self.force_limits = (ctx.plant.force_min, ctx.plant.force_max)
+        self._build(ctx.plant)
+        self._nominal = (self.qp, self.gain)
+        self.solved_for = ctx.plant
+        """The plant model of the QP in use (the nominal one, or the estimate at the catch)."""
+
+    def _build(self, plant, r_factor: float = 1.0) -> None:
+        """The prediction model of ``plant`` with R times ``r_factor``, its terminal LQR and QP."""
+        ctx = self.context
         g = self.gains
+        a, b = augmented_model(*linearise_upright(plant))
+        model = prediction_model(a, b, [float(v) for v in g['q']], r_factor * float(g['r']),
+                                 float(ctx.sample_time), float(g['lag']), float(g['dead_time']))
+        low, high = self._later_bounds()
+        inset = ctx.rail_margin + ctx.rail_reserve + float(g['rail_clearance'])
+        x_low, x_high = inset - ctx.x_ref, ctx.plant.travel - inset - ctx.x_ref
+        if not x_low < 0.0 < x_high:
+            raise ValueError(f'mpc: x* = {ctx.x_ref:g} m is outside the rail bounds '
+                             f'[{inset:g}, {ctx.plant.travel - inset:g}] m')
         settings = QpSettings(int(g['horizon']), low, high, x_low, x_high,
                               float(g['rail_penalty']), solver=str(g['solver']),
                               rail_tolerance=float(g['rail_tolerance']),
@@ -203,9 +216,30 @@ class MpcStabilizer(Controller):
         return low + coulomb, high - coulomb
 
     def on_activate(self, state: ControllerState) -> None:
-        """Bumpless start: the integral from zero at this state, the solver cold, no plan."""
+        """Bumpless start: the integral from zero at this state, the solver cold, no plan.
+
+        At the catch the QP is built again, as ``lqg`` solves its gain again
+        (:meth:`.lqg.LqgStabilizer.on_activate`), for the plant the manager has estimated:
+        the pendulum's omega_0^2 if it differs from the model by more than
+        :data:`.lqg.RESOLVE_TOLERANCE`, and R weighed by the loop's measured dead time
+        (:func:`.lqg.dead_time_weight`); else the configured QP stays.
+        """
         self._integral.reset()
         self._clock.reset(state.t)
+        estimate = self.context.plant_estimate
+        plant = estimate.estimated_plant() if estimate is not None else self.context.plant
+        r_factor = dead_time_weight(1.0, estimate.dead_time if estimate is not None else 0.0,
+                                    float(self.gains['dead_time_weight_max']))
+        qp, gain = self._nominal
+        solved_for = self.context.plant
+        if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE or \
+                r_factor > 1.0 + RESOLVE_TOLERANCE:
+            try:
+                self._build(plant, r_factor)
+                qp, gain, solved_for = self.qp, self.gain, plant
+            except ValueError:
+                pass  # no stabilising solution for the estimate: the model's QP
+        self.qp, self.gain, self.solved_for = qp, gain, solved_for
         self._actuator_state[:] = 0.0
         self.qp.reset()
 
