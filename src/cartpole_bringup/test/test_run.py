@@ -197,3 +197,17 @@ def test_lockstep_start_recovers_when_the_first_command_is_lost(ros_context):
     finally:
         warnings = graph.close()
     assert not [w for w in warnings if 'zero force' in w]
+
+
+def test_a_run_whose_scored_window_starts_before_the_catch_is_said_to_be_too_short():
+    """A real-time run with the graph in processes starts its plant 2-3 s late: with
+    `--duration 15` the last 10 s began before the catch at 3.05 s and the swing-up read as
+    a fall (theta amplitude 179 deg). The verdict stays; the run says why it says little."""
+    spans = [{'kind': 'swingup', 'name': 'pendulum_energy', 'start_s': 0.0, 'end_s': 3.05},
+             {'kind': 'stabilizer', 'name': 'lqg', 'start_s': 3.05, 'end_s': 12.52}]
+    summary = {'catch_time_s': 3.05, 'controllers': spans}
+    warning = run_cmd.window_warning(summary, 10.0)
+    assert warning is not None and 'from 2.52 s' in warning and 'catch at 3.05 s' in warning
+    assert run_cmd.window_warning(summary, 9.0) is None
+    assert run_cmd.window_warning({'catch_time_s': None, 'controllers': spans}, 10.0) is None
+    assert run_cmd.window_warning(None, 10.0) is None

@@ -407,6 +407,20 @@ def summarize_run(graph, bag: Path | None, *, end_ns: int | None, x_ref: float, 
         return None, None
 
 
+def window_warning(summary, window: float) -> str | None:
+    """Why a summary's verdict says little of the balance: its scored window (the last
+    ``window`` s) starts before the catch, so the swing-up is scored as if fallen."""
+    catch, spans = (summary or {}).get('catch_time_s'), (summary or {}).get('controllers')
+    if catch is None or not spans:
+        return None
+    start = max(span['end_s'] for span in spans) - window
+    if start >= catch:
+        return None
+    return (f'the scored window (the last {window:g} s, from {start:.2f} s) starts before the '
+            f'catch at {catch:.2f} s: too short a run to judge the balance; run longer '
+            '(--duration) or score less (--window)')
+
+
 def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
            run_dir: Path | None, bag: Path | None, elapsed: float, fault: str | None) -> int:
     """Plots, ``summary.json``, the printed summary; the exit code (1 after a fault)."""
@@ -425,6 +439,9 @@ def report(args: argparse.Namespace, names: dict[str, str], summary, series, *,
              **ran,
              'run_dir': str(run_dir) if run_dir else None, 'bag': str(bag) if bag else None,
              'plots': [str(p) for p in plots]}
+    short = window_warning(summary, args.window)
+    if short is not None:
+        print(f'cartpole run: warning: {short}', file=sys.stderr)
     result = dict(summary) if summary is not None else {'fault': fault, 'success': False}
     result.update(extra)
     if run_dir is not None:
