@@ -85,6 +85,22 @@ def dead_time_weight(r: float, dead_time: float,
     return r * min(1.0 + (max(dead_time, 0.0) / DEAD_TIME_SCALE) ** 2, most)
 
 
+def catch_plant(context, most: float):
+    """``(plant, r_factor)`` to solve a stabiliser again for at the catch, or None to keep the
+    configured one: the plant the manager estimated (:attr:`ControlContext.plant_estimate`),
+    when its pendulum differs from the model's by more than :data:`RESOLVE_TOLERANCE` or the
+    loop's dead time weighs R (:func:`dead_time_weight`, at most ``most``) by more than that."""
+    estimate = context.plant_estimate
+    if estimate is None:
+        return None
+    plant = estimate.estimated_plant()
+    r_factor = dead_time_weight(1.0, estimate.dead_time, most)
+    if abs(plant.l / context.plant.l - 1.0) > RESOLVE_TOLERANCE or \
+            r_factor > 1.0 + RESOLVE_TOLERANCE:
+        return plant, r_factor
+    return None
+
+
 class LqgStabilizer(Controller):
     """LQR state feedback (8.16)-(8.18) with integral action on the cart position, on the EKF estimate."""
 
@@ -150,19 +166,15 @@ class LqgStabilizer(Controller):
         the manager has estimated (:attr:`ControlContext.plant_estimate`): the
         pendulum's omega_0^2, if it differs from the model by more than
         :data:`RESOLVE_TOLERANCE`, and the loop's dead time, which weighs R
-        (:func:`dead_time_weight`); else the configured gain stays.
+        (:func:`dead_time_weight`; :func:`catch_plant`); else the configured gain stays.
         """
         self._integral.reset()
         self._clock.reset(state.t)
-        estimate = self.context.plant_estimate
-        plant = estimate.estimated_plant() if estimate is not None else self.context.plant
-        r_factor = dead_time_weight(1.0, estimate.dead_time if estimate is not None else 0.0,
-                                    float(self.gains['dead_time_weight_max']))
-        if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE or \
-                r_factor > 1.0 + RESOLVE_TOLERANCE:
+        again = catch_plant(self.context, float(self.gains['dead_time_weight_max']))
+        if again is not None:
             try:
-                self._solve(plant, r_factor)
-                self.solved_for = plant
+                self._solve(*again)
+                self.solved_for = again[0]
                 return
             except ValueError:
                 pass  # no stabilising solution for the estimate: the model's gain

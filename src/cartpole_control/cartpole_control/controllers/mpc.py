@@ -27,8 +27,7 @@ from ..mpc_model import PLANT_STATES, prediction_model
 from ..mpc_qp import NONE, CondensedQp, QpSettings
 from ..mpc_solvers import SOLVERS
 from . import ConditionalIntegrator, StepClock
-from .lqg import (DEAD_TIME_WEIGHT_MAX, RESOLVE_TOLERANCE, augmented_model,
-                  dead_time_weight)
+from .lqg import DEAD_TIME_WEIGHT_MAX, augmented_model, catch_plant
 
 DEFAULT_HORIZON = 200
 """Prediction steps (1 s at 5 ms); see docs/controllers.md for the measurement behind it."""
@@ -219,24 +218,19 @@ class MpcStabilizer(Controller):
         """Bumpless start: the integral from zero at this state, the solver cold, no plan.
 
         At the catch the QP is built again, as ``lqg`` solves its gain again
-        (:meth:`.lqg.LqgStabilizer.on_activate`), for the plant the manager has estimated:
-        the pendulum's omega_0^2 if it differs from the model by more than
-        :data:`.lqg.RESOLVE_TOLERANCE`, and R weighed by the loop's measured dead time
-        (:func:`.lqg.dead_time_weight`); else the configured QP stays.
+        (:meth:`.lqg.LqgStabilizer.on_activate`), for the plant the manager has estimated
+        and R weighed by the loop's measured dead time (:func:`.lqg.catch_plant`); else the
+        configured QP stays.
         """
         self._integral.reset()
         self._clock.reset(state.t)
-        estimate = self.context.plant_estimate
-        plant = estimate.estimated_plant() if estimate is not None else self.context.plant
-        r_factor = dead_time_weight(1.0, estimate.dead_time if estimate is not None else 0.0,
-                                    float(self.gains['dead_time_weight_max']))
+        again = catch_plant(self.context, float(self.gains['dead_time_weight_max']))
         qp, gain = self._nominal
         solved_for = self.context.plant
-        if abs(plant.l / self.context.plant.l - 1.0) > RESOLVE_TOLERANCE or \
-                r_factor > 1.0 + RESOLVE_TOLERANCE:
+        if again is not None:
             try:
-                self._build(plant, r_factor)
-                qp, gain, solved_for = self.qp, self.gain, plant
+                self._build(*again)
+                qp, gain, solved_for = self.qp, self.gain, again[0]
             except ValueError:
                 pass  # no stabilising solution for the estimate: the model's QP
         self.qp, self.gain, self.solved_for = qp, gain, solved_for
