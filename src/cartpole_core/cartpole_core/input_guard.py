@@ -29,6 +29,9 @@ UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 """The node name DDS gives a publisher whose node it has not discovered yet (a graph's own
 node at start-up, too): not named foreign until its name is known."""
 
+NOT_FOREIGN = GRAPH_NODES | {UNKNOWN_NODE}
+"""Publishers' node names that are never named foreign."""
+
 FOREIGN_CHECK_PERIOD = 1.0
 """Seconds between two looks at a topic's publishers (graph introspection is not free)."""
 
@@ -105,8 +108,7 @@ class InputGuard:
             except Exception:  # noqa: BLE001 - the context is going: nothing to name
                 return self._foreign
             nodes = sorted({f'{info.node_namespace.rstrip("/")}/{info.node_name}'
-                            for info in infos
-                            if info.node_name not in GRAPH_NODES and info.node_name != UNKNOWN_NODE})
+                            for info in infos if info.node_name not in NOT_FOREIGN})
             if nodes:
                 found[topic] = nodes
                 for who in nodes:

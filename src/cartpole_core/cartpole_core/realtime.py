@@ -218,10 +218,9 @@ def lock_memory() -> str | None:
     """Lock the pages mapped now (the interpreter, the libraries, DDS) in memory, each as it is
     touched: None on success, else why not.
 
-    A real-time thread that touches a code page the kernel evicted waits for the disk: a
-    neighbour that reads many files (a test suite, a build) evicts them, and a loop process
-    stopped for 330-355 ms (docs/soak.md). Later mappings (heap growth) are not locked, so
-    no allocation can fail on ``RLIMIT_MEMLOCK``.
+    A real-time thread that touches a code page the kernel evicted waits for the disk, and a
+    neighbour that reads many files (a test suite, a build) evicts them. Later mappings
+    (heap growth) are not locked, so no allocation can fail on ``RLIMIT_MEMLOCK``.
     """
     try:
         libc = ctypes.CDLL(None, use_errno=True)
