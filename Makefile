@@ -7,7 +7,7 @@ VENV := .venv
 STAMP_VENV := $(VENV)/.installed
 STAMP_BUILD := install/.built
 STAMP_TRAIN := $(VENV)/.train-installed
-PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/*)
+PKG_META := $(wildcard src/*/setup.py src/*/setup.cfg src/*/package.xml src/*/resource/* src/*/config/*)
 RUN_ARGS ?= --sim --lockstep --duration 30 --record runs --plots
 # Byte-code caches on (git ignores them): without them every test run re-writes the tests'
 # asserts (5 s a collection) and every `cartpole` subprocess compiles the packages again.

@@ -21,7 +21,11 @@ if not _WORKER:
                                                   or 1 + os.getpid() % 200)
 os.environ['ROS_DOMAIN_ID'] = str(int(os.environ['CARTPOLE_TEST_DOMAIN_BASE'])
                                   + (int(_WORKER[2:]) + 1 if _WORKER.startswith('gw') else 0))
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# Localhost discovery with the DDS profiles every cartpole process takes for it (UDP on
+# 127.0.0.1; cartpole_core.middleware), in this process too.
+from cartpole_core.middleware import set_discovery_range  # noqa: E402
+
+set_discovery_range('LOCALHOST')
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '1')
 os.environ.setdefault('MPLBACKEND', 'Agg')
 # time_optimal's plan cache: a fresh one per session, never the user's ~/.cache.

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping
 
+from .middleware import discovery_range
 from .roles import ROLE_TOPICS, topic_in_namespace
 
 ALLOW_PARAMETER = 'allow_duplicates'
@@ -50,7 +51,7 @@ def domain_id() -> int:
 
 def discovery_wait() -> float:
     """How long the DDS look waits for discovery [s] (see the module docstring)."""
-    scope = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip().upper()
+    scope = discovery_range()
     return LOCAL_WAIT if scope in ('LOCALHOST', 'OFF') else NETWORK_WAIT
 
 

@@ -1,4 +1,4 @@
-"""A service's reply never holds a node's loop (:mod:`cartpole_core.middleware`).
+"""Nothing another process does holds a node's loop (:mod:`cartpole_core.middleware`).
 
 rmw_fastrtps waits in ``send_response`` (rclpy holding the GIL) for the
 caller's reply reader to be discovered, up to the reply writer's
@@ -17,20 +17,33 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from cartpole_core.middleware import (PROFILES_VARIABLE, REPLY_WAIT_S, USER_VARIABLES,
-                                     profiles_file, use_profiles)
+from cartpole_core.middleware import (LOCALHOST_PROFILES_NAME, PROFILES_NAME, PROFILES_VARIABLE,
+                                     RANGE_VARIABLE, REPLY_WAIT_S, REQUESTED_RANGE_VARIABLE,
+                                     USER_VARIABLES, discovery_range, keep_on_this_host,
+                                     profiles_file, set_discovery_range, use_profiles)
 
 NS = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
 
-def test_the_service_profile_bounds_a_reply_to_one_sample_period():
-    path = profiles_file()
+@pytest.mark.parametrize('name', [PROFILES_NAME, LOCALHOST_PROFILES_NAME])
+def test_the_profiles_bound_a_reply_and_use_no_shared_memory(name):
+    path = profiles_file(name)
     assert path is not None and path.is_file()
-    profile = ET.parse(path).getroot().find("p:profiles/p:data_writer[@profile_name='service']",
-                                            NS)
+    root = ET.parse(path).getroot()
+    profile = root.find("p:profiles/p:data_writer[@profile_name='service']", NS)
     blocking = profile.find('p:qos/p:reliability/p:max_blocking_time', NS)
     wait = int(blocking.find('p:sec', NS).text) + int(blocking.find('p:nanosec', NS).text) * 1e-9
     assert wait == pytest.approx(REPLY_WAIT_S) and REPLY_WAIT_S <= 0.005
+    participant = root.find("p:profiles/p:participant[@is_default_profile='true']", NS)
+    assert participant.find('p:rtps/p:useBuiltinTransports', NS).text == 'false'
+    used = {t.text for t in participant.findall('p:rtps/p:userTransports/p:transport_id', NS)}
+    kinds = {d.find('p:type', NS).text
+             for d in root.findall('p:profiles/p:transport_descriptors/p:transport_descriptor', NS)
+             if d.find('p:transport_id', NS).text in used}
+    assert kinds == {'UDPv4'}
+    peers = participant.findall('p:rtps/p:builtin/p:initialPeersList/p:locator/p:udpv4/p:address',
+                                NS)
+    assert [a.text for a in peers] == (['127.0.0.1'] if name == LOCALHOST_PROFILES_NAME else [])
 
 
 def test_use_profiles_sets_ours_and_keeps_a_users_file_or_another_rmw():
@@ -38,15 +51,39 @@ def test_use_profiles_sets_ours_and_keeps_a_users_file_or_another_rmw():
     assert use_profiles(environ) == profiles_file()
     assert environ == {PROFILES_VARIABLE: str(profiles_file())}
     for variable in USER_VARIABLES:
-        theirs = {variable: '/etc/lab/fastdds.xml'}
+        theirs = {variable: '/etc/lab/fastdds.xml', RANGE_VARIABLE: 'LOCALHOST'}
         assert use_profiles(theirs) is None                 # yours, kept
-        assert theirs == {variable: '/etc/lab/fastdds.xml'}
+        assert theirs == {variable: '/etc/lab/fastdds.xml', RANGE_VARIABLE: 'LOCALHOST'}
     cyclone = {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'}
     assert use_profiles(cyclone) is None
     assert PROFILES_VARIABLE not in cyclone
     fastrtps = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'}
     use_profiles(fastrtps)
     assert fastrtps[PROFILES_VARIABLE] == str(profiles_file())
+
+
+def test_localhost_discovery_is_handed_to_the_profile_and_inherited():
+    local = str(profiles_file(LOCALHOST_PROFILES_NAME))
+    for asked in ({RANGE_VARIABLE: 'localhost'}, {'ROS_LOCALHOST_ONLY': '1'}):
+        environ = dict(asked)
+        assert str(use_profiles(environ)) == local
+        # rmw_fastrtps would add its shared-memory transport for LOCALHOST
+        assert environ == {PROFILES_VARIABLE: local, RANGE_VARIABLE: 'SYSTEM_DEFAULT',
+                           REQUESTED_RANGE_VARIABLE: 'LOCALHOST'}
+        assert discovery_range(environ) == 'LOCALHOST'
+        child = dict(environ)                     # a child process inherits the hand-over
+        assert str(use_profiles(child)) == local and child == environ
+        stripped = {k: v for k, v in environ.items() if k != PROFILES_VARIABLE}
+        assert str(use_profiles(stripped)) == local
+    environ = {}
+    assert keep_on_this_host(environ) == 'LOCALHOST' and environ[PROFILES_VARIABLE] == local
+    assert set_discovery_range('subnet', environ) == 'SUBNET'      # asked again: the network
+    assert environ == {PROFILES_VARIABLE: str(profiles_file()), RANGE_VARIABLE: 'SUBNET'}
+    assert keep_on_this_host(environ) == 'SUBNET'                  # a range asked is kept
+    peers = {RANGE_VARIABLE: 'LOCALHOST', 'ROS_STATIC_PEERS': '192.168.0.7'}
+    use_profiles(peers)                                            # rmw's peers need its range
+    assert peers[RANGE_VARIABLE] == 'LOCALHOST'
+    assert peers[PROFILES_VARIABLE] == str(profiles_file())
 
 
 SERVER = textwrap.dedent('''
@@ -121,6 +158,55 @@ def test_a_caller_that_is_never_discovered_does_not_stall_a_node(ros_context, sp
     line = [ln for ln in out.splitlines() if ln.startswith('stalls')]
     assert line, (out[-1000:], err[-2000:])
     _, stalls, profile = line[0].split(maxsplit=2)
-    assert profile == str(profiles_file())       # run_node set it before rclpy.init
+    assert profile == str(profiles_file(LOCALHOST_PROFILES_NAME))  # run_node, before rclpy.init
     assert 'failed to send response (timeout)' in err   # the callers were never discovered
     assert int(stalls) < 3, line
+
+
+PLAIN = textwrap.dedent('''
+    import sys, time
+    import rclpy
+    from std_msgs.msg import Empty
+
+    rclpy.init()
+    node = rclpy.create_node('plain_listener')
+    got = []
+    node.create_subscription(Empty, '/loop_alive', lambda m: got.append(1), 10)
+    deadline = time.monotonic() + 60.0
+    while len(got) < 20 and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    with open('/proc/self/maps') as maps:
+        shared = any('/dev/shm/fastrtps_' in line for line in maps)
+    print('received', len(got), 'shared_memory', shared, flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+''')
+
+
+def _maps_shared_memory(pid: int) -> bool:
+    with open(f'/proc/{pid}/maps') as maps:
+        return any('/dev/shm/fastrtps_' in line for line in maps)
+
+
+@pytest.mark.ros
+def test_a_node_maps_no_shared_memory_and_talks_to_a_plain_localhost_process():
+    """Ours: UDP only. A process with rmw_fastrtps's own LOCALHOST settings (shared memory
+    and UDP, as a user's ``ros2 topic echo``) maps a segment and still gets the topic."""
+    from cartpole_core.child_process import interrupt
+
+    ours = {k: v for k, v in os.environ.items() if k not in USER_VARIABLES}
+    plain = {k: v for k, v in ours.items() if k != REQUESTED_RANGE_VARIABLE}
+    plain[RANGE_VARIABLE] = 'LOCALHOST'
+    server = subprocess.Popen([sys.executable, '-c', SERVER], env=ours, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        listener = subprocess.run([sys.executable, '-c', PLAIN], env=plain, text=True,
+                                  capture_output=True, timeout=120)
+        assert server.poll() is None, server.communicate()[1][-2000:]
+        assert not _maps_shared_memory(server.pid)
+    finally:
+        interrupt(server, 10.0, drain=False)
+        server.communicate()
+    words = listener.stdout.split()
+    assert words[:1] == ['received'], (listener.stdout, listener.stderr[-2000:])
+    assert int(words[1]) >= 20 and words[3] == 'True'

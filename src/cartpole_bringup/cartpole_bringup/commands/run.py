@@ -231,8 +231,9 @@ def main(args: argparse.Namespace) -> int:
         os.environ[ENVIRONMENT_SWITCH] = args.realtime
     if args.domain_id is not None:
         os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
-    if args.discovery != 'system_default':
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    if args.discovery != 'system_default':  # with the profiles that go with it
+        from cartpole_core.middleware import set_discovery_range
+        set_discovery_range(args.discovery)
 
     import rclpy
     from rclpy.context import Context

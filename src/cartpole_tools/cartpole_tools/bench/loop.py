@@ -18,6 +18,8 @@ import os
 import sys
 from typing import Any
 
+from cartpole_core.middleware import keep_on_this_host
+
 from . import loop_view
 from .loop_probe import SAMPLE_TIME, WARMUP_S, graph_cmds, graph_labels, measure
 
@@ -56,7 +58,7 @@ def run_loop_benchmark(duration: float = 60.0, modes=('single', 'processes'),
     (:func:`cartpole_tools.bench.loop_view.view_rounds`). Each measurement starts
     ``warmup`` s after the first command arrived (discovery, caches, first plots).
     """
-    env_note = os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env_note = keep_on_this_host()
     results: dict[str, Any] = {'discovery_range': env_note}
     runs = [(mode, ex) for mode in modes for ex in EXECUTORS[mode]
             if ex in executors or mode == 'processes']

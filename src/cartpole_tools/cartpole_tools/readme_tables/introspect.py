@@ -200,7 +200,8 @@ def describe_nodes(sources: tuple[NodeSource, ...] = NODES) -> dict[str, NodeInf
     import rclpy
     from rclpy.context import Context
 
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    from cartpole_core.middleware import keep_on_this_host
+    keep_on_this_host()
     found = {}
     with tempfile.TemporaryDirectory(prefix='cartpole-readme-') as tmp:
         for source in sources:

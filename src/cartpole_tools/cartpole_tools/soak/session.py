@@ -125,10 +125,11 @@ def run_soak(config: SoakConfig, should_stop: Callable[[], bool] = lambda: False
     from cartpole_analysis.bags.check import damage, read_metadata
     from cartpole_bringup.graph.graph import Graph, GraphSpec
     from cartpole_core import realtime
+    from cartpole_core.middleware import keep_on_this_host
 
     from .probe import SoakProbe
 
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    keep_on_this_host()
     rotation = stabilizer_rotation(config.stabilizers)
     config.out.mkdir(parents=True, exist_ok=True)
     bag = config.out / 'bag'
