@@ -17,6 +17,8 @@ lockstep, reset and watchdog in detail: docs/simulator.md ("The simulator node")
 """
 from __future__ import annotations
 
+import time
+
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -42,6 +44,9 @@ STARTUP_REPUBLISH_PERIOD = 0.1
 STARTUP_RECORDER_WAIT = 10.0
 """Lockstep: wall seconds sample 0 waits for the recorder (it may still be discovering the
 graph: up to about 3 s with Fast DDS); later samples wait ``lockstep_timeout``."""
+
+START_HOLD_S = 5.0
+"""Real time: longest wall wait [s] of the first sample for ``start_subscribers``."""
 
 
 DEGRADED = ('rejected_commands', 'lockstep_timeouts', 'late_samples', 'watchdog_trips')
@@ -134,11 +139,33 @@ class SimNode(Node):
                 self._startup_timer = self.create_timer(
                     STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
             self._publish_lockstep(self._runner.sample)
+        elif self.get_parameter('start_subscribers').value > 0:
+            self._held_since = time.monotonic()
+            self._startup_timer = self.create_timer(period, self._await_subscribers,
+                                                    clock=self._wall)
         else:
             self._step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall)
         self.get_logger().info(
             f'sim: {"lockstep" if self._lockstep else "real time"}, Ts = {period * 1e3:g} ms, '
             f'x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad')
+
+    def _await_subscribers(self) -> None:
+        """Real time: start the plant once every expected reader is matched (a reader
+        discovered late loses the first samples: the bag would lack the run's start)."""
+        wanted = self.get_parameter('start_subscribers').value
+        matched = min(self._pub_joints.get_subscription_count(),
+                      self._pub_truth.get_subscription_count())
+        waited = time.monotonic() - self._held_since
+        if matched < wanted and waited < START_HOLD_S:
+            return
+        if matched < wanted:
+            self.get_logger().warning(
+                f'started with {matched} of {wanted} subscriptions matched after '
+                f'{START_HOLD_S:g} s: a reader discovered later misses the first samples')
+        self.destroy_timer(self._startup_timer)
+        self._startup_timer = None
+        self._step_timer = self.create_timer(self._runner.params.sample_time,
+                                             self._on_step_timer, clock=self._wall)
 
     def _validate_parameters(self, changed: list[Parameter]) -> SetParametersResult:
         """Refuse a change that would make an invalid scenario; nothing changes then."""

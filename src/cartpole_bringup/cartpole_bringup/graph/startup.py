@@ -20,7 +20,7 @@ from std_srvs.srv import Trigger
 from cartpole_core import realtime
 from cartpole_core.domain_guard import ALLOW_PARAMETER
 
-from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE
+from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE, TRUE_STATE
 from cartpole_core.namespaces import relative
 from .processes import NODES, NodeStartError, describe_exit, node_command, start_node_process
 from .spec import GraphSpec
@@ -40,9 +40,10 @@ class GraphError(RuntimeError):
     """The graph could not be started (a node failed, a timeout)."""
 
 
-def command_line(spec: GraphSpec, name: str) -> list[str]:
-    """The command starting node ``name`` of ``spec`` as a process."""
-    parameters = spec.node_parameters(name)
+def command_line(spec: GraphSpec, name: str, extra: dict | None = None) -> list[str]:
+    """The command starting node ``name`` of ``spec`` as a process (``extra``: more
+    parameters)."""
+    parameters = {**spec.node_parameters(name), **(extra or {})}
     if spec.allow_duplicates:
         parameters[ALLOW_PARAMETER] = True
     try:
@@ -166,9 +167,17 @@ class GraphStartup:
 
     def _start_processes(self) -> None:
         for name in self.spec.nodes:
+            extra = {}
             if name == self.spec.plant:
                 self._wait_for_subscribers()
-            self.processes[name] = start_node_process(command_line(self.spec, name))
+                if name == 'sim' and not self.spec.lockstep:
+                    # the readers seen here, matched before the first sample (a reader
+                    # discovering the new simulator late would miss the run's start)
+                    m = self.monitor
+                    extra['start_subscribers'] = min(
+                        m.count_subscribers(relative(JOINTS)),
+                        m.count_subscribers(relative(TRUE_STATE)))
+            self.processes[name] = start_node_process(command_line(self.spec, name, extra))
 
     def _wait_for_subscribers(self) -> None:
         """Processes: wait until EKF, controller manager (and recorder) are in the graph."""
