@@ -25,7 +25,9 @@ from typing import Mapping, MutableMapping
 
 PROFILES_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 """The variable Fast DDS 2 (ROS 2 Jazzy) reads its profiles file from."""
-USER_VARIABLES = (PROFILES_VARIABLE, 'FASTDDS_DEFAULT_PROFILES_FILE')
+FASTDDS_PROFILES_VARIABLE = 'FASTDDS_DEFAULT_PROFILES_FILE'
+"""The variable's name from Fast DDS 3 on (2.14 reads only the other); we never set it."""
+USER_VARIABLES = (PROFILES_VARIABLE, FASTDDS_PROFILES_VARIABLE)
 """Either set by the user: their file is used, not ours."""
 PROFILES_NAME = 'fastdds_profiles.xml'
 """Network discovery (``SUBNET``, the default): UDPv4 with Fast DDS's multicast discovery."""
@@ -80,7 +82,7 @@ def use_profiles(environ: MutableMapping[str, str] | None = None) -> Path | None
     environ = os.environ if environ is None else environ
     rmw = environ.get('RMW_IMPLEMENTATION', '')
     chosen = environ.get(PROFILES_VARIABLE)
-    if ((rmw and not rmw.startswith('rmw_fastrtps')) or environ.get(USER_VARIABLES[1])
+    if ((rmw and not rmw.startswith('rmw_fastrtps')) or environ.get(FASTDDS_PROFILES_VARIABLE)
             or (chosen and not _ours(chosen))):
         return None
     scope = discovery_range(environ)

@@ -122,6 +122,8 @@ class SimNode(Node):
                                            inputs=('commands',), degraded=DEGRADED)
 
         self._step_timer = None
+        self._start_subscribers = int(self.get_parameter('start_subscribers').value)
+        """Real time: readers each sample topic must have before the first sample."""
         self._timeout_timer = None
         self._startup_timer = None
         period = params.sample_time
@@ -139,12 +141,12 @@ class SimNode(Node):
                 self._startup_timer = self.create_timer(
                     STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
             self._publish_lockstep(self._runner.sample)
-        elif self.get_parameter('start_subscribers').value > 0:
+        elif self._start_subscribers > 0:
             self._held_since = time.monotonic()
             self._startup_timer = self.create_timer(period, self._await_subscribers,
                                                     clock=self._wall)
         else:
-            self._step_timer = self.create_timer(period, self._on_step_timer, clock=self._wall)
+            self._start_stepping()
         self.get_logger().info(
             f'sim: {"lockstep" if self._lockstep else "real time"}, Ts = {period * 1e3:g} ms, '
             f'x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad')
@@ -152,7 +154,7 @@ class SimNode(Node):
     def _await_subscribers(self) -> None:
         """Real time: start the plant once every expected reader is matched (a reader
         discovered late loses the first samples: the bag would lack the run's start)."""
-        wanted = self.get_parameter('start_subscribers').value
+        wanted = self._start_subscribers
         matched = min(self._pub_joints.get_subscription_count(),
                       self._pub_truth.get_subscription_count())
         waited = time.monotonic() - self._held_since
@@ -164,6 +166,10 @@ class SimNode(Node):
                 f'{START_HOLD_S:g} s: a reader discovered later misses the first samples')
         self.destroy_timer(self._startup_timer)
         self._startup_timer = None
+        self._start_stepping()
+
+    def _start_stepping(self) -> None:
+        """Real time: step the plant every sample period of the wall clock."""
         self._step_timer = self.create_timer(self._runner.params.sample_time,
                                              self._on_step_timer, clock=self._wall)
 
