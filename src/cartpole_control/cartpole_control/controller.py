@@ -337,6 +337,12 @@ class Controller(ABC):
         used without the manager simply never hears of it.
         """
 
+    def standby(self) -> None:
+        """Work ahead for an activation, in pieces (the configured stabiliser, while the
+        swing-up runs): the manager calls it between two cycles, after the command is out
+        (:meth:`.manager.ControllerManager.between_cycles`); each call must stay well inside
+        a sample time. Not a promise: activation still works without it. Default: nothing."""
+
     def status_values(self) -> Mapping[str, float]:
         """Figures of the running law for the controller status and the run summary.
 

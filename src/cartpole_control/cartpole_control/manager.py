@@ -140,8 +140,8 @@ class ControllerManager:
     def check_parameters(self, changes: Mapping[str, Any]) -> SetResult:
         """Validate ``changes`` as :meth:`set_parameters` would, without taking them.
 
-        What it builds is kept: a :meth:`set_parameters` of the same changes
-        next (the node's post-set callback) takes it without building again.
+        What it builds is kept: a :meth:`set_parameters` of the same changes next (the node's
+        post-set callback) takes it without building again.
         """
         with self._staging:
             try:
@@ -154,12 +154,10 @@ class ControllerManager:
     def set_parameters(self, changes: Mapping[str, Any]) -> SetResult:
         """Validate all ``changes``; take all of them (applied at the next cycle) or none.
 
-        Refused: an unknown name, a wrong type, a value out of range, an
-        unregistered controller name (the reason lists the registered ones), a
-        gain combination a plugin's ``on_configure`` refuses. The reason says
-        which and why; nothing changes then. Everything the change needs is
-        built here, in the caller's thread (:mod:`cartpole_control.staging`);
-        the next cycle only swaps it in.
+        Refused, with the reason and nothing changed: an unknown name, a wrong type, a value
+        out of range, an unregistered controller name (the reason lists the registered ones), a
+        gain combination a plugin's ``on_configure`` refuses. What the change needs is built
+        here, in the caller's thread (:mod:`cartpole_control.staging`); the cycle swaps it in.
         """
         with self._staging:
             try:
@@ -177,9 +175,8 @@ class ControllerManager:
         """Before a batch or lockstep run from ``start``: each configured plugin's
         :meth:`Controller.prepare` (blocking: e.g. a missing plan is solved now).
 
-        The gain changes the plugins ask for are queued like
-        :meth:`set_parameters` and returned as ``<plugin>.<gain>`` parameters
-        (for a graph started afterwards). ValueError if one is refused.
+        The gain changes the plugins ask for are queued like :meth:`set_parameters` and returned
+        as ``<plugin>.<gain>`` parameters (for a graph started later). ValueError if refused.
         """
         with self._lock:
             values = dict(self._values)
@@ -200,17 +197,15 @@ class ControllerManager:
     def command_applied(self, source: float, applied: float) -> None:
         """The command computed from the sample stamped ``source`` took effect at ``applied`` [s].
 
-        The plant's report (the simulator's sample-and-hold, the rig's device
-        clock): one sample of the loop's latency. Queued; the control cycle
-        takes it (:meth:`PlantEstimate.take_reports`).
+        The plant's report (the simulator's sample-and-hold, the rig's device clock): one
+        sample of the loop's latency, queued for the cycle (:meth:`PlantEstimate.take_reports`).
         """
         self.plant_estimate.command_applied(source, applied)
 
     def measured(self, t: float, x: float, theta: float) -> None:
         """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped).
 
-        Feeds the natural-frequency estimate while no stabiliser runs and the
-        actuator's. Queued; the control cycle takes it.
+        Feeds the natural-frequency estimate while no stabiliser runs and the actuator's; queued.
         """
         self.plant_estimate.measured(t, x, theta)
 
@@ -218,11 +213,10 @@ class ControllerManager:
     def restart(self) -> SetResult:
         """Request a new swing-up from idle or fault at the next cycle (re-arms the catch trigger).
 
-        A fault is cleared and the rail guard re-armed (after its brake has
-        stopped the cart). The answer says truthfully what will happen, for
-        the service reply: ``successful`` is False when there is nothing to
-        restart (control running, or idle because ``enabled`` is false) and
-        then nothing is requested.
+        A fault is cleared and the rail guard re-armed (after its brake has stopped the cart).
+        The answer says what will happen, for the service reply: ``successful`` is False when
+        there is nothing to restart (control running, or idle because ``enabled`` is false)
+        and then nothing is requested.
         """
         mode = self.mode
         with self._lock:
@@ -320,8 +314,7 @@ class ControllerManager:
     def update(self, state: ControllerState) -> ManagerOutput:
         """One control cycle for the estimated ``state``; see the module docstring.
 
-        Only ``t``, ``x``, ``theta``, ``x_dot`` and ``theta_dot`` of ``state``
-        are used; the accelerations are completed here (step 2).
+        Only ``t``, ``x``, ``theta``, ``x_dot``, ``theta_dot`` of ``state`` are used (step 2).
         """
         return self.update_values(state.t, state.x, state.theta, state.x_dot, state.theta_dot)
 
@@ -449,6 +442,16 @@ class ControllerManager:
             return False
         return True
 
+    def between_cycles(self) -> None:
+        """Work that must not delay a command; call it after the command is out. While the
+        swing-up runs, the configured stabiliser's :meth:`Controller.standby` (its catch)."""
+        stabilizer = self._plugins[STABILIZER]
+        if self.mode == SWINGUP_MODE and self._pending is None and not stabilizer.active:
+            try:
+                stabilizer.standby()
+            except Exception:  # a plugin bug: the activation does the work itself
+                logger.exception('controller %s failed in standby', stabilizer.name)
+
     def stale(self, t: float) -> ManagerOutput:
         """No state for ``state_timeout``: zero force and fault 'stale state' (until restart)."""
         events: list[str] = []
@@ -488,12 +491,10 @@ class ControllerManager:
         energy = self._energy
         names = self._names
         active = self._active
-        return ManagerOutput(t, force, self.mode, names[SWINGUP], names[STABILIZER],
-                               self._enabled, energy, self._target - energy, raw,
-                               feedforward, ';'.join(events) if events else '',
-                               self.catch_count, self.fall_count, self.catch_time,
-                               self.fault_reason, self._plugins[SWINGUP].law,
-                               self.latency.latency, self._horizon,
-                               self.natural_frequency.omega_sq, self._gain,
-                               self.actuator.delay,
-                               active.status_values() if active is not None else {})
+        return ManagerOutput(
+            t, force, self.mode, names[SWINGUP], names[STABILIZER], self._enabled, energy,
+            self._target - energy, raw, feedforward, ';'.join(events) if events else '',
+            self.catch_count, self.fall_count, self.catch_time, self.fault_reason,
+            self._plugins[SWINGUP].law, self.latency.latency, self._horizon,
+            self.natural_frequency.omega_sq, self._gain, self.actuator.delay,
+            active.status_values() if active is not None else {})

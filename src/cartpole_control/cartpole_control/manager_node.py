@@ -306,6 +306,7 @@ class ControllerManagerNode(Node):
         self._last_stamp = msg.header.stamp
         self._stale = False
         self._publish_status(out, msg.header.stamp, 'plant_reset' if reset else '')
+        self.manager.between_cycles()  # the command is out: work ahead (the MPC's catch QP)
         collect_when_idle()  # the command is out: the loop has time until the next sample
 
     def _on_command_applied(self, msg: TimeReference) -> None:

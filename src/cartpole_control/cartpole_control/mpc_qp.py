@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
@@ -110,7 +110,31 @@ class CondensedQp:
     SLACK_WEIGHT: ClassVar[float] = 1e-3
     """A small quadratic weight on the slacks, so that H is positive definite (DAQP, qpOASES)."""
 
-    def __init__(self, model: PredictionModel, settings: QpSettings) -> None:
+    PIECE_STEPS: ClassVar[int] = 50
+    """[steps] The condensing of this many steps is one piece of :meth:`in_pieces`."""
+
+    def __init__(self, model: PredictionModel, settings: QpSettings, *,
+                 deferred: bool = False) -> None:
+        """Built at once, or with ``deferred`` only by driving :attr:`_pieces` (what
+        :meth:`in_pieces` does, which hands the QP out only when it is whole)."""
+        self._pieces: Iterator[None] = self._construct(model, settings)
+        if not deferred:
+            for _ in self._pieces:
+                pass
+
+    @classmethod
+    def in_pieces(cls, model: PredictionModel,
+                  settings: QpSettings) -> Iterator['CondensedQp | None']:
+        """The construction of ``CondensedQp(model, settings)`` a piece at a time: the terminal
+        Riccati solution, the condensing of :attr:`PIECE_STEPS` steps, the constraint rows,
+        the solver's set-up (each about a millisecond); None after each, the QP last. A loop
+        builds one between its cycles so (:meth:`.controllers.mpc.MpcStabilizer.standby`)."""
+        qp = cls(model, settings, deferred=True)
+        yield from qp._pieces
+        yield qp
+
+    def _construct(self, model: PredictionModel, settings: QpSettings) -> Iterator[None]:
+        """The body of :meth:`__init__`, pausing between the pieces of :meth:`in_pieces`."""
         type(self).constructions += 1
         big_n, free, block = int(settings.horizon), int(settings.free_steps), int(settings.block)
         if big_n < 1:
@@ -133,6 +157,7 @@ class CondensedQp:
         self.p, self.gain = terminal_lqr(a_d, b_d, model.q_d, model.r_d, model.n_d)
         k_row = self.gain_row = self.gain[0].copy()
         """K_d: the terminal LQR, u = -K_d s."""
+        yield None
         phi = a_d - b_d @ self.gain
         starts = list(range(free, big_n, block))      # the blocks of c after the free moves
         m = free + len(starts)                        # moves: u_0 .. u_{F-1}, c_1 .. c_B
@@ -157,6 +182,8 @@ class CondensedQp:
                 g_f += 2.0 * mv.T @ self.p @ mz
             if k == big_n:
                 break
+            if k and k % self.PIECE_STEPS == 0:
+                yield None
             j = move_of[k]
             if k < free:   # u_k = v_j: stage cost s^T Q_d s + 2 s^T N_d u + R_d u^2
                 qv = q_d @ mv
@@ -178,6 +205,7 @@ class CondensedQp:
                 mv[:, j] += b_d[:, 0]
         self.cost_map = g_f
         """The cost's linear term is cost_map s_0 (per cycle, with the slacks' penalties)."""
+        yield None
         later = list(range(free, big_n))
         groups = [(k - 1) // self.RAIL_GROUP for k in position_steps]
         n_p, n_o, n_b = groups[-1] + 1, len(later), len(starts)
@@ -230,6 +258,7 @@ class CondensedQp:
         self._plan_z = np.zeros(n)
         self._plan_c = np.zeros(m)
         self._plan_age = -1                                 # no plan
+        yield None
         self.backend = BACKENDS[settings.solver](self)
 
     def unconstrained_force(self, s0: Any) -> float:

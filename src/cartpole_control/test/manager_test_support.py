@@ -29,6 +29,7 @@ class Recording(Controller):
         Recording.built += 1
         self.calls = []
         self.hook = None
+        self.standby_error = None
         self.steps = 0
         """Updates since activation: the running state a take-over hands on."""
 
@@ -43,6 +44,11 @@ class Recording(Controller):
 
     def on_deactivate(self):
         self.calls.append(('deactivate',))
+
+    def standby(self):
+        self.calls.append(('standby',))
+        if self.standby_error is not None:
+            raise self.standby_error
 
     def update(self, state):
         self.calls.append(('update', state.t))

@@ -45,6 +45,21 @@ def test_a_plugin_that_raises_faults_with_zero_force():
     assert 'broken failed' in out.fault_reason and 'division by zero' in out.fault_reason
 
 
+def test_between_cycles_only_the_configured_stabiliser_works_ahead_and_only_in_swing_up(caplog):
+    """The MPC builds its catch QP so; a standby that raises loses nothing: logged, no fault."""
+    m = make(swingup='push_a')
+    m.update(state(0.0))
+    stabilizer = plugin(m, STABILIZER)
+    stabilizer.standby_error = RuntimeError('bad standby')
+    m.between_cycles()
+    assert stabilizer.calls == [('standby',)] and 'failed in standby' in caplog.text
+    out = m.update(upright(TS))
+    assert (out.mode, out.event) == (STABILIZING, 'catch')
+    m.between_cycles()  # stabilising: nothing ahead
+    assert stabilizer.calls.count(('standby',)) == 1
+    assert ('standby',) not in plugin(m, SWINGUP).calls
+
+
 def _feedback(manager):
     return [c[1] for c in plugin(manager, STABILIZER).calls if c[0] == 'feedback']
 

@@ -178,12 +178,57 @@ def test_at_the_catch_the_qp_is_built_for_the_measured_dead_time_and_none_keeps_
     plugin.deactivate()
     plugin.activate(upright)
     weighted = configured(r=5 * plugin.gains['r'])
-    assert plugin.qp is not nominal_qp
+    assert plugin.qp is not nominal_qp and plugin.status_values()['mpc_catch_builds'] == 1
     np.testing.assert_allclose(plugin.gain, weighted.gain, rtol=1e-9)
     assert abs(plugin.gain[1]) < 0.6 * abs(nominal_gain[1])
     state = ControllerState(0.005, P.x_middle + 0.01, 0.01, 0.0, 0.0)
     u = plugin.update(state)  # no constraint active: the weighted terminal LQR's move
     assert u == pytest.approx(-float(weighted.gain @ z_of(plugin, state)), abs=1e-6)
+
+
+def test_the_catch_qp_is_built_ahead_a_piece_a_cycle_and_the_catch_cycle_builds_none():
+    """Between the swing-up's cycles (standby) the QP for the estimate is built in pieces, once
+    however often it is asked; the catch takes it. An estimate that moves starts it again, and a
+    catch before that is done builds in its own cycle, counted."""
+    from dataclasses import replace
+
+    from cartpole_control.plant_estimate import PlantEstimate
+
+    estimate = PlantEstimate(P, P.sample_time)
+    plugin = MpcStabilizer()
+    plugin.configure({}, replace(CONTEXT, plant_estimate=estimate))
+    for source in range(50):  # 20 ms of dead time: R weighed 5 times at the catch
+        estimate.latency.report(source * 0.005, source * 0.005 + 0.02)
+    builds = CondensedQp.constructions
+    for _ in range(30):
+        plugin.standby()
+    upright = ControllerState(0.0, P.x_middle, 0.0, 0.0, 0.0)
+    plugin.activate(upright)
+    assert CondensedQp.constructions == builds + 1
+    assert plugin.status_values()['mpc_catch_builds'] == 0
+    np.testing.assert_allclose(plugin.gain, configured(r=5 * plugin.gains['r']).gain, rtol=1e-9)
+    plugin.deactivate()
+    for source in range(400):  # now 8 ms: R (1 + 0.8^2)
+        estimate.latency.report(source * 0.005, source * 0.005 + 0.008)
+    plugin.standby()
+    plugin.standby()  # started, not done
+    plugin.activate(upright)
+    assert plugin.status_values()['mpc_catch_builds'] == 1
+    np.testing.assert_allclose(plugin.gain, configured(r=1.64 * plugin.gains['r']).gain,
+                               rtol=1e-6)
+
+
+def test_the_qp_built_in_pieces_is_the_qp_built_at_once():
+    plugin = configured(lag=0.02, dead_time=0.01, budget_us=1e6)
+    pieces = list(CondensedQp.in_pieces(plugin.qp.model, plugin.qp.settings))
+    assert len(pieces) >= 6 and pieces[:-1] == [None] * (len(pieces) - 1)
+    whole, built = plugin.qp, pieces[-1]
+    for name in ('h', 'a', 'cost_map', 'state_map', 'force_z', 'force_c', 'bound_low',
+                 'bound_high', 'variable_low', 'variable_high', 'penalty', 'gain_row'):
+        assert np.array_equal(getattr(whole, name), getattr(built, name)), name
+    s0 = np.zeros(whole.model.states)
+    s0[:4] = (0.05, 0.1, 0.2, -0.3)
+    assert built.solve(s0).force == pytest.approx(whole.solve(s0).force, abs=1e-9)
 
 
 PUSHED = ControllerState(12.12, P.x_middle + 0.0537, 0.1594, 0.3958, 1.374)
@@ -252,7 +297,7 @@ def test_a_failed_solve_applies_the_previous_plan_shifted_by_one_step_and_is_cou
         lqr = plugin.qp.unconstrained_force(plugin.qp._z)
         assert abs(u - lqr) > 200.0  # never the unconstrained law (-300 N here)
     assert plugin.status_values() == {'mpc_solve_us': pytest.approx(plugin.solve_us),
-                                      'mpc_fallbacks': 3}
+                                      'mpc_fallbacks': 3, 'mpc_catch_builds': 0}
 
     def raises():
         raise RuntimeError('solver crashed')

@@ -156,6 +156,7 @@ class AgentLoop:
                     self.to_env.put(('end', f'fault:{manager.fault_reason}', self._true_state()))
                     return
                 force = out.force
+                manager.between_cycles()
                 plant.step(force, None, t)
             if plant.impacts:
                 self.to_env.put(('end', 'impact', self._true_state()))

@@ -7,8 +7,8 @@ def test_the_cycles_are_paced_on_the_sample_clock_unless_flat_out(monkeypatch):
     clock = {'now': 0.0}
     waits = []
 
-    def perf_counter():  # each reading 1 ms later: a cycle takes 1 ms of the 5
-        clock['now'] += 0.001
+    def perf_counter():  # each reading 0.5 ms later: a cycle takes a few ms of the 5
+        clock['now'] += 0.0005
         return clock['now']
 
     def sleep(seconds):

@@ -124,6 +124,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     # Bound once: this loop runs 200 times a simulated second.
     measure, step, ekf_update = plant.measure, plant.step, ekf.update
     control = manager.update_values  # manager.update(ControllerState(...)) without the object
+    between_cycles = manager.between_cycles
     measured, applied_commands = manager.measured, plant.applied_commands
     command_applied = manager.command_applied
     add_row, add_mode = samples.append, modes.append
@@ -165,6 +166,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_plant += t1 - t0
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
+        between_cycles()  # as the node does once the command is out
         force = out.force
         mode = out.mode
         if out.plugin_status:

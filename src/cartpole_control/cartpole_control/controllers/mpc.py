@@ -8,8 +8,9 @@ the friction feedforward (6.12) the manager adds, and the cart inside the
 rail guard's limiter boundary (soft, heavily weighted: the guard holds it).
 Its model may hold the actuator's lag and a dead time
 (:mod:`cartpole_control.mpc_model`); each cycle the QP of
-:mod:`cartpole_control.mpc_qp`, built once per configure (and at the catch again for
-the plant the manager estimated, as ``lqg`` solves its gain again), is solved warm and
+:mod:`cartpole_control.mpc_qp`, built once per configure (and for the catch again for
+the plant the manager estimated, as ``lqg`` solves its gain again: a piece a cycle while the
+swing-up runs, :meth:`MpcStabilizer.standby`), is solved warm and
 its first move applied (Mayne et al., Automatica 36, 2000). The terminal cost
 is the discrete Riccati solution, so without an active constraint the move is
 the terminal LQR's ``-K_d s``. A failed or late solve applies the previous
@@ -17,6 +18,8 @@ plan shifted by one step, counted (``mpc_fallbacks``); a whole horizon
 without a solve is a fault. Design notes and measurements: docs/controllers.md.
 """
 from __future__ import annotations
+
+from typing import Iterator
 
 import numpy as np
 
@@ -27,7 +30,7 @@ from ..mpc_model import PLANT_STATES, prediction_model
 from ..mpc_qp import NONE, CondensedQp, QpSettings
 from ..mpc_solvers import SOLVERS
 from . import ConditionalIntegrator, StepClock
-from .lqg import DEAD_TIME_WEIGHT_MAX, augmented_model, catch_plant
+from .lqg import DEAD_TIME_WEIGHT_MAX, RESOLVE_TOLERANCE, augmented_model, catch_plant
 
 DEFAULT_HORIZON = 200
 """Prediction steps (1 s at 5 ms); see docs/controllers.md for the measurement behind it."""
@@ -133,6 +136,13 @@ class MpcStabilizer(Controller):
         """Wall time of the last solve [us]."""
         self.last_reason = ''
         self.last_source = ''
+        self._ahead: tuple | None = None
+        """(plant, r_factor, pieces): the catch's QP being built between cycles."""
+        self._ready: tuple | None = None
+        """(plant, r_factor, QP or None): the catch's QP built ahead (None: no stabilising
+        solution for that plant, the configured QP serves)."""
+        self.catch_builds = 0
+        """Catches whose QP was built in the catch cycle: none built ahead for the estimate."""
 
     @property
     def integral(self) -> float:
@@ -153,13 +163,22 @@ class MpcStabilizer(Controller):
                                  f'horizon ({self.gains["horizon"]})')
         self._feedforward = ctx.feedforward
         self.force_limits = (ctx.plant.force_min, ctx.plant.force_max)
-        self._build(ctx.plant)
+        self.qp = self._qp_for(ctx.plant)
+        self.gain = self.qp.gain_row.copy()
+        model = self.qp.model
+        self._s = np.zeros(model.states)
+        act = model.actuator_slice
+        self._actuator_a = model.a_d[act, act].copy()
+        self._actuator_b = model.b_d[act, 0].copy()
+        self._actuator_state = np.zeros(model.states - PLANT_STATES)
         self._nominal = (self.qp, self.gain)
         self.solved_for = ctx.plant
         """The plant model of the QP in use (the nominal one, or the estimate at the catch)."""
+        self._ahead = self._ready = None
 
-    def _build(self, plant, r_factor: float = 1.0) -> None:
-        """The prediction model of ``plant`` with R times ``r_factor``, its terminal LQR and QP."""
+    def _qp_pieces(self, plant, r_factor: float = 1.0) -> Iterator[CondensedQp | None]:
+        """The QP for ``plant`` with R times ``r_factor`` (its prediction model, terminal LQR)
+        a piece at a time: None after each, the QP last (:meth:`.CondensedQp.in_pieces`)."""
         ctx = self.context
         g = self.gains
         a, b = augmented_model(*linearise_upright(plant))
@@ -178,13 +197,34 @@ class MpcStabilizer(Controller):
                               block=int(g['block']),
                               free_steps=int(g['free_steps']),
                               braking_time=float(g['braking_time']))
-        self.qp = CondensedQp(model, settings)
-        self.gain = self.qp.gain_row.copy()
-        self._s = np.zeros(model.states)
-        act = model.actuator_slice
-        self._actuator_a = model.a_d[act, act].copy()
-        self._actuator_b = model.b_d[act, 0].copy()
-        self._actuator_state = np.zeros(model.states - PLANT_STATES)
+        yield None
+        yield from CondensedQp.in_pieces(model, settings)
+
+    def _qp_for(self, plant, r_factor: float = 1.0) -> CondensedQp:
+        """The QP of :meth:`_qp_pieces` in one go; ValueError if the plant has none."""
+        for piece in self._qp_pieces(plant, r_factor):
+            if piece is not None:
+                return piece
+        raise AssertionError('the pieces ended without a QP')
+
+    def standby(self) -> None:
+        """Between two swing-up cycles: one piece (a few milliseconds at most) of the QP the
+        catch will need for the plant estimated now (:func:`.lqg.catch_plant`), so that
+        :meth:`on_activate` finds it built and the catch cycle is not late. An estimate that
+        moves by more than RESOLVE_TOLERANCE starts it again."""
+        again = catch_plant(self.context, float(self.gains['dead_time_weight_max']))
+        if again is None or (self._ready is not None and _same_catch(self._ready, again)):
+            self._ahead = None
+            return
+        if self._ahead is None or not _same_catch(self._ahead, again):
+            self._ahead = (*again, self._qp_pieces(*again))
+        try:
+            piece = next(self._ahead[2])
+        except ValueError:  # no stabilising solution for that plant: the configured QP
+            piece = None
+            self._ready, self._ahead = (*self._ahead[:2], None), None
+        if piece is not None:
+            self._ready, self._ahead = (*self._ahead[:2], piece), None
 
     def _read_amplifier(self) -> None:
         """:attr:`force_limits` for this cycle: the manager's plant estimate's (its gain times
@@ -217,10 +257,11 @@ class MpcStabilizer(Controller):
     def on_activate(self, state: ControllerState) -> None:
         """Bumpless start: the integral from zero at this state, the solver cold, no plan.
 
-        At the catch the QP is built again, as ``lqg`` solves its gain again
-        (:meth:`.lqg.LqgStabilizer.on_activate`), for the plant the manager has estimated
-        and R weighed by the loop's measured dead time (:func:`.lqg.catch_plant`); else the
-        configured QP stays.
+        At the catch the QP is the one for the plant the manager has estimated and R
+        weighed by the loop's measured dead time (:func:`.lqg.catch_plant`), as ``lqg``
+        solves its gain again (:meth:`.lqg.LqgStabilizer.on_activate`): built ahead by
+        :meth:`standby` if that was for the same estimate, else now (counted in
+        ``mpc_catch_builds``: a late cycle in a real-time loop). Else the configured QP.
         """
         self._integral.reset()
         self._clock.reset(state.t)
@@ -228,11 +269,17 @@ class MpcStabilizer(Controller):
         qp, gain = self._nominal
         solved_for = self.context.plant
         if again is not None:
-            try:
-                self._build(*again)
-                qp, gain, solved_for = self.qp, self.gain, again[0]
-            except ValueError:
-                pass  # no stabilising solution for the estimate: the model's QP
+            ready = self._ready
+            if ready is None or not _same_catch(ready, again):
+                self.catch_builds += 1
+                try:
+                    ready = (*again, self._qp_for(*again))
+                except ValueError:  # no stabilising solution for the estimate: the model's QP
+                    ready = (*again, None)
+                self._ready = ready
+            if ready[2] is not None:
+                qp, gain, solved_for = ready[2], ready[2].gain_row.copy(), ready[0]
+        self._ahead = None
         self.qp, self.gain, self.solved_for = qp, gain, solved_for
         self._actuator_state[:] = 0.0
         self.qp.reset()
@@ -276,5 +323,14 @@ class MpcStabilizer(Controller):
                                        + self._actuator_b * applied)
 
     def status_values(self) -> dict[str, float]:
-        """``mpc_solve_us`` (the last solve's wall time) and ``mpc_fallbacks`` (count)."""
-        return {'mpc_solve_us': self.solve_us, 'mpc_fallbacks': self.fallbacks}
+        """``mpc_solve_us`` (the last solve's wall time), ``mpc_fallbacks`` and
+        ``mpc_catch_builds`` (counts)."""
+        return {'mpc_solve_us': self.solve_us, 'mpc_fallbacks': self.fallbacks,
+                'mpc_catch_builds': self.catch_builds}
+
+
+def _same_catch(built: tuple, wanted: tuple) -> bool:
+    """A QP built for ``built`` = (plant, r_factor, ...) serves ``wanted`` = (plant, r_factor):
+    pendulum length and R within :data:`.lqg.RESOLVE_TOLERANCE`."""
+    return abs(built[0].l / wanted[0].l - 1.0) <= RESOLVE_TOLERANCE and \
+        abs(built[1] / wanted[1] - 1.0) <= RESOLVE_TOLERANCE
