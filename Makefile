@@ -42,7 +42,7 @@ $(STAMP_BUILD): $(STAMP_VENV) $(PKG_META)
 # qemu-system-arm: installed here when missing and we are root (CI); else those tests skip, naming them.
 # Two xdist workers: the ROS-graph tests (marker ros) run one after another on one of them, the
 # rest spread over both at a lower CPU priority (conftest.py). Then the tests marked alone (the
-# real-time soak, the rig path) with the machine to themselves (exit 5: TEST_ARGS selected none).
+# rig path against the emulated device) with the machine to themselves (exit 5: none selected).
 # TEST_ARGS adds pytest options.
 TEST_ARGS ?=
 test: $(STAMP_BUILD) firmware-deps $(STAMP_TRAIN)

@@ -1,4 +1,4 @@
-"""`cartpole soak`: its judgments on made-up inputs, and a 40-second soak of the real graph."""
+"""`cartpole soak`: its judgments on made-up inputs, and a 2-minute soak of the real graph."""
 import json
 import math
 import subprocess
@@ -119,34 +119,34 @@ STALL_FAULT = ('stale', 'controller manager in fault for')
 
 @pytest.mark.ros
 @pytest.mark.slow
-@pytest.mark.alone
-def test_forty_seconds_of_soak_pass(tmp_path):
-    """The suite's soak (`cartpole soak` runs the long ones): switch every 10 s, restart at
-    20 s; the switches and the restart accepted, the bag whole, no process lost, up.
+def test_two_minutes_of_soak_pass(tmp_path):
+    """The suite's soak (`cartpole soak` runs the long ones): two minutes, switch every 10 s,
+    restart at 60 s; the switches and the restart accepted, the bag whole, no process lost, up.
 
-    ``make test`` runs it alone, after the rest: beside a CPU-bound neighbour at nice 10
-    this soak faulted on a stale state in 2 of 4 runs and its recorder lost the first
-    0.34 s in one more (docs/soak.md). A stall of the loop over 50 ms (a stolen vCPU on the
+    ``make test`` runs it with the other graph tests, beside the worker that runs the rest
+    at nice 10: since the UDP-only profiles and the held first sample, soaks of 10 and 60
+    minutes beside benchmarks and the suite had no fault and lost nothing (docs/soak.md).
+    A stall of the loop over 50 ms (a stolen vCPU on the
     shared VM) still makes the manager fault on a stale state and command zero force, its
     designed reaction: such a fault is accepted with the stall in the manager's longest
     cycle gap, and then the pendulum and the recorder's by-stamp count are not judged; any
     other fault fails."""
     out = tmp_path / 'soak'
     run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'soak',
-                          '--duration', '40', '--switch-every', '10', '--restart-every', '20',
+                          '--duration', '120', '--switch-every', '10', '--restart-every', '60',
                           '--settle', '10', '--out', str(out), '--json'],
                          capture_output=True, text=True, timeout=300)
     result = json.loads(run.stdout)
     assert result['ran_to_the_end'] is True, run.stderr[-3000:]
-    assert result['switches'] == 3 and result['restarts'] == 1, result['events']
+    assert result['switches'] == 11 and result['restarts'] == 1, result['events']
     # Nothing the probe received is missing from the bag, and the bag is whole.
     assert result['damage'] is None and all(t['missing'] == 0 for t in result['topics'].values()), \
         (result['damage'], result['topics'], run.stderr[-2000:])
     assert all(t['recorded'] > 3_000 for t in result['topics'].values())
     assert set(result['processes']) == {'sim', 'ekf', 'controller_manager', 'recorder',
                                         'cartpole soak'}
-    assert result['memory_ok'] is None  # 30 s after settling: too short to judge
-    assert (out / 'soak.md').read_text().startswith('Soak of 4')
+    assert result['memory_ok'] is None  # 110 s after settling: too short to judge
+    assert (out / 'soak.md').read_text().startswith('Soak of 12')
     if result['faults']:
         # A stall: the manager's zero force and status at its stale fault carry its clock,
         # a stamp no estimate has, which the recorder's ledger counts as missed (docs/soak.md).
