@@ -74,6 +74,50 @@ def test_graph_spec_and_process_command_lines(tmp_path):
         GraphSpec(plant='sim', hw_arm=True)
 
 
+def test_the_simulator_starts_only_once_every_reader_of_its_topics_is_seen(monkeypatch):
+    """Two readers of /joint_states (the EKF, the manager) met the old count while the
+    recorder was unseen: the simulator then started, and the bag lost the run's first
+    samples. Now it waits for each reader by name, and ``start_subscribers`` counts them."""
+    from types import SimpleNamespace
+
+    from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE, TRUE_STATE
+    from cartpole_bringup.graph import startup
+
+    spec = startup.GraphSpec(plant='sim', processes=True, record=Path('bag'))
+    seen = {JOINTS: ['ekf', 'controller_manager', 'soak_probe'], TRUE_STATE: ['soak_probe'],
+            STATE: ['controller_manager', 'recorder'], FORCE: ['sim', 'monitor']}
+
+    class Monitor:
+        def get_subscriptions_info_by_topic(self, topic):
+            return [SimpleNamespace(node_name=n) for n in seen['/' + topic]]
+
+        def count_subscribers(self, topic):
+            return len(seen['/' + topic])
+
+        def count_publishers(self, topic):
+            return len(seen['/' + topic])
+
+    polls = []
+
+    def spin_until(ready, timeout):
+        for _ in range(3):
+            polls.append(ready())
+            if polls[-1]:
+                return True
+            seen[JOINTS].append('recorder')  # discovered a moment later
+            seen[TRUE_STATE].append('recorder')
+        return False
+
+    started = {}
+    monkeypatch.setattr(startup, 'start_node_process',
+                        lambda command: started.setdefault(Path(command[0]).name, command))
+    graph = startup.GraphStartup(spec, None, None, Monitor(), {}, {}, None, None, None,
+                                 spin_until, lambda: False, print)
+    graph._start_processes()
+    assert polls == [False, True]
+    assert any('start_subscribers:=2' in part for part in started['sim_node'])
+
+
 def test_run_directory_is_named_by_time_and_controllers(tmp_path):
     now = dt.datetime(2025, 3, 4, 5, 6, 7, tzinfo=dt.timezone.utc)
     names = {'swingup': 'pendulum_energy', 'stabilizer': 'lqg'}

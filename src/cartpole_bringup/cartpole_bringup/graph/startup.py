@@ -53,6 +53,17 @@ def command_line(spec: GraphSpec, name: str, extra: dict | None = None) -> list[
         raise GraphError(str(error)) from error
 
 
+def plant_readers(spec: GraphSpec) -> dict[str, set[str]]:
+    """``{topic: node names}``: the graph's nodes that read the plant's topics, each of which
+    must be seen reading before the plant starts and the simulator's ``start_subscribers``
+    is counted (a count of readers alone can be met while the recorder is still unseen:
+    the bag would lack the run's first samples)."""
+    readers = {JOINTS: {n for n in ('ekf', 'controller_manager', 'recorder') if n in spec.nodes}}
+    if spec.plant == 'sim' and 'recorder' in spec.nodes:
+        readers[TRUE_STATE] = {'recorder'}
+    return readers
+
+
 class GraphStartup:
     """The start of a :class:`cartpole_bringup.graph.graph.Graph`.
 
@@ -183,10 +194,13 @@ class GraphStartup:
         """Processes: wait until EKF, controller manager (and recorder) are in the graph."""
         rec = 1 if self.spec.record else 0
         m = self.monitor
+        wanted = plant_readers(self.spec)
 
         def ready() -> bool:
             # The monitor itself publishes on FORCE too (its zero force in a fault).
-            return (m.count_subscribers(relative(JOINTS)) >= 1 + rec
+            return (all(names <= {i.node_name for i in
+                                  m.get_subscriptions_info_by_topic(relative(topic))}
+                        for topic, names in wanted.items())
                     and m.count_subscribers(relative(STATE)) >= 1 + rec
                     and m.count_publishers(relative(FORCE)) >= 2)
         if not self.spin_until(ready, STARTUP_TIMEOUT) and not self.should_stop():
