@@ -126,11 +126,10 @@ def test_two_minutes_of_soak_pass(tmp_path):
     ``make test`` runs it with the other graph tests, beside the worker that runs the rest
     at nice 10: since the UDP-only profiles and the held first sample, soaks of 10 and 60
     minutes beside benchmarks and the suite had no fault and lost nothing (docs/soak.md).
-    A stall of the loop over 50 ms (a stolen vCPU on the
-    shared VM) still makes the manager fault on a stale state and command zero force, its
-    designed reaction: such a fault is accepted with the stall in the manager's longest
-    cycle gap, and then the pendulum and the recorder's by-stamp count are not judged; any
-    other fault fails."""
+    A stall of the loop over 50 ms (a stolen vCPU on the shared VM) still makes the manager
+    fault on a stale state and command zero force, its designed reaction: such a fault is
+    accepted with the stall in the manager's longest cycle gap, and then the pendulum and the
+    recorder's by-stamp count are not judged; any other fault fails."""
     out = tmp_path / 'soak'
     run = subprocess.run([sys.executable, '-m', 'cartpole_bringup.cli', 'soak',
                           '--duration', '120', '--switch-every', '10', '--restart-every', '60',
