@@ -59,7 +59,7 @@ def test_cartpole_offline_json_prints_the_summary_keys():
                              'mse_x', 'mse_theta', 'end_stop_contact', 'success', 'fault',
                              'controllers', 'longest_cycle_gap_s', 'swingup_law',
                              'force_rms_n', 'force_p2p_n', 'latency_s', 'predict_horizon_s',
-                             'omega0_sq', 'actuator_gain', 'actuator_delay_s',
+                             'omega0_sq', 'actuator_gain', 'actuator_delay_s', 'friction_scale',
                              'falls_after_catch', 'impacts', 'first_impact_s',
                              'impact_speed_mps']
     assert 0.0 < summary['force_rms_n'] <= summary['force_p2p_n']

@@ -10,8 +10,9 @@ device only knows when it wrote the setpoint. Both show in how the cart moves.
 
 The cart row of (4.17) is a momentum balance, dp/dt = F - B_c(x_dot) with
 p = (m_c + m_p) x_dot - m_p l cos(theta) theta_dot; weighed over windows of
-the encoders' samples it gives the gain by recursive least squares for each
-candidate dead time.
+the encoders' samples it gives the gain, an unmodelled force and the scale of
+the cart's friction (4.20) by recursive least squares for each candidate dead
+time (friction changes sign with the velocity; a force does not).
 
 Design notes: docs/controller_manager.md ("Design notes by module", ``cartpole_control.actuator``).
 
@@ -92,6 +93,23 @@ GATE_PERSISTENCE = 4
 """So many gated windows in a row (0.1 s) with the disturbance moved each time: the model
 itself is off (the gain changed); G's uncertainty grows by :data:`GAIN_REOPEN_STD`."""
 GAIN_REOPEN_STD = 0.1
+FRICTION_PRIOR_STD = 0.3
+"""Prior standard deviation of the friction scale S (the cart's friction is S times the
+model's (4.20); a rig's friction is known to a few tens of per cent)."""
+FRICTION_WALK_STD = 0.0005
+"""Random walk of S per window: friction drifts slowly (warming, wear)."""
+FRICTION_SPEED_MIN = 0.05
+"""[m/s] Samples slower than this (their velocity over five samples) tell nothing of S: the
+encoders' noise decides the sign of their friction, and y shares that noise; their friction
+is counted at the estimated S. Taken as news, or at the model's S = 1, they pulled S
+towards 2.4 on the nominal plant, or from 1.5 towards 1, in minutes of balancing."""
+FRICTION_MIN, FRICTION_MAX = 0.3, 3.0
+"""The friction scale estimate is held inside these bounds."""
+FRICTION_READY_STD = 0.1
+"""The friction scale is used once its standard deviation is below this."""
+FRICTION_DEADBAND = 0.1
+"""What the estimate cannot tell from the model's friction; :meth:`ActuatorEstimator.friction_compensation`
+acts only beyond this band around 1."""
 
 
 def _triangle_integral(a: float, b: float, half: float) -> float:
@@ -127,12 +145,17 @@ class ActuatorEstimator:
     def reset(self) -> None:
         """Back to the nominal actuator, no disturbance, no data."""
         n = len(self.delays)
-        # Per dead-time candidate: the filter's mean (G, D) and covariance (gg, gd, dd).
+        # Per dead-time candidate: the filter's mean (G, D, S) and covariance
+        # (gg, gd, gs, dd, ds, ss).
         self._g = [1.0] * n
         self._d = [0.0] * n
+        self._s = [1.0] * n
         self._pgg = [GAIN_PRIOR_STD ** 2] * n
         self._pgd = [0.0] * n
+        self._pgs = [0.0] * n
         self._pdd = [DISTURBANCE_PRIOR_STD ** 2] * n
+        self._pds = [0.0] * n
+        self._pss = [FRICTION_PRIOR_STD ** 2] * n
         self._residual = [0.0] * n
         self._best = 0
         self.gain = 1.0
@@ -141,6 +164,9 @@ class ActuatorEstimator:
         """The estimated extra dead time d [s] (0 until :data:`DELAY_READY_WINDOWS`)."""
         self.disturbance = 0.0
         """The estimated unmodelled force D on the cart [N], positive to the right."""
+        self.friction_scale = 1.0
+        """The estimated scale S of the cart's friction (4.20) (1 until its standard
+        deviation is below :data:`FRICTION_READY_STD`)."""
         self.windows = 0
         """Windows taken."""
         self.excited_windows = 0
@@ -164,6 +190,15 @@ class ActuatorEstimator:
         if abs(excess) <= GAIN_DEADBAND:
             return 1.0
         return self.gain - GAIN_DEADBAND if excess > 0.0 else self.gain + GAIN_DEADBAND
+
+    @property
+    def friction_compensation(self) -> float:
+        """The scale of the friction feedforward (6.12): :attr:`friction_scale` less
+        :data:`FRICTION_DEADBAND` towards 1, exactly 1 within the band."""
+        excess = self.friction_scale - 1.0
+        if abs(excess) <= FRICTION_DEADBAND:
+            return 1.0
+        return self.friction_scale - math.copysign(FRICTION_DEADBAND, excess)
 
     @property
     def delay_compensation(self) -> float:
@@ -263,16 +298,24 @@ class ActuatorEstimator:
         p = self.plant
         mass, m_p_l = self._mass, self._m_p_l
         cos, tanh = math.cos, math.tanh
-        y = 0.0
-        for i in range(2 * m):
+        y = psi = slow = 0.0
+        last = 2 * m
+        for i in range(last):
             slope = 1.0 if i < m else -1.0
             dx = xs[i + 1] - xs[i]
             dth = ths[i + 1] - ths[i]
             y -= slope * (mass * dx - m_p_l * cos(0.5 * (ths[i] + ths[i + 1])) * dth)
-            v = dx / h
+            # the friction's velocity over five samples: a fifth of the noise of dx / h, and
+            # little of the noise y has from this dx
+            lo, hi = max(i - 2, 0), min(i + 3, last)
+            v = (xs[hi] - xs[lo]) / ((hi - lo) * h)
             friction = ((p.c_c_right if v >= 0.0 else p.c_c_left)
                         * tanh(p.friction_steepness_cart * v) + p.v_c * v)
-            y += (m - abs(i + 0.5 - m)) * h * friction * h
+            if abs(v) >= FRICTION_SPEED_MIN:
+                psi += (m - abs(i + 0.5 - m)) * h * friction * h
+            else:  # too slow to tell S from the encoders' noise: S as estimated, no news of it
+                slow += (m - abs(i + 0.5 - m)) * h * friction * h
+        # y = G phi + D w - S psi + e: the momentum gained, less the forces' integrals
         if abs(phi_0) < PHI_MIN or self._force_span(centre - half - DELAY_MAX,
                                                     centre + half) < SPAN_MIN:
             # A small or steady command (a balanced pendulum): news of D only. The dead time hardly
@@ -282,7 +325,7 @@ class ActuatorEstimator:
             phi = self._force_integral(centre - d - half, centre - d, half)
             if math.isnan(phi):
                 return
-            self._update(y, [phi] * len(self.delays), half * half, False)
+            self._update(y, [phi] * len(self.delays), half * half, psi, slow, False)
             return
         phis = []
         for d in self.delays:
@@ -290,63 +333,93 @@ class ActuatorEstimator:
             if math.isnan(phi):
                 return
             phis.append(phi)
-        self._update(y, phis, half * half, True)
+        self._update(y, phis, half * half, psi, slow, True)
 
-    def _update(self, y: float, phis: list[float], w: float, excited: bool) -> None:
-        """One window into every candidate's Kalman filter of (G, D); choose the dead time.
+    def _update(self, y: float, phis: list[float], w: float, psi: float, slow: float,
+                excited: bool) -> None:
+        """One window into every candidate's Kalman filter of (G, D, S); choose the dead time.
 
-        ``y = G phi_d + D w + e`` with ``w = T^2`` (the triangle's integral) and
-        ``e`` of standard deviation :data:`NOISE_STD`; G and D random walks. Unless
-        ``excited`` (a large, varying command) the window moves D alone.
+        ``y = G phi_d + D w - S (psi + slow) + e`` with ``w = T^2`` (the
+        triangle's integral), ``psi`` and ``slow`` the model friction's integral
+        over the fast and the slow samples (only ``psi`` tells S) and ``e`` of
+        standard deviation :data:`NOISE_STD`; G, D and S random walks. Unless ``excited``
+        (a large, varying command) the window moves D and S alone; a gated
+        innovation (a push) moves D alone.
         """
         r = NOISE_STD * NOISE_STD
         q_g, q_d = GAIN_WALK_STD * GAIN_WALK_STD, DISTURBANCE_WALK_STD * DISTURBANCE_WALK_STD
+        q_s = FRICTION_WALK_STD * FRICTION_WALK_STD
         lam = RESIDUAL_FORGETTING
-        g_all, d_all = self._g, self._d
-        pgg_all, pgd_all, pdd_all, res_all = self._pgg, self._pgd, self._pdd, self._residual
+        g_all, d_all, s_all = self._g, self._d, self._s
+        pgg_all, pgd_all, pgs_all = self._pgg, self._pgd, self._pgs
+        pdd_all, pds_all, pss_all = self._pdd, self._pds, self._pss
+        res_all = self._residual
         runs = self._gated_run
         jumps = []
         for k, phi in enumerate(phis):
-            g, d = g_all[k], d_all[k]
-            pgg, pgd, pdd = pgg_all[k] + q_g, pgd_all[k], pdd_all[k] + q_d
-            nu = y - g * phi - d * w
+            g, d, f = g_all[k], d_all[k], s_all[k]
+            pgg, pgd, pgs = pgg_all[k] + q_g, pgd_all[k], pgs_all[k]
+            pdd, pds, pss = pdd_all[k] + q_d, pds_all[k], pss_all[k] + q_s
+            nu = y - g * phi - d * w + f * (psi + slow)
             jump = False
             if excited and abs(phi) >= PHI_MIN:
                 if runs[k] >= GATE_PERSISTENCE:
                     pgg = min(pgg + GAIN_REOPEN_STD * GAIN_REOPEN_STD, PGG_MAX)
                     runs[k] = 0
-                s = phi * phi * pgg + 2.0 * phi * w * pgd + w * w * pdd + r
+                # P H^T with H = (phi, w, -psi)
+                u_g = pgg * phi + pgd * w - pgs * psi
+                u_d = pgd * phi + pdd * w - pds * psi
+                u_s = pgs * phi + pds * w - pss * psi
+                s = phi * u_g + w * u_d - psi * u_s + r
                 z2 = nu * nu / s
                 if z2 <= GATE * GATE:
                     runs[k] = 0
                     res_all[k] = lam * res_all[k] + z2
-                    k_g = (pgg * phi + pgd * w) / s
-                    k_d = (pgd * phi + pdd * w) / s
+                    k_g, k_d, k_s = u_g / s, u_d / s, u_s / s
                     rate = max(GAIN_RATE * math.sqrt(pgg) / 0.1, GAIN_RATE_MIN)
                     step = min(max(k_g * nu, -rate), rate)
                     g = min(max(g + step, GAIN_MIN), GAIN_MAX)
                     d += k_d * nu
+                    if step == k_g * nu:  # a cut G step leaves an innovation S must not take
+                        f += k_s * nu
                     # P - K S K^T; a step cut short leaves G that much less certain
                     cut = k_g * nu - step
-                    pgg, pgd, pdd = (min(pgg - k_g * k_g * s + cut * cut, PGG_MAX),
-                                     pgd - k_g * k_d * s, pdd - k_d * k_d * s)
+                    pgg = min(pgg - k_g * u_g + cut * cut, PGG_MAX)
+                    pgd, pgs = pgd - k_g * u_d, pgs - k_g * u_s
+                    pdd, pds, pss = pdd - k_d * u_d, pds - k_d * u_s, pss - k_s * u_s
                     g_all[k], d_all[k] = g, min(max(d, -DISTURBANCE_MAX), DISTURBANCE_MAX)
-                    pgg_all[k], pgd_all[k], pdd_all[k] = pgg, pgd, pdd
+                    s_all[k] = min(max(f, FRICTION_MIN), FRICTION_MAX)
+                    pgg_all[k], pgd_all[k], pgs_all[k] = pgg, pgd, pgs
+                    pdd_all[k], pds_all[k], pss_all[k] = pdd, pds, pss
                     continue
                 res_all[k] = lam * res_all[k] + GATE * GATE
                 runs[k] += 1
                 jump = True
-            # D alone: a window without news of G, or a change of the disturbance.
-            s_d = w * w * pdd + r
-            k_d = pdd * w / s_d
-            d += k_d * nu
-            pgd *= 1.0 - k_d * w
-            pdd *= 1.0 - k_d * w
             if jump:
+                # A change of the disturbance (a push, a hand): D alone, as far as this window says.
+                s_d = w * w * pdd + r
+                k_d = pdd * w / s_d
+                d += k_d * nu
+                pgd *= 1.0 - k_d * w
+                pds *= 1.0 - k_d * w
+                pdd *= 1.0 - k_d * w
                 jumps.append(k)
-                pdd += nu * nu / (w * w)  # a jump: D may move as far as this window says
+                pdd += nu * nu / (w * w)
+            else:
+                # A window without news of G: D and S, H = (0, w, -psi).
+                u_g = pgd * w - pgs * psi
+                u_d = pdd * w - pds * psi
+                u_s = pds * w - pss * psi
+                s = w * u_d - psi * u_s + r
+                k_d, k_s = u_d / s, u_s / s
+                d += k_d * nu
+                f += k_s * nu
+                pgd, pgs = pgd - k_d * u_g, pgs - k_s * u_g
+                pdd, pds, pss = pdd - k_d * u_d, pds - k_d * u_s, pss - k_s * u_s
             d_all[k] = min(max(d, -DISTURBANCE_MAX), DISTURBANCE_MAX)
-            pgg_all[k], pgd_all[k], pdd_all[k] = pgg, pgd, pdd
+            s_all[k] = min(max(f, FRICTION_MIN), FRICTION_MAX)
+            pgg_all[k], pgd_all[k], pgs_all[k] = pgg, pgd, pgs
+            pdd_all[k], pds_all[k], pss_all[k] = pdd, pds, pss
         self.windows += 1
         if excited:
             best = min(range(len(phis)), key=res_all.__getitem__)
@@ -364,3 +437,6 @@ class ActuatorEstimator:
             # the estimate handed out moves at most OUTPUT_RATE a window (a change of dead time
             # candidate cannot make it jump)
             self.gain += min(max(g_all[best] - self.gain, -OUTPUT_RATE), OUTPUT_RATE)
+        if pss_all[best] <= FRICTION_READY_STD ** 2:
+            self.friction_scale += min(max(s_all[best] - self.friction_scale, -OUTPUT_RATE),
+                                       OUTPUT_RATE)

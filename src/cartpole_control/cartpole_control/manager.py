@@ -402,13 +402,15 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
+                    friction = values['actuator.friction']  # (6.12) scaled to the rig's friction
+                    friction = actuator.friction_compensation if friction == 'auto' else friction
                     if self.mode == STABILIZING:
-                        feedforward = self._feedforward.stabilizing(x_dot, raw)
+                        feedforward = friction * self._feedforward.stabilizing(x_dot, raw)
                     else:  # (6.12) and, in swing-up, the unmodelled force cancelled
                         disturbance = values['actuator.disturbance']
                         if disturbance == 'auto':
                             disturbance = self.plant_estimate.swingup_disturbance
-                        feedforward = self._feedforward(x_dot, raw) - disturbance
+                        feedforward = friction * self._feedforward(x_dot, raw) - disturbance
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
         guard = self._guard
@@ -459,9 +461,7 @@ class ControllerManager:
         self._last_force = 0.0
         return self._output(t, 0.0, 0.0, 0.0, events)
 
-    @property
-    def state_timeout(self) -> float:
-        return float(self._values['state_timeout'])
+    state_timeout = property(lambda self: float(self._values['state_timeout']))
 
     @property
     def actuator_gain(self) -> float:
@@ -488,13 +488,11 @@ class ControllerManager:
 
     def _output(self, t: float, force: float, raw: float, feedforward: float,
                 events: list[str]) -> ManagerOutput:
-        energy = self._energy
-        names = self._names
-        active = self._active
+        energy, names, active = self._energy, self._names, self._active
         return ManagerOutput(
             t, force, self.mode, names[SWINGUP], names[STABILIZER], self._enabled, energy,
             self._target - energy, raw, feedforward, ';'.join(events) if events else '',
             self.catch_count, self.fall_count, self.catch_time, self.fault_reason,
             self._plugins[SWINGUP].law, self.latency.latency, self._horizon,
             self.natural_frequency.omega_sq, self._gain, self.actuator.delay,
-            active.status_values() if active is not None else {})
+            self.actuator.friction_scale, active.status_values() if active is not None else {})

@@ -21,13 +21,13 @@ STATUS_KEYS = ('mode', 'swingup', 'stabilizer', 'enabled', 'energy', 'energy_err
                'feedforward', 'force', 'catch_count', 'fall_count', 'event', 'state_stamp',
                'swingup_law', 'longest_cycle_gap_s', 'cycle_compute_s', 'max_cycle_compute_s',
                'latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
-               'actuator_delay_s')
+               'actuator_delay_s', 'friction_scale')
 """The KeyValues of the controller status, in this order (docs/architecture.md), published by the node as
 ``/cartpole/controller_status``; the
 active plugin's own figures (:meth:`Controller.status_values`, e.g. ``mpc_solve_us``)
 follow them."""
 LOOP_FIGURES = ('latency_s', 'predict_horizon_s', 'omega0_sq', 'actuator_gain',
-                'actuator_delay_s')
+                'actuator_delay_s', 'friction_scale')
 """What the manager learns of the loop and reports in the status and the run summary."""
 
 
@@ -82,6 +82,8 @@ class ManagerOutput:
     """The actuator gain G the command was divided by (``actuator.gain``)."""
     actuator_delay: float = 0.0
     """The estimate of the actuator's extra dead time [s] (used with ``actuator.delay`` auto)."""
+    friction_scale: float = 1.0
+    """The estimate of the cart friction's scale S (used with ``actuator.friction`` auto)."""
     plugin_status: Mapping[str, float] = dataclasses.field(default_factory=dict)
     """The active plugin's :meth:`Controller.status_values` (e.g. ``mpc_solve_us``)."""
 

@@ -149,6 +149,10 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'swing-up cancels [N, positive to the right]; auto = the estimate of the '
                       'plant estimate (cartpole_control.plant_estimate) beyond a 1 N band, at '
                       'most 10 N; 0 = none', low=-20.0, high=20.0, auto=True),
+        ParameterSpec('actuator.friction', AUTO, "Scale of the cart's friction feedforward "
+                      '(6.12) [1]; auto = the friction scale estimated with the gain '
+                      '(cartpole_control.actuator), 1 within 10 % of the model; 1 = the '
+                      "model's friction (4.20)", low=0.3, high=3.0, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
                       'runs (a stall of its own process does not count): zero force, fault '
                       "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),

@@ -4,15 +4,22 @@
 each read one row of (4.17) from positions alone, integrated against the
 triangle ``k(s) = T - |s|`` over ``[t - T, t + T]``. This holds the samples
 of such a window and says when the next window is due: every ``every``
-samples once ``2 half_window + 1`` evenly spaced ones are held; a gap (a lost
-sample, a pause) or :meth:`PositionWindow.clear` (a plant reset) starts
-afresh. No ROS import.
+samples once ``2 half_window + 1`` evenly spaced ones are held. Up to
+:data:`MAX_FILLED` lost samples in a row are filled in on the straight line between
+their neighbours (a link that loses one sample in twenty would otherwise almost never
+hold 41 in a row); a longer gap (a pause) or :meth:`PositionWindow.clear` (a plant
+reset) starts afresh. No ROS import.
 """
 from __future__ import annotations
 
 MAX_GAP_FACTOR = 1.5
-"""Samples further apart than this many sample periods start a new window: the
-sums assume evenly spaced samples."""
+"""Samples at most this many sample periods apart are neighbours; the sums assume evenly
+spaced samples."""
+MAX_FILLED = 2
+"""Lost samples in a row that are filled in by linear interpolation. The error of one
+filled in is a h^2 / 8 (0.13 mm at 10 m/s^2 and h = 10 ms); it cancels in the window's
+sums of differences except at the window's centre (about 4e-4 N s^2 of the actuator's
+momentum balance, a tenth of its noise)."""
 
 
 class PositionWindow:
@@ -47,10 +54,28 @@ class PositionWindow:
         self._since = 0
 
     def push(self, t: float, x: float, theta: float) -> bool:
-        """Take one sample; True when a full window is held and one is due now."""
+        """Take one sample; True when a full window is held and one is due now (or fell due
+        at a sample filled in before it)."""
         times = self.t
-        if times and not (0.0 < t - times[-1] <= MAX_GAP_FACTOR * self.sample_time):
-            self.clear()
+        due = False
+        if times:
+            gap = t - times[-1]
+            ts = self.sample_time
+            if not 0.0 < gap <= MAX_GAP_FACTOR * ts:
+                missing = int(round(gap / ts)) - 1
+                if 1 <= missing <= MAX_FILLED and abs(gap - (missing + 1) * ts) \
+                        <= (MAX_GAP_FACTOR - 1.0) * ts:
+                    t0, x0, th0 = times[-1], self.x[-1], self.theta[-1]
+                    for i in range(1, missing + 1):
+                        f = i / (missing + 1)
+                        due |= self._append(t0 + f * gap, x0 + f * (x - x0),
+                                            th0 + f * (theta - th0))
+                else:
+                    self.clear()
+        return self._append(t, x, theta) or due
+
+    def _append(self, t: float, x: float, theta: float) -> bool:
+        times = self.t
         times.append(t)
         self.x.append(x)
         self.theta.append(theta)

@@ -57,6 +57,7 @@ def status_message(out: ManagerOutput, stamp, longest_cycle_gap: float = 0.0,
         'omega0_sq': repr(float(out.omega_sq)),
         'actuator_gain': repr(float(out.actuator_gain)),
         'actuator_delay_s': repr(float(out.actuator_delay)),
+        'friction_scale': repr(float(out.friction_scale)),
     }
     status = DiagnosticStatus(level=level, name=NODE_NAME, message=out.mode,
                               hardware_id='cartpole',

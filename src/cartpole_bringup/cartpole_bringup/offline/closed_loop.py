@@ -238,7 +238,8 @@ def loop_summary(manager: ControllerManager,
            'predict_horizon_s': round(manager.prediction_horizon, 6),
            'omega0_sq': round(manager.natural_frequency.omega_sq, 4),
            'actuator_gain': round(manager.actuator_gain, 4),
-           'actuator_delay_s': round(manager.actuator.delay, 6)}
+           'actuator_delay_s': round(manager.actuator.delay, 6),
+           'friction_scale': round(manager.actuator.friction_scale, 4)}
     out.update(plugin_status or {})
     return out
 

@@ -9,7 +9,10 @@ changes under a cart acceleration ``u`` as ``dE_p/dt = m_p l u theta_dot cos the
 pumps energy in while ``E_p < E*`` and takes it out above, with E* = 2 m_p g l
 (6.8). The integral removes the steady-state error of (7.5) (section 7.3.2),
 the P-term (7.31) keeps the cart near x*. ``u`` is a cart acceleration
-[m/s^2]; it becomes a force through (7.10).
+[m/s^2]; it becomes a force through (7.10). Beyond the thesis, ``- k_v x_dot``
+damps the P-term's spring once the energy is near E*: without it a cart that
+drifted off x* while the pendulum circles at E* stays there (friction holds it
+against k_c (x* - x)), and the catch, rightly, never comes.
 
 Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.pendulum_energy``).
 """
@@ -22,8 +25,13 @@ from . import ADAPTIVE_TARGET, acceleration_to_force, energy_and_target
 from .energy_integral import EnergyIntegralSwingUp, i_max_parameter
 
 
+DAMPING_BAND = 0.1
+"""The damping ``k_v`` acts while the energy is within this fraction of E*: the pendulum
+swings at its target and the cart has nothing left to pump."""
+
+
 class PendulumEnergySwingUp(EnergyIntegralSwingUp):
-    """Swing-up law (7.32): energy pumping with integral action and cart P-term."""
+    """Swing-up law (7.32): energy pumping with integral action and a damped cart P-term."""
 
     name = 'pendulum_energy'
     parameters = (
@@ -33,6 +41,9 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
                       '[m/s^2 per (J s rad/s)]; thesis 0.02', low=0.0, high=10.0),
         ParameterSpec('k_c', 1.0, 'cart position gain k_c of (7.31)/(7.32) [1/s^2]; thesis 1',
                       low=0.0, high=100.0),
+        ParameterSpec('k_v', 1.0, 'cart velocity gain k_v, the damping of the P-term while the '
+                      'energy is within 10 % of E* (not in the thesis; 0: the thesis law (7.32)) '
+                      '[1/s]', low=0.0, high=100.0),
         i_max_parameter(10.0, 'E_p'),
         ParameterSpec('a_max', 4.0, 'bound of the pumping term of (7.32), the cart '
                       'acceleration [m/s^2] (Astrom-Furuta saturation, not in the thesis; 100: '
@@ -49,11 +60,16 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
     def acceleration(self, state: ControllerState) -> float:
         """The law's cart acceleration u [m/s^2], (7.32); updates the integral."""
         g = self.gains
-        error = self.energy_error(state)
+        energy, target = energy_and_target(state.theta, state.theta_dot, self.context,
+                                           g['adaptive_target'])
+        error = target - energy
         integral = self.integrate(state, error)
         pump = (g['k_e'] * error + g['k_i'] * integral) * state.theta_dot * math.cos(state.theta)
         pump = max(-g['a_max'], min(g['a_max'], pump))
-        return pump + g['k_c'] * (self.context.x_ref - state.x)
+        u = pump + g['k_c'] * (self.context.x_ref - state.x)
+        if abs(error) <= DAMPING_BAND * target:  # at E*: nothing to pump, centre the cart
+            u -= g['k_v'] * state.x_dot
+        return u
 
     def update(self, state: ControllerState) -> float:
         return acceleration_to_force(self.acceleration(state), state, self.context.plant)
