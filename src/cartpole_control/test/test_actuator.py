@@ -220,3 +220,30 @@ def test_after_an_8_n_force_held_for_6_s_the_gain_is_within_5_percent_in_5_s(gai
     after = [g for t, g in estimates.items() if t >= 14.0]
     assert min(after) == pytest.approx(gain, rel=0.05)
     assert max(after) == pytest.approx(gain, rel=0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('friction', [1.0, 1.5])
+def test_two_minutes_of_balancing_leave_the_friction_scale_where_it_was(friction, monkeypatch):
+    """Closed loop, noise on: a balanced cart creeps, and its velocities are mostly the
+    encoders' noise. Taken as news of S they pulled it from 1.0 to 2.4 in five minutes (and
+    counted at the model's S, from 1.5 towards 1); from 30 s to 120 s S stays within 10 %."""
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
+    from cartpole_sim.plant import Scenario
+
+    managers = []
+    init = ControllerManager.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        managers.append(self)
+
+    monkeypatch.setattr(ControllerManager, '__init__', keep)
+    scales = []
+    run = run_closed_loop(P, Scenario(noise=True, seed=0, friction_scale=friction),
+                          duration=120.0, observer=lambda m, e, out, s: scales.append(
+                              (out.t, managers[0].actuator.friction_scale)))
+    assert run.summary['success'], run.summary
+    late = [s for t, s in scales if t >= 30.0]
+    assert min(late) == pytest.approx(friction, rel=0.1)
+    assert max(late) == pytest.approx(friction, rel=0.1)
