@@ -160,6 +160,10 @@ class ControllerManagerNode(Node):
         self.lockstep_timeouts = 0
         """Lockstep: states run without their sample after lockstep_wait."""
         self._hold_timer = None
+        self._stale_floor = float(self.get_parameter('lockstep_wait').value) \
+            if self._lockstep else 0.0
+        """Lockstep: silence up to lockstep_wait is the graph's scheduling, not a stale state
+        (an EKF descheduled 60 ms on a loaded machine faulted a lockstep run)."""
         if self._lockstep:
             self._hold_timer = self.create_timer(
                 float(self.get_parameter('lockstep_wait').value), self._on_hold_timeout,
@@ -367,10 +371,16 @@ class ControllerManagerNode(Node):
         # shows in longest_cycle_gap_s).
         since = self._last_state_ns if previous is None else max(self._last_state_ns, previous)
         self._silent_ns += min(max(now.nanoseconds - since, 0), int(STALE_CHECK_SLACK * 1e9))
-        if self._silent_ns * 1e-9 <= self.manager.state_timeout:
+        if self._silent_ns * 1e-9 <= max(self.manager.state_timeout, self._stale_floor):
             return
         self._stale = True
         stamp = now.to_msg()
+        if self._last_stamp is not None:
+            # In the states' own clock (the simulator's in a sim run; a wall-clock stamp
+            # there sorts after the whole run in a bag): the last state's, plus the silence.
+            ns = (self._last_stamp.sec * 1_000_000_000 + self._last_stamp.nanosec
+                  + max(now.nanoseconds - self._last_state_ns, 0))
+            stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
         out = self.manager.stale(_stamp_seconds(stamp))
         self.publish_zero(stamp)
         self._publish_status(out, stamp)

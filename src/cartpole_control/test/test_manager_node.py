@@ -244,6 +244,9 @@ def test_stale_state_gives_zero_force_and_fault_then_restart(graph, spin_until):
     status, kv = values_of(stale)
     assert status.level == DiagnosticStatus.ERROR and kv['mode'] == 'fault'
     assert float(kv['force']) == 0.0 and h.commands[-1].effort[0] == 0.0
+    # stamped in the states' clock (3 s and the silence), not the wall clock's 2026
+    zero = h.commands[-1].header.stamp
+    assert 3.05 <= zero.sec + 1e-9 * zero.nanosec < 13.0
     (report,) = node.diagnostics.publish().status            # /diagnostics: the input stopped
     assert report.level == DiagnosticStatus.STALE and 'stale state' in report.message
     command, status_array = h.send_state(3.5)
@@ -277,6 +280,34 @@ def test_a_stall_of_the_manager_is_not_silence_of_the_ekf(graph):
     assert not node._stale and node.manager.mode != 'fault'
     check_after(slack)                        # 60 ms > 50 ms of running without a state
     assert node._stale and node.manager.mode == 'fault'
+
+
+def test_in_lockstep_silence_up_to_lockstep_wait_is_not_stale(ros_context):
+    """Lockstep promises the same run however the processes are scheduled: an EKF that a
+    loaded machine deschedules for 60 ms is not a stale state; silence beyond lockstep_wait
+    (0.5 s) still is."""
+    from builtin_interfaces.msg import Time
+    from rclpy.parameter import Parameter
+
+    from cartpole_control.manager_node import STALE_CHECK_SLACK
+    node = ControllerManagerNode(context=ros_context, parameter_overrides=[
+        Parameter('stamp_tolerance', value=0.0), Parameter('lockstep', value=True)])
+    try:
+        for timer in node.timers:  # the check runs by hand here
+            if timer.callback == node._check_stale:
+                timer.cancel()
+        node._last_stamp = Time(sec=3)
+        node._last_state_ns = node.get_clock().now().nanoseconds - 10_000_000_000
+        for _ in range(20):                   # 20 timely checks: 400 ms of running, no state
+            node._last_check_ns = node.get_clock().now().nanoseconds - int(STALE_CHECK_SLACK * 1e9)
+            node._check_stale()
+        assert not node._stale and node.manager.mode != 'fault'
+        for _ in range(6):                    # 120 ms more: beyond lockstep_wait
+            node._last_check_ns = node.get_clock().now().nanoseconds - int(STALE_CHECK_SLACK * 1e9)
+            node._check_stale()
+        assert node._stale and node.manager.mode == 'fault'
+    finally:
+        node.destroy_node()
 
 
 def test_a_state_after_a_stall_clears_the_count(graph):
