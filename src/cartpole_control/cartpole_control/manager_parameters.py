@@ -154,6 +154,7 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       '(cartpole_control.actuator), 1 within 10 % of the model; 1 = the '
                       "model's friction (4.20)", low=0.3, high=3.0, auto=True),
         ParameterSpec('state_timeout', 0.05, 'No state for this long while the manager '
-                      'runs (a stall of its own process does not count): zero force, fault '
-                      "'stale state' [s]", low=round(1.2 * ts, 9), high=10.0),
+                      'runs (a stall of its own process does not count; in lockstep at least '
+                      "lockstep_wait): zero force, fault 'stale state' [s]",
+                      low=round(1.2 * ts, 9), high=10.0),
     ]

@@ -286,8 +286,8 @@ def test_in_lockstep_silence_up_to_lockstep_wait_is_not_stale(ros_context):
     """Lockstep promises the same run however the processes are scheduled: an EKF that a
     loaded machine deschedules for 60 ms is not a stale state; silence beyond lockstep_wait
     (0.5 s) still is."""
-    from builtin_interfaces.msg import Time
     from rclpy.parameter import Parameter
+    from rclpy.time import Time
 
     from cartpole_control.manager_node import STALE_CHECK_SLACK
     node = ControllerManagerNode(context=ros_context, parameter_overrides=[
@@ -296,7 +296,7 @@ def test_in_lockstep_silence_up_to_lockstep_wait_is_not_stale(ros_context):
         for timer in node.timers:  # the check runs by hand here
             if timer.callback == node._check_stale:
                 timer.cancel()
-        node._last_stamp = Time(sec=3)
+        node._last_stamp = Time(seconds=3).to_msg()
         node._last_state_ns = node.get_clock().now().nanoseconds - 10_000_000_000
         for _ in range(20):                   # 20 timely checks: 400 ms of running, no state
             node._last_check_ns = node.get_clock().now().nanoseconds - int(STALE_CHECK_SLACK * 1e9)
