@@ -86,6 +86,20 @@ def test_the_friction_scale_is_found_and_not_read_as_a_weak_amplifier(friction):
     assert est.gain == pytest.approx(1.0, abs=0.05)
 
 
+def kept_managers(monkeypatch):
+    """The list every ControllerManager built from now on is appended to (a closed loop
+    builds its own)."""
+    managers = []
+    init = ControllerManager.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        managers.append(self)
+
+    monkeypatch.setattr(ControllerManager, '__init__', keep)
+    return managers
+
+
 class Lossy:
     """An estimator behind a link that loses each sample with probability ``drop`` (a lost
     sample brings no command either: the last one is held)."""
@@ -203,14 +217,7 @@ def test_after_an_8_n_force_held_for_6_s_the_gain_is_within_5_percent_in_5_s(gai
     from cartpole_sim.plant import Scenario
     from cartpole_sim.scenario import Push
 
-    managers = []
-    init = ControllerManager.__init__
-
-    def keep(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        managers.append(self)
-
-    monkeypatch.setattr(ControllerManager, '__init__', keep)
+    managers = kept_managers(monkeypatch)
     estimates = {}
     run = run_closed_loop(P, Scenario(noise=True, seed=1, actuator_gain=gain,
                                       pushes=(Push(8.0, 'cart', 8.0, 6.0),)), duration=19.0,
@@ -231,14 +238,7 @@ def test_two_minutes_of_balancing_leave_the_friction_scale_where_it_was(friction
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Scenario
 
-    managers = []
-    init = ControllerManager.__init__
-
-    def keep(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        managers.append(self)
-
-    monkeypatch.setattr(ControllerManager, '__init__', keep)
+    managers = kept_managers(monkeypatch)
     scales = []
     run = run_closed_loop(P, Scenario(noise=True, seed=0, friction_scale=friction),
                           duration=120.0, observer=lambda m, e, out, s: scales.append(
