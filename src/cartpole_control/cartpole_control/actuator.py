@@ -311,11 +311,12 @@ class ActuatorEstimator:
             v = (xs[hi] - xs[lo]) / ((hi - lo) * h)
             friction = ((p.c_c_right if v >= 0.0 else p.c_c_left)
                         * tanh(p.friction_steepness_cart * v) + p.v_c * v)
+            weighed = (m - abs(i + 0.5 - m)) * h * friction * h
             if abs(v) >= FRICTION_SPEED_MIN:
-                psi += (m - abs(i + 0.5 - m)) * h * friction * h
+                psi += weighed
             else:  # too slow to tell S from the encoders' noise: S as estimated, no news of it
-                slow += (m - abs(i + 0.5 - m)) * h * friction * h
-        # y = G phi + D w - S psi + e: the momentum gained, less the forces' integrals
+                slow += weighed
+        # y = G phi + D w - S (psi + slow) + e: the momentum gained, less the forces' integrals
         if abs(phi_0) < PHI_MIN or self._force_span(centre - half - DELAY_MAX,
                                                     centre + half) < SPAN_MIN:
             # A small or steady command (a balanced pendulum): news of D only. The dead time hardly

@@ -160,13 +160,13 @@ class ControllerManagerNode(Node):
         self.lockstep_timeouts = 0
         """Lockstep: states run without their sample after lockstep_wait."""
         self._hold_timer = None
-        self._stale_floor = float(self.get_parameter('lockstep_wait').value) \
-            if self._lockstep else 0.0
+        self._stale_floor = 0.0
         """Lockstep: silence up to lockstep_wait is the graph's scheduling, not a stale state
         (an EKF descheduled 60 ms on a loaded machine faulted a lockstep run)."""
         if self._lockstep:
+            self._stale_floor = float(self.get_parameter('lockstep_wait').value)
             self._hold_timer = self.create_timer(
-                float(self.get_parameter('lockstep_wait').value), self._on_hold_timeout,
+                self._stale_floor, self._on_hold_timeout,
                 clock=Clock(clock_type=ClockType.STEADY_TIME))
             self._hold_timer.cancel()
         self.create_service(Trigger, '~/restart_swingup', self._on_restart)
@@ -378,8 +378,7 @@ class ControllerManagerNode(Node):
         if self._last_stamp is not None:
             # In the states' own clock (the simulator's in a sim run; a wall-clock stamp
             # there sorts after the whole run in a bag): the last state's, plus the silence.
-            ns = (self._last_stamp.sec * 1_000_000_000 + self._last_stamp.nanosec
-                  + max(now.nanoseconds - self._last_state_ns, 0))
+            ns = _stamp_ns(self._last_stamp) + max(now.nanoseconds - self._last_state_ns, 0)
             stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
         out = self.manager.stale(_stamp_seconds(stamp))
         self.publish_zero(stamp)

@@ -53,15 +53,18 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
 
     def energy_error(self, state: ControllerState) -> float:
         """E* - E_p, (6.8) and (7.3) [J] (of the estimated pendulum with ``adaptive_target``)."""
-        energy, target = energy_and_target(state.theta, state.theta_dot, self.context,
-                                           self.gains['adaptive_target'])
+        energy, target = self._energy_and_target(state)
         return target - energy
+
+    def _energy_and_target(self, state: ControllerState) -> tuple[float, float]:
+        """(E_p, E*) of (7.3) and (6.8) [J]."""
+        return energy_and_target(state.theta, state.theta_dot, self.context,
+                                 self.gains['adaptive_target'])
 
     def acceleration(self, state: ControllerState) -> float:
         """The law's cart acceleration u [m/s^2], (7.32); updates the integral."""
         g = self.gains
-        energy, target = energy_and_target(state.theta, state.theta_dot, self.context,
-                                           g['adaptive_target'])
+        energy, target = self._energy_and_target(state)
         error = target - energy
         integral = self.integrate(state, error)
         pump = (g['k_e'] * error + g['k_i'] * integral) * state.theta_dot * math.cos(state.theta)
