@@ -30,7 +30,7 @@ from cartpole_core.model import CartPoleParameters
 from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
 from cartpole_sim.plant import Plant, Scenario
 
-from .observation import observation
+from .observation import Observer
 
 _ABORT = object()
 _CLOSE = object()
@@ -40,11 +40,22 @@ class _AgentPlugin(Controller):
     """A plugin whose force is the agent's: :meth:`update` asks the environment."""
 
     loop: 'AgentLoop'
+    adaptive_target = True
+    """The catch's energy condition aims at the measured pendulum's E*, as for the energy laws
+    the policy imitates and the ``policy`` plugin."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.observer = Observer()
+
+    def on_activate(self, state: ControllerState) -> None:
+        self.observer.reset(state.t)
 
     def update(self, state: ControllerState) -> float:
         return self.loop.exchange(self, state)
 
     def command_applied(self, feedback: CommandFeedback) -> None:
+        self.observer.feedback(feedback)
         self.loop.feedback(self, feedback)
 
 
@@ -96,8 +107,7 @@ class AgentLoop:
     def exchange(self, plugin: Controller, state: ControllerState) -> float:
         """In the worker, from a plugin's update: send the state, wait for the force."""
         kind = plugin.kind
-        obs = observation(state.x - plugin.context.x_ref, state.theta, state.x_dot,
-                          state.theta_dot, state.x_ddot, kind == STABILIZER)
+        obs = plugin.observer.observe(state, plugin.context, kind == STABILIZER)
         self.to_env.put(('state', obs, kind, self._true_state()))
         reply = self.to_loop.get()
         if reply is _ABORT or reply is _CLOSE:

@@ -2,8 +2,9 @@
 
 Dataset aggregation (Ross, Gordon and Bagnell, "A reduction of imitation
 learning and structured prediction to no-regret online learning", AISTATS
-2011): round 0 runs the teacher (``energy_saturated`` swing-up and ``lqg``
-stabiliser, the manager's plugins with their default gains) on episodes drawn
+2011): round 0 runs the teacher (by default the default pair, the ``pendulum_energy``
+swing-up and the ``lqg`` stabiliser, the manager's plugins with their default gains; any
+installed pair with ``cartpole train --teacher``) on episodes drawn
 from the range table and records every state a plugin is handed with the
 teacher's raw force; each later round runs the network fitted so far (in a
 fraction ``1 - beta`` of the episodes; ``beta`` halves each round) and the
@@ -24,23 +25,37 @@ import numpy as np
 
 from cartpole_control.controller import STABILIZER, SWINGUP, CommandFeedback, Controller, \
     ControllerState
-from cartpole_control.controllers.energy_saturated import EnergySaturatedSwingUp
-from cartpole_control.controllers.lqg import LqgStabilizer
+from cartpole_control.registry import load_controllers
 from cartpole_core.model import CartPoleParameters
 from cartpole_sim.scenario_ranges import RangeTable
 
 from . import policy_file, ranges
 from .closed_loop import AgentLoop
-from .observation import observation
 
-TEACHERS = {SWINGUP: EnergySaturatedSwingUp, STABILIZER: LqgStabilizer}
+TEACHER = ('pendulum_energy', 'lqg')
+"""The default teacher: (swing-up, stabiliser) plugin names, the controller manager's
+default pair."""
+
+
+def teacher_classes(teacher: tuple[str, str] = TEACHER) -> dict[str, type[Controller]]:
+    """The teacher's plugin classes by kind; ValueError naming the known ones for a bad name
+    (a learned policy cannot teach: ``policy`` is refused)."""
+    classes = {}
+    for kind, name in zip((SWINGUP, STABILIZER), teacher):
+        known = {k: v for k, v in load_controllers(kind).items() if k != 'policy'}
+        if name not in known:
+            raise ValueError(f'{kind} {name!r}: expected one of {sorted(known)}')
+        classes[kind] = known[name]
+    return classes
 
 
 class TeacherLoop(AgentLoop):
     """The closed loop whose plugins act with the teacher or the student, labelled by the teacher."""
 
-    def __init__(self, nominal: CartPoleParameters) -> None:
+    def __init__(self, nominal: CartPoleParameters,
+                 teacher: tuple[str, str] = TEACHER) -> None:
         super().__init__(nominal)
+        self.teacher_classes = teacher_classes(teacher)
         self.scale = nominal.force_max
         self.student: policy_file.Policy | None = None
         self.student_acts = False
@@ -58,7 +73,7 @@ class TeacherLoop(AgentLoop):
     def exchange(self, plugin: Controller, state: ControllerState) -> float:
         kind = plugin.kind
         if self._teachers is None:
-            self._teachers = {k: cls() for k, cls in TEACHERS.items()}
+            self._teachers = {k: cls() for k, cls in self.teacher_classes.items()}
             for teacher in self._teachers.values():
                 teacher.configure({}, plugin.context)
         teacher = self._teachers[kind]
@@ -70,8 +85,7 @@ class TeacherLoop(AgentLoop):
             teacher.activate(state)
             self._kind = kind
         label = float(teacher.update(state))
-        obs = observation(state.x - plugin.context.x_ref, state.theta, state.x_dot,
-                          state.theta_dot, state.x_ddot, kind == STABILIZER)
+        obs = plugin.observer.observe(state, plugin.context, kind == STABILIZER)
         self.observations.append(obs)
         self.labels.append(max(-1.0, min(1.0, label / self.scale)))
         if self.student_acts:
@@ -86,7 +100,7 @@ class TeacherLoop(AgentLoop):
 def collect(job: dict[str, Any]) -> dict[str, Any]:
     """Run ``job['episodes']`` episodes (a worker's share of a round); returns the data."""
     nominal = CartPoleParameters(**(job.get('nominal') or {}))
-    loop = TeacherLoop(nominal)
+    loop = TeacherLoop(nominal, tuple(job.get('teacher') or TEACHER))
     if job.get('student') is not None:
         loop.student = policy_file.Policy(**job['student'])
     rng = np.random.default_rng(job['seed'])

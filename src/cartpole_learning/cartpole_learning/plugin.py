@@ -31,7 +31,7 @@ from cartpole_control.controllers.lqg import LqgStabilizer
 from cartpole_control.controllers.pendulum_energy import PendulumEnergySwingUp
 
 from . import policy_file
-from .observation import OBSERVATION_SIZE, observation
+from .observation import OBSERVATION_SIZE, Observer, observation
 
 logger = logging.getLogger(__name__)
 
@@ -55,6 +55,9 @@ class _PolicyController(Controller):
     name = 'policy'
     parameters = PARAMETERS
     fallback_class: ClassVar[type[Controller]]
+    adaptive_target = True
+    """The catch's energy condition (6.4) aims at the measured pendulum's E*, as for the
+    energy swing-up the policy learned from and falls back to."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -66,6 +69,7 @@ class _PolicyController(Controller):
         self._fallback: Controller | None = None
         self._falling_back = False
         self._obs = np.zeros(OBSERVATION_SIZE, dtype=np.float32)
+        self._observer = Observer()
 
     def on_configure(self) -> None:
         if self.context.validation_only:
@@ -90,6 +94,7 @@ class _PolicyController(Controller):
 
     def on_activate(self, state: ControllerState) -> None:
         self._falling_back = False
+        self._observer.reset(state.t)
         if self.policy is None:
             self._fall_back(state, self.load_error or 'no policy loaded')
 
@@ -104,9 +109,8 @@ class _PolicyController(Controller):
     def update(self, state: ControllerState) -> float:
         if not self._falling_back:
             start = time.perf_counter()
-            obs = observation(state.x - self.context.x_ref, state.theta, state.x_dot,
-                              state.theta_dot, state.x_ddot, self.kind == STABILIZER,
-                              self._obs)
+            obs = self._observer.observe(state, self.context, self.kind == STABILIZER,
+                                         self._obs)
             force = self.policy.force(obs)
             us = (time.perf_counter() - start) * 1e6
             self.inference_us = us
@@ -118,6 +122,7 @@ class _PolicyController(Controller):
         return self._fallback.update(state)
 
     def command_applied(self, feedback: CommandFeedback) -> None:
+        self._observer.feedback(feedback)
         if self._falling_back:
             self._fallback.command_applied(feedback)
 

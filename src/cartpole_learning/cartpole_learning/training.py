@@ -30,7 +30,7 @@ from cartpole_sim.scenario_ranges import RangeTable
 
 from . import policy_file
 from .env import SwingUpEnv
-from .observation import OBSERVATION_SIZE
+from .observation import OBSERVATION_SIZE, VARIANCE_FLOOR
 
 
 @dataclass
@@ -38,9 +38,9 @@ class TrainConfig:
     """What one training run does; every field goes into the policy file's provenance."""
 
     seed: int = 0
-    rounds: int = 6
+    rounds: int = 8
     """DAgger rounds (:mod:`cartpole_learning.imitation`); round 0 is the teacher alone."""
-    episodes: int = 40
+    episodes: int = 80
     """Episodes per round (split over the workers)."""
     epochs: int = 30
     """Passes of the least-squares fit over the aggregated data, per round."""
@@ -55,10 +55,12 @@ class TrainConfig:
     gae_lambda: float = 0.95
     clip_range: float = 0.1
     log_std_init: float = -2.0
+    teacher: tuple[str, str] = ('pendulum_energy', 'lqg')
+    """The laws DAgger imitates: (swing-up, stabiliser) plugin names."""
     net_arch: tuple[int, ...] = (64, 64)
-    duration: float = 6.0
+    duration: float = 8.0
     upright_start: float = 0.25
-    push_time: tuple[float, float] = (2.5, 5.0)
+    push_time: tuple[float, float] = (4.0, 7.0)
     """When a drawn push starts within an episode [s] (the table's own is for 30 s runs)."""
     nominal: dict[str, Any] = field(default_factory=dict)
     """Nominal plant parameters (fields of CartPoleParameters; empty: the thesis's)."""
@@ -144,7 +146,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
             jobs = [dict(seed=config.seed * 100_003 + r * 1009 + w, episodes=n, student=student,
                          beta=beta, table=config.table, duration=config.duration,
                          upright_start=config.upright_start, push_time=config.push_time,
-                         nominal=config.nominal)
+                         nominal=config.nominal, teacher=tuple(config.teacher))
                     for w, n in enumerate(share) if n]
             results = pool.map(collect, jobs)
             ends: dict[str, int] = {}
@@ -158,7 +160,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
             labels = np.concatenate(labels_all)
             if mean is None:
                 mean, var = obs.mean(axis=0).astype(np.float64), obs.var(axis=0).astype(np.float64)
-                var[6] = max(var[6], 0.25)  # the role flag: keep it a unit step
+                var = np.maximum(var, VARIANCE_FLOOR)
             log(f'round {r}: beta {beta:.3f}, {len(obs)} samples, ends {ends}, falls {falls}, '
                 f'{time.perf_counter() - start:.0f} s')
             mse = fit(actor, obs, labels, mean, var, clip, eps, config.epochs, config.seed + r, log)
@@ -176,7 +178,8 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
         'seed': config.seed, 'steps': int(sum(len(o) for o in obs_all)) + ppo.get('steps', 0),
         'wall_time_s': round(wall, 1), 'commit': code, 'config': asdict(config),
         'ranges': RangeTable.from_dict(config.table).to_dict(),
-        'algorithm': 'DAgger on energy_saturated + lqg' + (' then PPO' if ppo else ''),
+        'algorithm': f'DAgger on {config.teacher[0]} + {config.teacher[1]}'
+        + (' then PPO' if ppo else ''),
         'rounds': history, 'ppo': ppo,
         'versions': {'torch': torch.__version__, 'gymnasium': gymnasium.__version__,
                      'stable_baselines3': stable_baselines3.__version__,

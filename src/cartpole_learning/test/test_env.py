@@ -6,6 +6,7 @@ from gymnasium.utils.env_checker import check_env
 
 import cartpole_learning.env  # noqa: F401 (registers the id)
 from cartpole_learning.env import ENV_ID, SwingUpEnv
+from cartpole_learning.observation import OBSERVATION_NAMES
 from cartpole_learning.ranges import draw
 from cartpole_sim.scenario_ranges import RangeTable
 
@@ -21,7 +22,7 @@ def test_registered_and_passes_gymnasiums_env_checker():
     made = gym.make(ENV_ID)
     try:
         check_env(made.unwrapped, skip_render_check=True)
-        assert made.unwrapped.observation_space.shape == (7,)
+        assert made.unwrapped.observation_space.shape == (len(OBSERVATION_NAMES),) == (15,)
     finally:
         made.close()
 
@@ -116,7 +117,7 @@ def test_vectorised_with_gymnasium():
     envs = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode='sync', duration=0.2)
     try:
         obs, _ = envs.reset(seed=0)
-        assert obs.shape == (2, 7)
+        assert obs.shape == (2, len(OBSERVATION_NAMES))
         obs, reward, terminated, truncated, _ = envs.step(np.zeros((2, 1), np.float32))
         assert reward.shape == (2,)
     finally:

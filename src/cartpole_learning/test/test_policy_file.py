@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from cartpole_learning import policy_file
-from cartpole_learning.observation import OBSERVATION_NAMES, OBSERVATION_SIZE, observation
+from cartpole_learning.observation import OBSERVATION_NAMES, OBSERVATION_SIZE, Observer, \
+    observation
 
 N = OBSERVATION_SIZE
 
@@ -106,6 +107,35 @@ def test_observation_is_continuous_over_the_top_and_flags_the_role():
     assert (a[6], b[6]) == (0.0, 1.0)
     assert observation(5.0, 0.0, 0.0, 0.0, 0.0, False)[0] == 2.0  # clipped to the space
 
+
+def test_the_observation_reads_the_plant_estimate_and_keeps_the_stabilisers_integral():
+    from types import SimpleNamespace
+
+    from cartpole_control.controller import CommandFeedback, ControllerState
+    estimate = SimpleNamespace(natural_frequency=SimpleNamespace(omega_sq=30.0, nominal=25.0),
+                               dead_time=0.02, disturbance=-3.0)
+    context = SimpleNamespace(x_ref=0.385, plant_estimate=estimate, sample_time=0.005)
+    observer = Observer()
+    observer.reset(0.0)
+    seen = [observer.observe(ControllerState(0.005 * k, 0.485, 0.1, 0.2, 0.3, 0.4), context,
+                             True).copy() for k in range(1, 4)]
+    names = list(OBSERVATION_NAMES)
+    assert seen[0][names.index('omega_sq_error')] == pytest.approx(0.2)
+    assert seen[0][names.index('disturbance')] == -3.0
+    assert seen[0][names.index('upright_theta')] == pytest.approx(0.1)
+    # int (x - x*) dt over two steps of 5 ms (the first step from the reset's stamp)
+    assert seen[2][names.index('upright_x_integral')] == pytest.approx(0.1 * 0.015)
+    # the third increment pushed a command cut from below further down: taken back
+    observer.feedback(CommandFeedback(raw=-40.0, force=-37.0, limited=-1))
+    held = observer.observe(ControllerState(0.02, 0.485, 0.1, 0.2, 0.3, 0.4), context, True)
+    assert held[names.index('upright_x_integral')] == pytest.approx(0.1 * 0.015)
+    observer.feedback(CommandFeedback(raw=-4.0, force=-4.0, limited=0))  # passed: kept
+    assert observer.observe(ControllerState(0.025, 0.485, 0.1, 0.2, 0.3, 0.4), context, True)[
+        names.index('upright_x_integral')] == pytest.approx(0.1 * 0.02)
+    swinging = Observer().observe(ControllerState(0.0, 0.485, 3.0, 0.2, 0.3, 0.4),
+                                  SimpleNamespace(x_ref=0.385, plant_estimate=None,
+                                                  sample_time=0.005), False)
+    assert list(swinging[6:]) == [0.0] * 9  # outside a manager and in the swing-up role
 
 def test_the_shipped_policy_loads_and_records_its_provenance():
     from cartpole_learning.plugin import SHIPPED_POLICY

@@ -19,10 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='the policy file to write (default policy.npz; the SB3 model and '
                              'its normalisation go beside it for a later look)')
     parser.add_argument('--seed', type=int, default=0, help='seed of everything (default 0)')
-    parser.add_argument('--rounds', type=int, default=6,
-                        help='DAgger rounds; round 0 runs the teacher alone (default 6)')
-    parser.add_argument('--episodes', type=int, default=40,
-                        help='episodes per round (default 40)')
+    parser.add_argument('--rounds', type=int, default=8,
+                        help='DAgger rounds; round 0 runs the teacher alone (default 8)')
+    parser.add_argument('--episodes', type=int, default=80,
+                        help='episodes per round (default 80)')
     parser.add_argument('--epochs', type=int, default=30,
                         help='passes of the fit over the aggregated data per round (default 30)')
     parser.add_argument('--workers', type=int, default=2,
@@ -36,8 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='nominal plant parameters (CartPoleParameters YAML, e.g. from '
                              '`cartpole identify`): the model of the EKF, the manager and the '
                              'teacher, and the centre of the ranges; default: thesis values')
-    parser.add_argument('--duration', type=float, default=6.0, metavar='S',
-                        help='simulated seconds per episode (default 6)')
+    parser.add_argument('--teacher', default='pendulum_energy:lqg', metavar='SWINGUP:STABILIZER',
+                        help='the laws the policy imitates, two controller plugin names '
+                             '(default pendulum_energy:lqg, the default pair)')
+    parser.add_argument('--duration', type=float, default=8.0, metavar='S',
+                        help='simulated seconds per episode (default 8)')
 
 
 BOUNDS = {'seed': (0, 2**32 - 1), 'rounds': (1, 50), 'episodes': (1, 1000), 'epochs': (1, 1000),
@@ -67,7 +70,16 @@ def checked(args: argparse.Namespace):
     nominal = {}
     if args.plant_params:
         nominal = dataclasses.asdict(boundary.plant_parameters(args.plant_params))
-    config = TrainConfig(seed=args.seed, rounds=args.rounds, episodes=args.episodes,
+    from cartpole_learning.imitation import teacher_classes
+    teacher = tuple(args.teacher.split(':'))
+    if len(teacher) != 2:
+        raise boundary.InputError(f'--teacher {args.teacher!r}: expected SWINGUP:STABILIZER, '
+                                  'e.g. pendulum_energy:lqg')
+    try:
+        teacher_classes(teacher)
+    except ValueError as error:
+        raise boundary.InputError(f'--teacher {error}') from None
+    config = TrainConfig(seed=args.seed, teacher=teacher, rounds=args.rounds, episodes=args.episodes,
                          epochs=args.epochs, workers=args.workers, ppo_steps=args.ppo_steps,
                          duration=args.duration, table=table, nominal=nominal)
     return config, out

@@ -1,0 +1,40 @@
+"""DAgger's teacher and what it records: the laws by name, the estimate's features."""
+import numpy as np
+import pytest
+
+from cartpole_control.controllers.lqg import LqgStabilizer
+from cartpole_control.controllers.pendulum_energy import PendulumEnergySwingUp
+from cartpole_core.model import CartPoleParameters
+from cartpole_learning.imitation import TEACHER, TeacherLoop, teacher_classes
+from cartpole_learning.observation import OBSERVATION_NAMES
+from cartpole_sim.scenario import Scenario
+
+
+def test_the_default_teacher_is_the_default_pair():
+    assert TEACHER == ('pendulum_energy', 'lqg')
+    assert teacher_classes() == {'swingup': PendulumEnergySwingUp, 'stabilizer': LqgStabilizer}
+
+
+@pytest.mark.parametrize('teacher, message', [
+    (('foo', 'lqg'), "swingup 'foo': expected one of"),
+    (('pendulum_energy', 'policy'), "stabilizer 'policy': expected one of"),
+])
+def test_an_unknown_teacher_or_a_learned_one_is_refused(teacher, message):
+    with pytest.raises(ValueError, match=message):
+        teacher_classes(teacher)
+
+
+def test_the_teacher_labels_what_it_does_and_the_features_carry_the_plant_estimate():
+    """A 40 ms dead time the manager measures shows in the observation the teacher labels."""
+    loop = TeacherLoop(CartPoleParameters())
+    try:
+        loop.begin(student_acts=False)
+        loop._episode(Scenario(delay=0.04, seed=0), 800)  # 4 s from hanging
+        assert loop.receive()[:2] == ('end', 'time')
+    finally:
+        loop.close()
+    obs, labels = np.array(loop.observations), np.array(loop.labels)
+    assert len(obs) == len(labels) == 801
+    assert np.max(np.abs(labels)) > 0.3  # the energy law pumps
+    dead_time = obs[:, OBSERVATION_NAMES.index('dead_time')]
+    assert dead_time[0] < 0.01 and 0.035 < dead_time[-1] < 0.05  # learned during the swing-up
