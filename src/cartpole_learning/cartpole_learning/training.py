@@ -30,6 +30,7 @@ from cartpole_sim.scenario_ranges import RangeTable
 
 from . import policy_file
 from .env import SwingUpEnv
+from .imitation import TEACHER
 from .observation import OBSERVATION_SIZE, VARIANCE_FLOOR
 
 
@@ -55,7 +56,7 @@ class TrainConfig:
     gae_lambda: float = 0.95
     clip_range: float = 0.1
     log_std_init: float = -2.0
-    teacher: tuple[str, str] = ('pendulum_energy', 'lqg')
+    teacher: tuple[str, str] = TEACHER
     """The laws DAgger imitates: (swing-up, stabiliser) plugin names."""
     net_arch: tuple[int, ...] = (64, 64)
     duration: float = 8.0

@@ -90,24 +90,56 @@ def test_a_non_finite_output_falls_back_for_the_rest_of_the_activation(tmp_path)
     assert plugin.law == 'policy'
 
 
-def test_an_overrun_falls_back(tmp_path):
+def test_overruns_in_a_row_fall_back_and_each_is_counted(tmp_path):
     _write(tmp_path / 'ok.npz')
     plugin = PolicySwingUp()
-    plugin.configure({'file': str(tmp_path / 'ok.npz'), 'max_inference_us': 10.0}, _context())
+    plugin.configure({'file': str(tmp_path / 'ok.npz'), 'max_overruns': 3}, _context())
     plugin.activate(_upright())
-    plugin.inference_us = 0.0
-    # No inference of this interpreter takes less than 10 ns; make the budget unreachable.
+    budget = plugin.gains['max_inference_us']
+    # No inference of this interpreter takes less than 1 ns; make the budget unreachable.
     plugin.gains['max_inference_us'] = 1e-3
-    plugin.update(_upright())
+    plugin.update(_upright(0.005))
+    plugin.update(_upright(0.010))
+    assert plugin.law == 'policy'  # late twice: still the policy's force
+    plugin.gains['max_inference_us'] = budget
+    plugin.update(_upright(0.015))  # in time: the count in a row starts again
+    plugin.gains['max_inference_us'] = 1e-3
+    for k in range(2):
+        plugin.update(_upright(0.02 + 0.005 * k))
+    assert plugin.law == 'policy' and plugin.status_values()['policy_overruns'] == 4
+    plugin.update(_upright(0.03))  # the third in a row
     assert plugin.law == 'policy:fallback(pendulum_energy)'
     assert plugin.status_values()['policy_fallbacks'] == 1
+    assert 'overrun: 3 inferences in a row' in plugin.fallback_reason
     # A batch run waits for every cycle: no overrun there, and the run stays deterministic.
     batch = PolicySwingUp()
-    batch.configure({'file': str(tmp_path / 'ok.npz')}, _context(real_time=False))
+    batch.configure({'file': str(tmp_path / 'ok.npz'), 'max_overruns': 1},
+                    _context(real_time=False))
     batch.activate(_upright())
     batch.gains['max_inference_us'] = 1e-3
     batch.update(_upright())
     assert batch.law == 'policy' and batch.status_values()['policy_fallbacks'] == 0
+    assert batch.status_values()['policy_overruns'] == 0
+
+
+def test_a_preempted_inference_is_no_overrun(tmp_path):
+    """5 ms of wall time in which the thread does no work (the loop preempted) is the
+    loop's cycle gap, not the network's overrun: the policy stays in charge."""
+    import time
+    from types import SimpleNamespace
+    _write(tmp_path / 'ok.npz')
+    plugin = PolicyStabilizer()
+    plugin.configure({'file': str(tmp_path / 'ok.npz'), 'max_overruns': 1}, _context())
+    plugin.activate(_upright())
+    network = plugin.policy.force
+
+    def preempted(obs):
+        time.sleep(0.005)  # stands for the scheduler running another process
+        return network(obs)
+    plugin.policy = SimpleNamespace(force=preempted)
+    plugin.update(_upright(0.005))
+    assert plugin.law == 'policy' and plugin.status_values()['policy_fallbacks'] == 0
+    assert plugin.inference_us < 2000.0 and plugin.status_values()['policy_overruns'] == 0
 
 
 def test_a_scratch_validation_reads_no_file(tmp_path):
