@@ -67,3 +67,29 @@ def test_without_progress_the_monitor_publishes_none(ros_context):
         assert monitor.count_publishers(PROGRESS_TOPIC) == 0
     finally:
         monitor.destroy_node()
+
+
+def test_a_sample_stamped_zero_takes_the_commands_stamp_before_any_state_is_seen(ros_context):
+    """On a loaded machine the plant's states may still be undiscovered when the controller
+    manager dies; the zero then answers the sample after the last command's, the one the
+    lockstep simulator waits for, never the wall clock (which sorts after the whole run)."""
+    from sensor_msgs.msg import JointState
+
+    from cartpole_bringup.graph.run_monitor import RunMonitor
+
+    monitor = RunMonitor(context=ros_context)
+    sent = []
+    try:
+        monitor._force_pub.publish = sent.append  # what the monitor would send
+        for nanosec in (105_000_000, 110_000_000):
+            command = JointState(name=['cart'], effort=[4.7])
+            command.header.stamp.sec, command.header.stamp.nanosec = 2, nanosec
+            monitor._on_force(command)
+        assert monitor.last_stamp_ns is None
+        monitor.publish_zero_force(sample_stamp=True)
+        stamp = sent[-1].header.stamp
+        assert (stamp.sec, stamp.nanosec, list(sent[-1].effort)) == (2, 115_000_000, [0.0])
+        monitor.publish_zero_force(sample_stamp=False)  # the hardware's: this node's clock
+        assert sent[-1].header.stamp.sec > 1_000_000_000
+    finally:
+        monitor.destroy_node()

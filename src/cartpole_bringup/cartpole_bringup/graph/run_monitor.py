@@ -67,6 +67,10 @@ class RunMonitor(Node):
         self._progress = LockstepProgress(self, RecordLedger(booked)) if progress else None
         self.last_stamp_ns: int | None = None
         """Stamp of the latest state sample (simulated time in lockstep)."""
+        self.last_command_stamp_ns: int | None = None
+        """Stamp of the latest force command seen (the sample it answered)."""
+        self._command_period_ns = 0
+        """The step between the last two commands' stamps (the sample period in lockstep)."""
         self.forces = 0
         self.last_force: float | None = None
         self.zero_forces = 0
@@ -117,6 +121,10 @@ class RunMonitor(Node):
 
     def _on_force(self, msg: JointState) -> None:
         stamp = _stamp_ns(msg.header.stamp)
+        last = self.last_command_stamp_ns
+        if last is None or stamp > last:
+            self._command_period_ns = 0 if last is None else stamp - last
+            self.last_command_stamp_ns = stamp
         if self._collect:
             self.builder.joint_state(FORCE, stamp, msg.position, msg.velocity, msg.effort)
         self._book(FORCE, stamp)
@@ -147,13 +155,18 @@ class RunMonitor(Node):
     def publish_zero_force(self, sample_stamp: bool) -> None:
         """Command zero force (``name=['cart']``, ``effort=[0.0]``) in place of the manager.
 
-        ``sample_stamp``: stamped with the latest state sample (what the
-        lockstep simulator waits for), else with this node's clock (fresh for
-        the hardware bridge, which drops commands older than its timeout).
+        ``sample_stamp``: stamped with the latest state sample (what the lockstep
+        simulator waits for) or, while no state has been seen (on a loaded machine the
+        plant's states may still be undiscovered; the commands' publisher is matched before
+        the plant starts), with the sample after the last command's; else with this node's
+        clock (fresh for the hardware bridge, which drops commands older than its timeout).
         """
         if sample_stamp and self.last_stamp_ns is not None:
             self._zero_stamp_ns = self.last_stamp_ns
             self._publish_zero(self.last_stamp_ns)
+        elif sample_stamp and self.last_command_stamp_ns is not None:
+            self._zero_stamp_ns = self.last_command_stamp_ns  # later samples are answered too
+            self._publish_zero(self.last_command_stamp_ns + self._command_period_ns)
         else:
             self._publish_zero(None)
 
