@@ -123,7 +123,7 @@ class SimNode(Node):
 
         self._step_timer = None
         self._start_subscribers = int(self.get_parameter('start_subscribers').value)
-        """Real time: readers each sample topic must have before the first sample."""
+        """Readers each sample topic must have before the first sample is published."""
         self._timeout_timer = None
         self._startup_timer = None
         period = params.sample_time
@@ -137,10 +137,13 @@ class SimNode(Node):
                 ClockMsg, '/clock',
                 QoSProfile(depth=PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
             self._timeout_timer = self._make_timeout_timer()
+            self._held_since = time.monotonic()
+            self._first_published = False
             if not self._loop_established:
                 self._startup_timer = self.create_timer(
                     STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
-            self._publish_lockstep(self._runner.sample)
+            if self._subscribers_matched():
+                self._publish_first()
         elif self._start_subscribers > 0:
             self._held_since = time.monotonic()
             self._startup_timer = self.create_timer(period, self._await_subscribers,
@@ -151,22 +154,37 @@ class SimNode(Node):
             f'sim: {"lockstep" if self._lockstep else "real time"}, Ts = {period * 1e3:g} ms, '
             f'x0 = {scenario.x0:g} m, theta0 = {scenario.theta0:g} rad')
 
-    def _await_subscribers(self) -> None:
-        """Real time: start the plant once every expected reader is matched (a reader
-        discovered late loses the first samples: the bag would lack the run's start)."""
+    def _subscribers_matched(self) -> bool:
+        """Every expected reader of both sample topics is matched (``start_subscribers``), or
+        START_HOLD_S have passed (with a warning): a reader discovered late loses the first
+        samples, and in lockstep the run monitor, which stands in for a dead controller
+        manager with zero force, would not know the sample to answer."""
         wanted = self._start_subscribers
+        if wanted <= 0:
+            return True
         matched = min(self._pub_joints.get_subscription_count(),
                       self._pub_truth.get_subscription_count())
         waited = time.monotonic() - self._held_since
         if matched < wanted and waited < START_HOLD_S:
-            return
+            return False
         if matched < wanted:
             self.get_logger().warning(
                 f'started with {matched} of {wanted} subscriptions matched after '
                 f'{START_HOLD_S:g} s: a reader discovered later misses the first samples')
+        return True
+
+    def _await_subscribers(self) -> None:
+        """Real time: start the plant once every expected reader is matched."""
+        if not self._subscribers_matched():
+            return
         self.destroy_timer(self._startup_timer)
         self._startup_timer = None
         self._start_stepping()
+
+    def _publish_first(self) -> None:
+        """Lockstep: publish the first sample (held until the readers are matched)."""
+        self._first_published = True
+        self._publish_lockstep(self._runner.sample)
 
     def _start_stepping(self) -> None:
         """Real time: step the plant every sample period of the wall clock."""
@@ -351,6 +369,10 @@ class SimNode(Node):
         if self._loop_established:
             self.destroy_timer(self._startup_timer)
             self._startup_timer = None
+            return
+        if not self._first_published:
+            if self._subscribers_matched():
+                self._publish_first()
             return
         self._publish(self._runner.sample)
         self._try_advance()  # the recorder's wait may have timed out

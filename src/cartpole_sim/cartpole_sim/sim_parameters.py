@@ -90,10 +90,10 @@ def declare_sim_parameters(node: Node) -> None:
                     'topic up to sample k - recorder_window; 0 = do not wait for a recorder.',
         read_only=True, integer_range=[IntegerRange(from_value=0, to_value=90, step=1)]))
     declare('start_subscribers', 0, ParameterDescriptor(
-        description='Real time: hold the first sample until joint_states and '
-                    'cartpole/true_state each have this many matched subscriptions (at most '
-                    '5 s wall, then start and warn), so a recorder has the run from its start; '
-                    '0 = start at once.',
+        description='Hold the first sample until joint_states and cartpole/true_state '
+                    'each have this many matched subscriptions (at most 5 s wall, then start '
+                    'and warn), so a recorder has the run from its start and, in lockstep, '
+                    'the run monitor knows the samples; 0 = start at once.',
         read_only=True, integer_range=[IntegerRange(from_value=0, to_value=64, step=1)]))
     declare('lockstep_timeout', 1.0, ParameterDescriptor(
         description='Lockstep: wall seconds to wait for the awaited command before stepping '

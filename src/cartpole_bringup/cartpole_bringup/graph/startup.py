@@ -181,9 +181,10 @@ class GraphStartup:
             extra = {}
             if name == self.spec.plant:
                 self._wait_for_subscribers()
-                if name == 'sim' and not self.spec.lockstep:
+                if name == 'sim':
                     # the readers seen here, matched before the first sample (a reader
-                    # discovering the new simulator late would miss the run's start)
+                    # discovering the new simulator late would miss the run's start; in
+                    # lockstep this node, which answers a dead manager's samples with zero)
                     m = self.monitor
                     extra['start_subscribers'] = min(
                         m.count_subscribers(relative(JOINTS)),
