@@ -126,6 +126,8 @@ class SimNode(Node):
         """Readers each sample topic must have before the first sample is published."""
         self._timeout_timer = None
         self._startup_timer = None
+        self._held_since = time.monotonic()
+        """When the first sample began waiting for its readers."""
         period = params.sample_time
         if self._lockstep:
             # As deep as the sample topics: a reader that stalls (a recorder frozen by the
@@ -137,7 +139,6 @@ class SimNode(Node):
                 ClockMsg, '/clock',
                 QoSProfile(depth=PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
             self._timeout_timer = self._make_timeout_timer()
-            self._held_since = time.monotonic()
             self._first_published = False
             if not self._loop_established:
                 self._startup_timer = self.create_timer(
@@ -145,7 +146,6 @@ class SimNode(Node):
             if self._subscribers_matched():
                 self._publish_first()
         elif self._start_subscribers > 0:
-            self._held_since = time.monotonic()
             self._startup_timer = self.create_timer(period, self._await_subscribers,
                                                     clock=self._wall)
         else:
