@@ -291,14 +291,68 @@ def test_pid_inner_loop_poles_close_to_thesis_8_9():
 
     The thesis's (8.9) has a larger v_p in it (about 0.016 N m s/rad); with
     this model's 0.00067 the poles differ by < 2 %."""
-    pid = configured(PidStabilizer)
-    kp, ki, kd = pid.gains['pendulum_gains']
+    kp, ki, kd = THESIS_PID_PENDULUM_GAINS
     p = PARAMS
     poles = np.roots([p.l, kd + p.v_p / (p.m_p * p.l), kp - p.g, ki])
     np.testing.assert_allclose(np.sort(poles.real), np.sort(THESIS_PID_INNER_POLES), rtol=0.02)
 
 
 THESIS_PID_CART_GAINS = (0.2, 0.03, 0.15)                               # Table 8.1
+THESIS_PID_PENDULUM_GAINS = (112.0, 15.0, 15.0)                         # Table 8.1
+
+
+def test_pid_default_keeps_table_8_1_but_its_derivative_gain():
+    defaults = PidStabilizer.defaults()['pendulum_gains']
+    assert defaults[:2] == THESIS_PID_PENDULUM_GAINS[:2]
+    assert defaults[2] == 17.5
+
+
+def pendulum_mode_damping(pendulum_gains, lag, delay_samples, ts=0.005):
+    """Least damping ratio of the fast (pendulum) modes of the sampled cascade behind the
+    amplifier: the cart follows (7.10) exactly, the force reaches it ``delay_samples`` late
+    through a first-order ``lag`` [s]; the state is known exactly (no EKF, no prediction)."""
+    kpc, kic, kdc = PidStabilizer.defaults()['cart_gains']
+    kpp, kip, kdp = pendulum_gains
+    a, b = linearise_upright(PARAMS)
+    b = b.reshape(-1)
+    a_c = np.zeros((5, 5))
+    a_c[:4, :4], a_c[:4, 4], a_c[4, 4] = a, b, -1.0 / lag
+    b_c = np.zeros(5)
+    b_c[4] = 1.0 / lag
+    zoh = scipy.linalg.expm(np.block([[a_c, b_c[:, None]], [np.zeros((1, 6))]]) * ts)
+    a_d, b_d = zoh[:5, :5], zoh[:5, 5]
+    n = 5 + delay_samples + 2    # plant and lag, the commands in flight, the two integrals
+    step = np.zeros((n, n))
+    for j in range(n):
+        v = np.zeros(n)
+        v[j] = 1.0
+        i_x = v[-2] - ts * v[0]                         # int (x* - x), x* = 0
+        theta_ref = -(-kpc * v[0] + kic * i_x - kdc * v[2])
+        i_theta = v[-1] + ts * (theta_ref - v[1])
+        u = kpp * (theta_ref - v[1]) + kip * i_theta - kdp * v[3]
+        force = (u - a[2] @ v[:4]) / b[2]               # (7.10) on the linear model
+        applied = v[4 + delay_samples] if delay_samples else force
+        column = np.zeros(n)
+        column[:5] = a_d @ v[:5] + b_d * applied
+        if delay_samples:
+            column[5] = force
+            column[6:5 + delay_samples] = v[5:4 + delay_samples]
+        column[-2], column[-1] = i_x, i_theta
+        step[:, j] = column
+    s = np.log(np.linalg.eigvals(step).astype(complex)) / ts
+    fast = np.abs(s) > 3.0
+    return float(np.min(-s[fast].real / np.abs(s[fast])))
+
+
+@pytest.mark.parametrize('lag, delay_samples', [(0.01, 2), (0.02, 2), (0.02, 4), (0.03, 2)])
+def test_pid_derivative_gain_damps_the_pendulum_behind_the_dead_time(lag, delay_samples):
+    """Behind 20-40 ms of the amplifier's lag and unpredicted delay Table 8.1's K_d = 15
+    leaves the pendulum mode at a damping ratio of -0.01 (unstable) to 0.28; the default's
+    17.5 gives 0.11-0.68, more in every case (docs/controllers.md, "`pid`")."""
+    thesis = pendulum_mode_damping(THESIS_PID_PENDULUM_GAINS, lag, delay_samples)
+    default = pendulum_mode_damping(PidStabilizer.defaults()['pendulum_gains'], lag,
+                                    delay_samples)
+    assert default > thesis + 0.09
 
 
 def hand_derived_cascade(cart_gains, pendulum_gains, sign=1.0, v_p=0.0):
@@ -328,7 +382,7 @@ def hand_derived_cascade(cart_gains, pendulum_gains, sign=1.0, v_p=0.0):
 @pytest.mark.parametrize('cart_gains, documented_poles', [
     (THESIS_PID_CART_GAINS, [-13.04 + 7.45j, -13.04 - 7.45j, -0.843 + 1.365j, -0.843 - 1.365j,
                              -0.171, -0.133]),
-    (None, [-6.540 + 12.571j, -6.540 - 12.571j, -1.664 + 1.631j, -1.664 - 1.631j, -0.3014,
+    (None, [-10.109 + 7.980j, -10.109 - 7.980j, -1.832 + 1.793j, -1.832 - 1.793j, -0.3015,
             -0.1339]),
 ], ids=['table-8.1', 'default'])
 def test_pid_linearised_cascade_with_7_10_is_stable(cart_gains, documented_poles):
@@ -338,7 +392,9 @@ def test_pid_linearised_cascade_with_7_10_is_stable(cart_gains, documented_poles
     as the plugin's loop here); the documented ones (README) to their printed digits. The
     default's outer loop is faster (the integral takes up an encoder offset in seconds).
     """
-    pid = configured(PidStabilizer, **({} if cart_gains is None else {'cart_gains': cart_gains}))
+    pid = configured(PidStabilizer, **({} if cart_gains is None else
+                                       {'cart_gains': cart_gains,
+                                        'pendulum_gains': THESIS_PID_PENDULUM_GAINS}))
     x_ref = CONTEXT.x_ref
 
     def closed_loop(z):
@@ -375,7 +431,7 @@ def test_pid_refuses_a_pendulum_gain_below_gravity():
     pid = configured(PidStabilizer)
     with pytest.raises(ValueError, match='must exceed g'):
         pid.configure({'pendulum_gains': (9.0, 15.0, 15.0)}, CONTEXT)
-    assert pid.gains['pendulum_gains'] == (112.0, 15.0, 15.0)
+    assert pid.gains['pendulum_gains'] == (112.0, 15.0, 17.5)
     with pytest.raises(ValueError, match='below its minimum'):
         pid.configure({'cart_gains': (0.2, -0.03, 0.15)}, CONTEXT)
 
