@@ -279,6 +279,16 @@ def test_fault_and_longest_cycle_gap_come_from_the_controller_status(tmp_path):
     assert s['success'] is False  # balanced, but a run with a fault is no success
 
 
+def test_a_fall_after_the_catch_fails_the_run_by_the_strict_rule(tmp_path, known_bag):
+    """The manager's `fall` events after the first catch are counted (one before it is not)."""
+    assert analyze_bag(known_bag).summary['falls_after_catch'] == 0
+    path = tmp_path / 'fell'
+    bag_synth.write_run(path, events={0.5: 'fall', 9.0: 'fall', 9.6: 'catch'})
+    s = analyze_bag(path).summary
+    assert s['falls_after_catch'] == 1
+    assert s['success'] is False  # balanced at the end, but it fell once on the way
+
+
 def test_the_summary_ends_where_the_run_ended_and_keeps_its_fault(tmp_path):
     """cartpole run writes run_end_ns and fault into the bag: analyze reports the same."""
     from cartpole_analysis.bags.writer import bag_custom_data, update_custom_data

@@ -35,6 +35,7 @@ JOINTS = '/joint_states'
 CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
+FALL_EVENT = 'fall'
 TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
 """Summary keys the comparison table shows besides the success measures
 (docs/reference/summary.md, "The run summary")."""
@@ -85,6 +86,8 @@ class SeriesBuilder:
     """The active controller cycle by cycle (stamps in ns)."""
     faults: list[tuple[int, str]] = field(default_factory=list)
     """(stamp [ns], reason) of each fault the manager or the bridge reported."""
+    falls: list[int] = field(default_factory=list)
+    """Stamps [ns] of the manager's ``fall`` events (the pendulum fell while stabilising)."""
     cycle_gaps: list[tuple[int, float]] = field(default_factory=list)
     """(stamp [ns], longest_cycle_gap_s) whenever the reported value grew."""
     figures: list[tuple[int, dict[str, float]]] = field(default_factory=list)
@@ -116,6 +119,8 @@ class SeriesBuilder:
         for e in events:
             if e.startswith('fault:'):
                 self.faults.append((cycle_ns, e[len('fault:'):]))
+            elif e == FALL_EVENT:
+                self.falls.append(cycle_ns)
         gap = _float_or_none(values.get('longest_cycle_gap_s'))
         if gap is not None and (not self.cycle_gaps or gap > self.cycle_gaps[-1][1]):
             self.cycle_gaps.append((cycle_ns, gap))
@@ -207,6 +212,16 @@ class SeriesBuilder:
         faults = sorted(f for f in self.faults if end_ns is None or f[0] <= end_ns)
         return faults[0][1] if faults else None
 
+    def falls_after_catch(self, end_ns: int | None = None) -> int | None:
+        """How many ``fall`` events came after the first catch, up to ``end_ns``; None
+        without any status (a bag without the manager's cannot tell)."""
+        if not self.status_count:
+            return None
+        if self.catch_ns is None:
+            return 0
+        return sum(1 for ns in self.falls
+                   if ns >= self.catch_ns and (end_ns is None or ns <= end_ns))
+
     def longest_cycle_gap(self, end_ns: int | None = None) -> float | None:
         """The largest ``longest_cycle_gap_s`` reported up to ``end_ns`` (None if never)."""
         gaps = [g for ns, g in self.cycle_gaps if end_ns is None or ns <= end_ns]
@@ -234,6 +249,7 @@ class SeriesBuilder:
                                     longest_cycle_gap_s=self.longest_cycle_gap(end_ns),
                                     swingup_law=self.swingup_law,
                                     force=series.force, t_force=series.t_force,
+                                    falls_after_catch=self.falls_after_catch(end_ns),
                                     window=window)
         summary.update(self.last_figures(end_ns))
         return series, summary
