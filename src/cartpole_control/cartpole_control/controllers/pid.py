@@ -1,4 +1,7 @@
-"""Cascade PID stabiliser, section 8.1, (8.1)-(8.10), gains of Table 8.1.
+"""Cascade PID stabiliser, section 8.1, (8.1)-(8.10), the pendulum loop's K_p, K_i of Table 8.1.
+
+The cart loop's gains are faster than Table 8.1's, and the pendulum loop's K_d is 17.5, not
+15: the thesis's leaves the pendulum mode little damping behind the amplifier's dead time.
 
 Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.pid``).
 """
