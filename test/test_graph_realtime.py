@@ -33,6 +33,7 @@ def test_real_time_sim_run_with_disturbances_still_succeeds():
     assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0, summary
     assert summary['end_stop_contact'] is False, summary
     assert summary['success'] is True, summary
+    assert summary['falls_after_catch'] == 0, summary  # counted on the graph too, not null
     assert summary['recorder_missed'] is None, summary  # no bag, nothing counted
 
 
