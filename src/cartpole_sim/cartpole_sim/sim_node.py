@@ -140,11 +140,11 @@ class SimNode(Node):
                 QoSProfile(depth=PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE))
             self._timeout_timer = self._make_timeout_timer()
             self._first_published = False
-            if not self._loop_established:
-                self._startup_timer = self.create_timer(
-                    STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
             if self._subscribers_matched():
                 self._publish_first()
+            if not (self._loop_established and self._first_published):
+                self._startup_timer = self.create_timer(
+                    STARTUP_REPUBLISH_PERIOD, self._republish, clock=self._wall)
         elif self._start_subscribers > 0:
             self._startup_timer = self.create_timer(period, self._await_subscribers,
                                                     clock=self._wall)
@@ -354,8 +354,8 @@ class SimNode(Node):
             skipped += 1
 
     def _on_lockstep_timeout(self) -> None:
-        if not self._loop_established:
-            return
+        if not (self._loop_established and self._first_published):
+            return  # nothing to step past: the first sample is held, or not yet answered
         self.lockstep_timeouts += 1
         what = 'no confirmation from the recorder' if self._answered else 'no force command'
         self.get_logger().warn(
@@ -365,14 +365,17 @@ class SimNode(Node):
         self._lockstep_advance()
 
     def _republish(self) -> None:
-        """Lockstep start-up: re-publish the current sample until a controller answers."""
+        """Lockstep start-up: publish the first sample once its readers are matched, then
+        re-publish the current sample until a controller answers."""
+        if not self._first_published:
+            if not self._subscribers_matched():
+                return
+            self._publish_first()
+            if not self._loop_established:
+                return
         if self._loop_established:
             self.destroy_timer(self._startup_timer)
             self._startup_timer = None
-            return
-        if not self._first_published:
-            if self._subscribers_matched():
-                self._publish_first()
             return
         self._publish(self._runner.sample)
         self._try_advance()  # the recorder's wait may have timed out
