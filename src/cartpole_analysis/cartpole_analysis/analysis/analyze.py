@@ -35,7 +35,6 @@ JOINTS = '/joint_states'
 CLOCK = '/clock'
 
 CATCH_EVENT = 'catch'
-FALL_EVENT = 'fall'
 TABLE_EXTRA_KEYS = ('fault', 'longest_cycle_gap_s', 'recorder_missed')
 """Summary keys the comparison table shows besides the success measures
 (docs/reference/summary.md, "The run summary")."""
@@ -86,8 +85,8 @@ class SeriesBuilder:
     """The active controller cycle by cycle (stamps in ns)."""
     faults: list[tuple[int, str]] = field(default_factory=list)
     """(stamp [ns], reason) of each fault the manager or the bridge reported."""
-    falls: list[int] = field(default_factory=list)
-    """Stamps [ns] of the manager's ``fall`` events (the pendulum fell while stabilising)."""
+    events: list[tuple[int, str]] = field(default_factory=list)
+    """(stamp [ns], ``'event;event'``) of each status that reported events."""
     cycle_gaps: list[tuple[int, float]] = field(default_factory=list)
     """(stamp [ns], longest_cycle_gap_s) whenever the reported value grew."""
     figures: list[tuple[int, dict[str, float]]] = field(default_factory=list)
@@ -116,11 +115,11 @@ class SeriesBuilder:
                              values.get('stabilizer', ''))
         event = values.get('event', '')
         events = event.split(';') if event else []
+        if event:
+            self.events.append((cycle_ns, event))
         for e in events:
             if e.startswith('fault:'):
                 self.faults.append((cycle_ns, e[len('fault:'):]))
-            elif e == FALL_EVENT:
-                self.falls.append(cycle_ns)
         gap = _float_or_none(values.get('longest_cycle_gap_s'))
         if gap is not None and (not self.cycle_gaps or gap > self.cycle_gaps[-1][1]):
             self.cycle_gaps.append((cycle_ns, gap))
@@ -217,10 +216,8 @@ class SeriesBuilder:
         without any status (a bag without the manager's cannot tell)."""
         if not self.status_count:
             return None
-        if self.catch_ns is None:
-            return 0
-        return sum(1 for ns in self.falls
-                   if ns >= self.catch_ns and (end_ns is None or ns <= end_ns))
+        return metrics.falls_after_catch(
+            (e for e in self.events if end_ns is None or e[0] <= end_ns), self.catch_ns)
 
     def longest_cycle_gap(self, end_ns: int | None = None) -> float | None:
         """The largest ``longest_cycle_gap_s`` reported up to ``end_ns`` (None if never)."""

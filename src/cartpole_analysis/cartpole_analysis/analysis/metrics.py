@@ -7,7 +7,7 @@ ground truth (simulation) or the estimate (hardware).
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
@@ -125,6 +125,18 @@ def summarize(t: Sequence[float], x: Sequence[float], theta: Sequence[float], *,
         **control_effort(force, t if t_force is None else t_force, t[-1] - window),
         **extra,
     }
+
+
+FALL_EVENT = 'fall'
+"""The controller manager's event when the pendulum falls while stabilising."""
+
+
+def falls_after_catch(events: Iterable[tuple[float, str]], catch_time: float | None) -> int:
+    """How many ``fall`` events the controller manager reported at or after its first catch:
+    ``events`` are (time, ``'event;event'``) pairs, in the unit of ``catch_time``."""
+    if catch_time is None:
+        return 0
+    return sum(text.split(';').count(FALL_EVENT) for t, text in events if t >= catch_time)
 
 
 def control_effort(force: Sequence[float] | None, t_force: Sequence[float],

@@ -181,7 +181,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             events.append((t, out.event))
             if law is None and manager.catch_time is not None:
                 law = out.swingup_law
-            fell = manager.catch_time is not None and 'fall' in out.event.split(';')
+            fell = manager.catch_time is not None and metrics.FALL_EVENT in out.event.split(';')
         if stop_on_failure and (mode == FAULT or plant.end_stop_contact or fell):
             stopped_at = t
             break
@@ -213,7 +213,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         controllers=spans_from_modes(run.t, modes, events, started_with['swingup'],
                                      started_with['stabilizer']),
         swingup_law=law if law is not None else (out.swingup_law if out is not None else None),
-        force=run.force, falls_after_catch=falls_after_catch(events, catch_time),
+        force=run.force, falls_after_catch=metrics.falls_after_catch(events, catch_time),
         impacts=plant.impacts)
     run.summary.update(loop_summary(manager, plugin_status))
     for key in metrics.STRICT_KEYS:  # after the older keys: their order is kept
@@ -242,13 +242,6 @@ def loop_summary(manager: ControllerManager,
            'friction_scale': round(manager.actuator.friction_scale, 4)}
     out.update(plugin_status or {})
     return out
-
-
-def falls_after_catch(events: list[tuple[float, str]], catch_time: float | None) -> int:
-    """How many ``fall`` events the manager reported after its first catch."""
-    if catch_time is None:
-        return 0
-    return sum(text.split(';').count('fall') for t, text in events if t >= catch_time)
 
 
 def first_fault(events: list[tuple[float, str]]) -> str | None:
