@@ -183,61 +183,6 @@ def test_real_time_stamps_are_the_plants_clock_and_a_stall_is_caught_up(graph, s
     assert (truth[-1] - truth[0]) % TS_NS == 0 and truth[-1] > truth[0]
 
 
-def test_real_time_holds_its_first_sample_until_the_readers_expected_are_matched(
-        graph, spin_until, ros_context, monkeypatch):
-    """``start_subscribers`` 2, one reader: no sample; a second reader on both topics: the
-    samples start at the start itself (hanging at rest). A reader that never comes delays
-    the start by at most the hold."""
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    from cartpole_sim import sim_node
-    sim, probe, executor = graph(lockstep=False, start_subscribers=2)
-    assert spin_until(executor, lambda: time.monotonic() - sim._held_since > 0.2, timeout=10.0)
-    assert not probe.joints and not probe.truth and sim.runner.index == 0
-    second = Node('second_reader', context=ros_context)
-    for topic in ('/joint_states', '/cartpole/true_state'):
-        second.create_subscription(JointState, topic, lambda m: None, 10)
-    executor.add_node(second)
-    try:
-        assert spin_until(executor, lambda: len(probe.truth) >= 3, timeout=10.0)
-    finally:
-        executor.remove_node(second)
-        second.destroy_node()
-    assert list(probe.truth[0].position) == pytest.approx([0.0, math.pi])
-    assert list(probe.truth[0].velocity) == pytest.approx([0.0, 0.0])
-    monkeypatch.setattr(sim_node, 'START_HOLD_S', 0.05)
-    sim, probe, executor = graph(lockstep=False, start_subscribers=9)  # 2 readers of 9
-    assert spin_until(executor, lambda: sim._startup_timer is None and sim.runner.index >= 4,
-                      timeout=10.0)
-
-
-@pytest.mark.parametrize('startup_wait', [True, False])
-def test_lockstep_holds_its_first_sample_until_the_readers_are_matched(
-        graph, spin_until, ros_context, startup_wait):
-    """In lockstep too (the run monitor must know the sample it may answer): no sample while
-    one of two readers is matched, and the lockstep timeout does not step past the held
-    sample 0; a second reader gets the run from sample 0, with or without the start-up wait."""
-    from rclpy.node import Node
-    from sensor_msgs.msg import JointState
-
-    sim, probe, executor = graph(lockstep=True, start_subscribers=2, lockstep_timeout=0.01,
-                                 lockstep_startup_wait=startup_wait)
-    assert spin_until(executor, lambda: time.monotonic() - sim._held_since > 0.2, timeout=10.0)
-    assert not probe.joints and not probe.truth and sim.runner.index == 0
-    second = Node('second_reader', context=ros_context)
-    for topic in ('/joint_states', '/cartpole/true_state'):
-        second.create_subscription(JointState, topic, lambda m: None, 10)
-    executor.add_node(second)
-    try:
-        assert spin_until(executor, lambda: len(probe.truth) >= 1, timeout=10.0)
-    finally:
-        executor.remove_node(second)
-        second.destroy_node()
-    assert stamp_ns(probe.truth[0].header.stamp) == 0
-    assert list(probe.truth[0].position) == pytest.approx([0.0, math.pi])
-
-
 def test_lockstep_watchdog_zero_force_sample_within_50_ms_of_the_last_command(graph,
                                                                              spin_until):
     """The watchdog by simulated stamps: the last command answers sample 2 (it arrives at t_2);
