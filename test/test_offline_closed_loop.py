@@ -148,3 +148,15 @@ def test_default_stabiliser_is_quiet_while_balancing():
     assert s['success'], s
     assert s['force_rms_n'] <= 3.0 and s['force_p2p_n'] <= 15.0, s
     assert s['theta_amp_deg'] <= 0.5, s
+
+
+@pytest.mark.slow
+def test_nominal_precision_of_the_default_pair_over_seeds_0_to_7():
+    """Issue 29's nominal precision, every one of noise seeds 0-7 (the last 10 s of 30 s): catch
+    within 3 s, pendulum within 0.3 deg, cart within 1 cm of x*, force at most 3 N rms. The
+    precise gain does it (lqg's default q; docs/robustness.md, "The precise gain")."""
+    for seed in range(8):
+        s = run_closed_loop(NOMINAL, Scenario(noise=True, seed=seed), duration=30.0).summary
+        assert s['success'] and s['catch_time_s'] <= 3.0, (seed, s)
+        assert s['theta_amp_deg'] <= 0.3 and s['x_err_max_m'] <= 0.01, (seed, s)
+        assert s['force_rms_n'] <= 3.0, (seed, s)

@@ -152,3 +152,44 @@ class CommandsInFlight:
             force = forces[j]
         out.append((t + horizon - begin, force))
         return out
+
+
+AGE_WINDOW = 200
+"""Received samples over which :class:`SampleAge` averages (about 1 s of a 200 Hz loop)."""
+
+
+class SampleAge:
+    """How old, on average over the cycles, the newest encoder sample is because samples are lost.
+
+    A sample followed by ``k`` lost ones serves ``k + 1`` cycles at ages 0, Ts, ... k Ts; over
+    the last :data:`AGE_WINDOW` received samples the mean age is sum k (k + 1) / 2 over sum
+    (k + 1), times Ts: p / (1 - p) Ts for independent losses of probability p (80 % lost:
+    4 Ts). An estimate that old is what the controller acts on: a dead time of its own.
+    Gaps longer than :data:`LATENCY_MAX` (a pause, a new run) are not losses and are skipped.
+    """
+
+    def __init__(self, sample_time: float, window: int = AGE_WINDOW) -> None:
+        self.sample_time = float(sample_time)
+        self._gaps: deque[int] = deque(maxlen=int(window))
+        self._last = None
+
+    def reset(self) -> None:
+        """Forget the samples seen (a new run)."""
+        self._gaps.clear()
+        self._last = None
+
+    def sample(self, t: float) -> None:
+        """A sample stamped ``t`` [s] arrived."""
+        last, self._last = self._last, t
+        if last is None or not (0.0 < t - last <= LATENCY_MAX):
+            return
+        self._gaps.append(max(round((t - last) / self.sample_time) - 1, 0))
+
+    @property
+    def age(self) -> float:
+        """The mean age of the newest sample over the cycles [s]; 0 with nothing lost."""
+        gaps = self._gaps
+        cycles = sum(gaps) + len(gaps)
+        if not cycles:
+            return 0.0
+        return self.sample_time * sum(k * (k + 1) / 2 for k in gaps) / cycles

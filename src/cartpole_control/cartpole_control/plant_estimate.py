@@ -18,7 +18,7 @@ from collections import deque
 from cartpole_core.model import CartPoleParameters
 
 from .actuator import ActuatorEstimator
-from .latency import CommandsInFlight, LatencyEstimator
+from .latency import CommandsInFlight, LatencyEstimator, SampleAge
 from .natural_frequency import NaturalFrequencyEstimator
 
 SAMPLE_LAG = 0.5
@@ -53,6 +53,8 @@ class PlantEstimate:
         self.sample_time = float(sample_time)
         self.latency = LatencyEstimator()
         """The loop's latency from the plant's reports (:meth:`command_applied`)."""
+        self.sample_age = SampleAge(self.sample_time)
+        """The mean age of the newest sample from the lost ones (:meth:`measured`)."""
         self.natural_frequency = NaturalFrequencyEstimator(plant, self.sample_time)
         """omega_0^2 of the pendulum on the rig, from the encoders (:meth:`measured`)."""
         self.actuator = ActuatorEstimator(plant, self.sample_time)
@@ -131,6 +133,7 @@ class PlantEstimate:
     def measured(self, t: float, x: float, theta: float) -> None:
         """The encoders' sample at ``t``: cart position [m], pendulum angle [rad] (unwrapped)."""
         self.samples.append((t, x, theta))
+        self.sample_age.sample(t)
 
     def take_reports(self, t: float, stabilizing: bool) -> None:
         """Feed the estimators what the plant reported before the cycle at ``t``.

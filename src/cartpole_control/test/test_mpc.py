@@ -60,7 +60,7 @@ def test_the_terminal_lqr_is_the_discrete_lqi_of_the_same_weights():
     assert np.max(np.abs(np.linalg.eigvals(a_d - b_d @ k))) < 1.0
     from cartpole_control.controllers.lqg import LqgStabilizer
     lqi = LqgStabilizer()
-    lqi.configure({}, CONTEXT)
+    lqi.configure({'q': plugin.gains['q'], 'r': plugin.gains['r']}, CONTEXT)
     continuous = np.append(lqi.gain, lqi.integral_gain)
     np.testing.assert_allclose(plugin.gain, continuous, rtol=0.15)
 

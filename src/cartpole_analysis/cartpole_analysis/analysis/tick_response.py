@@ -84,7 +84,10 @@ THESIS_SETTINGS: dict[str, tuple[dict[str, Any], EkfConfig]] = {
         {'lqg.q': [400.0, 400.0, 400.0, 400.0], 'feedforward.velocity_band': 0.0},
         EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
                   discretisation='euler')),
-    "default: LQI, EKF with force noise and offset state, velocity band": ({}, EkfConfig()),
+    "robust gain (lqg's default until 2026-12-05): LQI, EKF with force noise and offset "
+    "state, velocity band": ({'lqg.q': [10.0, 10000.0, 10.0, 1.0, 400.0]}, EkfConfig()),
+    "default: the precise gain (pendulum weights x3), the same EKF and feedforward": (
+        {}, EkfConfig()),
 }
 """The settings of the README's table, by label."""
 
