@@ -38,3 +38,6 @@ def test_the_teacher_labels_what_it_does_and_the_features_carry_the_plant_estima
     assert np.max(np.abs(labels)) > 0.3  # the energy law pumps
     dead_time = obs[:, OBSERVATION_NAMES.index('dead_time')]
     assert dead_time[0] < 0.01 and 0.035 < dead_time[-1] < 0.05  # learned during the swing-up
+    stabiliser = loop._teachers['stabilizer']   # the shipped policy's teacher: one, robust gain
+    assert stabiliser.gains['q'] == (10.0, 10000.0, 10.0, 1.0, 400.0)
+    assert np.array_equal(stabiliser.gain, stabiliser.robust_gain)
