@@ -142,11 +142,13 @@ def test_default_stabiliser_is_quiet_while_balancing():
 
     A cart moving all the time needs its friction, 3.4 / 2.45 N: 2.96 N rms. Before,
     one encoder tick times K_theta and the feedforward's sign flips gave 16 N rms, 72 N p2p.
+    `lqg`'s precise gain (stiffer on the pendulum near rest) buys the amplitude with a wider
+    range: 14.0-15.5 N p2p over seeds 0-7, 12.8-14.1 N with the robust gain.
     """
     run = run_closed_loop(NOMINAL, Scenario(noise=True), duration=30.0)
     s = run.summary
     assert s['success'], s
-    assert s['force_rms_n'] <= 3.0 and s['force_p2p_n'] <= 15.0, s
+    assert s['force_rms_n'] <= 3.0 and s['force_p2p_n'] <= 16.0, s
     assert s['theta_amp_deg'] <= 0.5, s
 
 
