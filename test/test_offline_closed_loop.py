@@ -120,8 +120,8 @@ def test_the_default_pair_takes_up_an_encoder_offset_of_0_1_rad(offset):
 def test_the_thesis_laws_without_integral_or_offset_state_still_lose_the_offset_run():
     """The thesis's plain LQR and 4-state filter, one parameter each away: Figure H.1 again
     (the cart drifts off until the rail guard stops it; it never touches a stop)."""
-    ekf = EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
-                    discretisation='euler')
+    ekf = EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
+                    angle_offset_p0=0.0, discretisation='euler')
     run = run_closed_loop(NOMINAL, Scenario(theta0=math.pi + 0.05, encoder_offset=0.05,
                                             noise=True), duration=20.0,
                           manager_parameters={'lqg.q': [100.0, 400.0, 100.0, 400.0]},

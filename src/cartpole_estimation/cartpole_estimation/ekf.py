@@ -71,6 +71,8 @@ class ExtendedKalmanFilter:
         self.missed_samples_total = 0
         self.rejected_samples = 0
         self.input_faults = 0
+        self.pushed_samples = 0
+        """Samples predicted again with ``push_q_force`` (their cart innovation was large)."""
         self._configure()
         self.reset()
 
@@ -85,6 +87,11 @@ class ExtendedKalmanFilter:
             else self.params.sample_time
         offset = cfg.estimates_angle_offset
         self._q_force = cfg.q_force
+        self._push_q_force = cfg.push_q_force if cfg.push_q_force > cfg.q_force else 0.0
+        self._push_innovation = cfg.push_innovation
+        self._push_ratio2 = cfg.push_ratio * cfg.push_ratio
+        self._push_window = cfg.push_window
+        self._push_cos = math.cos(cfg.push_angle)
         self._m_c, self._m_p, self._l = self.params.m_c, self.params.m_p, self.params.l
         self._midpoint = cfg.discretisation == 'midpoint'
         self._q = (*cfg.q_diag, cfg.angle_offset_q if offset else 0.0)
@@ -137,6 +144,7 @@ class ExtendedKalmanFilter:
         """
         self._t: float | None = None
         self._outliers = 0
+        self._nu_x_ms = 0.0  # mean square of the cart's innovations (EkfConfig.push_window)
         self._last: StateEstimate | None = None
         self._pending_reason = ''
         # The offset b and its variance carried over a re-initialisation (the
@@ -250,14 +258,15 @@ class ExtendedKalmanFilter:
                         [0.0, f31, f32, f33]])
         return [x + h * xd, th + h * thd, xd + h * a0, thd + h * b0], f_k
 
-    def _predict(self, h: float, force: float) -> None:
+    def _predict(self, h: float, force: float, q_force: float) -> None:
         """Time update (5.15)/(5.16) over a step of length h.
 
         x_k|k-1 = f_k(x_k-1|k-1, u) (5.15), the model at theta = m + b, with
         f_k the explicit midpoint rule (or forward Euler (5.8) with
         ``discretisation='euler'``), and P_k|k-1 = F_k P F_k^T + Q (5.16)
         (:func:`~cartpole_estimation.covariance.predict_covariance`, F_k's rows
-        from :meth:`_linearise`). Q is added as ``Q h / Ts`` (module docstring).
+        from :meth:`_linearise`). Q is added as ``Q h / Ts`` (module docstring),
+        the random force on the cart with variance ``q_force``.
         """
         x, m, xd, thd, off = self._s
         a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, m + off, xd, thd, force, h)
@@ -275,7 +284,6 @@ class ExtendedKalmanFilter:
             ratio = h / self.sample_time
             q = tuple(v * ratio for v in q)
         pc = predict_covariance(self._pc, h, f21, f22, f23, f31, f32, f33, q)
-        q_force = self._q_force
         if q_force > 0.0:
             # + q_force b b^T, b = h g(x) (4.40): a random force on the cart.
             s_th = math.sin(m + off)
@@ -427,9 +435,24 @@ class ExtendedKalmanFilter:
         missed = n - 1
         self.missed_samples_total += missed
         h = dt / n
+        before = (self._s, self._pc)  # _predict and _correct build new ones
         for _ in range(n):
-            self._predict(h, force)
+            self._predict(h, force, self._q_force)
         nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta)
+        nu2 = nu_x * nu_x
+        pushed = self._push_q_force and abs(nu_x) > self._push_innovation \
+            and nu2 > self._push_ratio2 * self._nu_x_ms \
+            and math.cos(self._s[1] + self._s[4]) > self._push_cos
+        if not pushed:  # the statistics of the model's own error, not of the push
+            self._nu_x_ms += min(1.0, dt / self._push_window) * (nu2 - self._nu_x_ms)
+        else:
+            # A push: this sample again with the push's force variance, so that the
+            # gain follows the cart now and not 40-50 ms later (EkfConfig.push_q_force).
+            self._s, self._pc = before
+            for _ in range(n):
+                self._predict(h, force, self._push_q_force)
+            nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta)
+            self.pushed_samples += 1
         self._t = t
         reason = self._check(nu_x, nu_t, s11, s22)
         if reason:

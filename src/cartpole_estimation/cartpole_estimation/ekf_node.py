@@ -34,7 +34,7 @@ from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from .ekf_config import DISCRETISATIONS, changes_from_parameters, q_parameter
+from .ekf_config import DISCRETISATIONS, ROS_PARAMETERS, changes_from_parameters, q_parameter
 
 JOINT_NAMES = ('cart', 'pendulum')
 HARDWARE_ID = 'cartpole'
@@ -98,6 +98,17 @@ class EkfNode(Node):
         self.declare_parameter('r', list(defaults.r_diag), ParameterDescriptor(
             description='Diagonal of the measurement covariance R_k (thesis 9.1): '
                         'x [m^2], theta [rad^2]; 2 entries, each > 0. Applied from the next sample.'))
+        self.declare_parameter('push_q_force', defaults.push_q_force, ParameterDescriptor(
+            description='q_force of a sample whose cart innovation says push (beyond '
+                        'push_innovation and 4 times the recent innovations, the pendulum '
+                        'within 29 deg of upright): that sample is predicted again with it, '
+                        'so the estimate follows a push at once; 0 = off. Applied from the '
+                        'next sample.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0e12)]))
+        self.declare_parameter('push_innovation', defaults.push_innovation, ParameterDescriptor(
+            description='Cart innovation [m] beyond which a sample may count as pushed; above '
+                        'the balancing loop\'s own (0.6 mm at most on the thesis rig).',
+            floating_point_range=[FloatingPointRange(from_value=1.0e-5, to_value=0.05)]))
         self.declare_parameter('plant_params_file', '', ParameterDescriptor(
             description="YAML file of the filter's plant parameters "
                         "(CartPoleParameters.to_yaml); '' = the thesis values.",
@@ -135,8 +146,7 @@ class EkfNode(Node):
             description='Lockstep: longest wait for that command [wall s].', read_only=True,
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)]))
 
-        names = ('q', 'r', 'friction_steepness', 'angle_offset_p0', 'angle_offset_q',
-                 'discretisation')
+        names = ROS_PARAMETERS
         reason = self._validate([self.get_parameter(n) for n in names])
         if reason:
             raise ValueError(f'ekf: {reason}')
@@ -399,7 +409,8 @@ class EkfNode(Node):
             'p_angle_offset': float(f.covariance[4, 4]),
             'resets': f.resets, 'reset_reason': self._last_reset_reason,
             'missed_samples': f.missed_samples_total, 'dt': dt, **asdict(self.counts),
-            'rejected_samples': f.rejected_samples, 'force': self._last_force_used,
+            'rejected_samples': f.rejected_samples, 'pushed_samples': f.pushed_samples,
+            'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,
         }

@@ -373,8 +373,8 @@ def reference_correct(cfg, s, p, y_x, y_theta):
 
 @pytest.mark.parametrize('cfg', [
     EkfConfig(),
-    EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
-              discretisation='euler'),
+    EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
+              angle_offset_p0=0.0, discretisation='euler'),
 ], ids=['default', 'thesis'])
 def test_scalar_covariance_algebra_matches_the_matrix_form_over_a_closed_loop_run(cfg):
     """The estimates and P of a closed-loop run equal the numpy reference to round-off.
@@ -457,7 +457,8 @@ def test_the_offset_state_finds_an_encoder_reset_off_hanging():
     assert abs(estimates[100].angle_offset - 0.1) < 0.005
     assert abs(estimates[-1].angle_offset - 0.1) < 0.002
     assert abs(estimates[-1].theta - truth[-1, 1]) < 0.002
-    thesis = EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0)
+    thesis = EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
+                       angle_offset_p0=0.0)
     _, _, plain, _ = simulate(scenario, 2.0, config=thesis)
     assert plain[-1].angle_offset == 0.0
     assert abs(plain[-1].theta - truth[-1, 1]) > 0.09

@@ -78,12 +78,12 @@ def tick_response(manager_parameters: Mapping[str, Any] | None = None,
 THESIS_SETTINGS: dict[str, tuple[dict[str, Any], EkfConfig]] = {
     "thesis: LQR (8.24), EKF (9.1)/(9.2), feedforward (6.12)": (
         {'lqg.q': [100.0, 400.0, 100.0, 400.0], 'feedforward.velocity_band': 0.0},
-        EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
-                  discretisation='euler')),
+        EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
+                  angle_offset_p0=0.0, discretisation='euler')),
     "earlier default: LQR Q = diag(400, 400, 400, 400), thesis EKF and feedforward": (
         {'lqg.q': [400.0, 400.0, 400.0, 400.0], 'feedforward.velocity_band': 0.0},
-        EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, angle_offset_p0=0.0,
-                  discretisation='euler')),
+        EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
+                  angle_offset_p0=0.0, discretisation='euler')),
     "robust gain (lqg's default until 2026-12-05): LQI, EKF with force noise and offset "
     "state, velocity band": ({'lqg.q': [10.0, 10000.0, 10.0, 1.0, 400.0]}, EkfConfig()),
     "default: the precise gain (pendulum weights x3), the same EKF and feedforward": (
