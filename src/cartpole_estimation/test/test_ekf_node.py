@@ -180,6 +180,14 @@ def test_refused_q_keeps_the_old_one_with_a_reason(harness, spin_until):
     assert not result.successful and 'midpoint' in result.reason
     result = h.ekf.set_parameters([Parameter('plant_params_file', value='x.yaml')])[0]
     assert not result.successful
+    # the push's Q: a value out of range is refused and the filter keeps its own; 0 is off
+    assert h.ekf.filter.config.push_q_force == h.ekf.get_parameter('push_q_force').value > 0.0
+    for name, bad in (('push_q_force', -1.0), ('push_innovation', 0.0)):
+        result = h.ekf.set_parameters([Parameter(name, value=bad)])[0]
+        assert not result.successful and result.reason
+    assert h.ekf.filter.config.push_innovation == 1.0e-3
+    result = h.ekf.set_parameters([Parameter('push_q_force', value=0.0)])[0]
+    assert result.successful and h.ekf.filter.config.push_q_force == 0.0
 
 
 def test_bad_override_is_refused_at_start(ros_context):
@@ -210,7 +218,7 @@ def test_health_topic_and_reset_service(harness, spin_until):
     values = {kv.key: kv.value for kv in status.values}
     assert status.name == 'ekf'
     for key in ('innovation_x', 'innovation_theta', 'p_x', 'p_theta', 'p_x_dot', 'p_theta_dot',
-                'resets', 'reset_reason', 'missed_samples', 'dt'):
+                'resets', 'reset_reason', 'missed_samples', 'dt', 'pushed_samples'):
         assert key in values
     assert float(values['resets']) == 1.0 and values['reset_reason'] == 'requested'
     assert float(values['samples']) == 6.0
