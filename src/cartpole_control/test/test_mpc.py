@@ -128,8 +128,8 @@ def test_the_mpc_recovers_from_a_6_ns_cart_push_and_never_touches_a_stop():
 
     77 % of what a controller that knows the push in advance can recover behind the guard
     (7.80 N s), above the 5.80 N s of one that reacts 40 ms late: the EKF's push Q
-    (EkfConfig.push_q_force) shows the push 20-25 ms after it starts, not 40-50 ms, and the
-    MPC brakes at full force 25-30 ms in (2026-12-05: 36 of 36 seeds, before 7; lqg 36,
+    (EkfConfig.push_q_force) shows the push within 20 ms of its start, not 40-50 ms, and the
+    MPC brakes at full force 20-25 ms in (2026-12-05: 36 of 36 seeds, before 7; lqg 36,
     before 14)."""
     runs = _after_a_6_ns_cart_push('mpc')
     assert not any(contact for _, contact in runs)

@@ -46,7 +46,7 @@ class EkfConfig:
     (4.40): the process noise of a friction or force error, which moves the
     cart and the pendulum together as the model couples them. 0 is the
     thesis's diagonal Q (9.2)."""
-    push_q_force: float = 1.0e8
+    push_q_force: float = 1.0e9
     """``q_force`` of a sample whose cart innovation exceeds ``push_innovation``: that
     sample is predicted again with it and corrected (an innovation-gated Q). A push, a
     hand or a stop moves the cart by millimetres within 10-15 ms, far more than the

