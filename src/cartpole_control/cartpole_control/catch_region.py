@@ -23,7 +23,8 @@ from cartpole_core.model import CartPoleParameters, acceleration_function, linea
 
 DEFAULT_Q = (10.0, 10000.0, 10.0, 1.0, 400.0)
 """The state weights of the LQR whose region decides, the fifth on the cart error's integral
-(the ``lqg`` plugin's defaults: LQI)."""
+(LQI): the ``lqg`` plugin's robust gain, the one that acts at a catch
+(:data:`cartpole_control.controllers.lqg.ROBUST_GAIN`)."""
 DEFAULT_R = 0.01
 HORIZON = 1.2
 """[s] How long the simulated catch runs."""

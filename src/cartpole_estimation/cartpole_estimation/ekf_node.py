@@ -100,10 +100,11 @@ class EkfNode(Node):
                         'x [m^2], theta [rad^2]; 2 entries, each > 0. Applied from the next sample.'))
         self.declare_parameter('push_q_force', defaults.push_q_force, ParameterDescriptor(
             description='q_force of a sample whose cart innovation says push (beyond '
-                        'push_innovation and 4 times the recent innovations, the pendulum '
-                        'within 29 deg of upright): that sample is predicted again with it, '
-                        'so the estimate follows a push at once; 0 = off. Applied from the '
-                        'next sample.',
+                        f'push_innovation and {defaults.push_ratio:g} times the recent '
+                        'innovations, the pendulum within '
+                        f'{math.degrees(defaults.push_angle):.0f} deg of upright): that sample '
+                        'is predicted again with it, so the estimate follows a push at once; '
+                        '0 = off. Applied from the next sample.',
             floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0e12)]))
         self.declare_parameter('push_innovation', defaults.push_innovation, ParameterDescriptor(
             description='Cart innovation [m] beyond which a sample may count as pushed; above '

@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from cartpole_control.controllers.lqg import ROBUST_GAIN
 from cartpole_control.manager import STABILIZING, ControllerManager
 from cartpole_estimation.ekf import EkfConfig, ExtendedKalmanFilter
 from cartpole_core.model import CartPoleParameters
@@ -85,7 +86,7 @@ THESIS_SETTINGS: dict[str, tuple[dict[str, Any], EkfConfig]] = {
         EkfConfig(q_diag=(1.0, 1.0, 50.0, 50.0), q_force=0.0, push_q_force=0.0,
                   angle_offset_p0=0.0, discretisation='euler')),
     "robust gain (lqg's default until 2026-12-05): LQI, EKF with force noise and offset "
-    "state, velocity band": ({'lqg.q': [10.0, 10000.0, 10.0, 1.0, 400.0]}, EkfConfig()),
+    "state, velocity band": ({f'lqg.{k}': v for k, v in ROBUST_GAIN.items()}, EkfConfig()),
     "default: the precise gain (pendulum weights x3), the same EKF and feedforward": (
         {}, EkfConfig()),
 }

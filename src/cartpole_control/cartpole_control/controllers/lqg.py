@@ -26,6 +26,7 @@ import scipy.linalg
 
 from cartpole_core.model import linearise_upright
 
+from ..catch_region import DEFAULT_Q as CATCH_REGION_Q
 from ..controller import STABILIZER, CommandFeedback, Controller, ControllerState, ParameterSpec
 from . import ConditionalIntegrator, StepClock
 
@@ -94,6 +95,12 @@ PENDULUM_WEIGHT_SCALE = 0.005
 theta_dot) of Q by 1 / (1 + (D / this)^2), not below ``lqg.pendulum_weight_min``."""
 PENDULUM_WEIGHT_MIN = 1.0 / 3.0
 """The least share of the pendulum's weights a long dead time leaves (``lqg.pendulum_weight_min``)."""
+
+
+ROBUST_GAIN = {'q': CATCH_REGION_Q, 'pendulum_weight_min': 1.0}
+"""``lqg``'s settings for its robust gain alone: the default ``q`` with the pendulum's weights
+at :data:`PENDULUM_WEIGHT_MIN`, one gain. It is the LQR the catch region simulates (a catch is
+beyond the precise band), ``lqg``'s default until 2026-12-05, and the learned policy's teacher."""
 
 
 PRECISE_BAND = (0.03, math.radians(2.0), 0.1, 0.25)
