@@ -174,6 +174,8 @@ class ActuatorEstimator:
         self.gated = 0
         """Windows whose innovation, for the chosen dead time, was beyond :data:`GATE`."""
         self._gated_run = [0] * n
+        self._due = False
+        """The window is complete and not yet computed (:meth:`finish`)."""
         self.window.clear()
         horizon = 2 * self.window.half_window + 2 + int(math.ceil(DELAY_MAX / self.sample_time)) + 8
         self._applied: deque[tuple[float, float]] = deque(maxlen=4 * horizon)
@@ -228,6 +230,8 @@ class ActuatorEstimator:
 
     def applied(self, t: float, force: float) -> None:
         """The force command ``force`` [N] took effect at ``t`` [s] (in order)."""
+        if self._due:
+            self.finish()
         applied = self._applied
         if applied and t < applied[-1][0]:
             applied.clear()  # time went back: a new run
@@ -274,12 +278,28 @@ class ActuatorEstimator:
 
     def forget_samples(self) -> None:
         """Start the next window afresh (a plant reset moved the positions); the estimate stays."""
+        if self._due:
+            self.finish()
         self.window.clear()
         self._applied.clear()
 
     def update(self, t: float, x: float, theta: float) -> None:
-        """Take the encoders' sample at ``t``: cart position [m], pendulum angle [rad]."""
+        """Take the encoders' sample at ``t``: cart position [m], pendulum angle [rad].
+
+        A window it completes is computed by :meth:`finish`: the controller manager calls
+        it once the cycle's command is out (the window is the costliest part of a cycle);
+        else the next sample or command taken does, first. Either way the window sees the
+        same samples and commands, and its estimate serves from the next cycle on.
+        """
+        if self._due:
+            self.finish()
         if self.window.push(t, x, theta) and self._applied:
+            self._due = True
+
+    def finish(self) -> None:
+        """Compute the window the last sample completed, if any (:meth:`update`)."""
+        if self._due:
+            self._due = False
             self._take_window()
 
     def _take_window(self) -> None:

@@ -445,8 +445,10 @@ class ControllerManager:
         return True
 
     def between_cycles(self) -> None:
-        """Work that must not delay a command; call it after the command is out. While the
+        """Work that must not delay a command; call it after the command is out: the actuator's
+        window this cycle's samples completed (:meth:`PlantEstimate.finish`) and, while the
         swing-up runs, the configured stabiliser's :meth:`Controller.standby` (its catch)."""
+        self.plant_estimate.finish()
         stabilizer = self._plugins[STABILIZER]
         if self.mode == SWINGUP_MODE and self._pending is None and not stabilizer.active:
             try:
@@ -473,9 +475,7 @@ class ControllerManager:
         """The prediction horizon of the last cycle [s] (``predict.horizon``, ``auto``: the latency)."""
         return self._horizon
 
-    @property
-    def enabled(self) -> bool:
-        return self._enabled
+    enabled = property(lambda self: self._enabled)
 
     @property
     def guard_status(self) -> str:

@@ -161,6 +161,11 @@ class PlantEstimate:
                 self.natural_frequency.update(ts, x, theta)
             self.actuator.update(ts, x, theta)
 
+    def finish(self) -> None:
+        """The work of the samples taken that need not precede the command: the actuator's
+        window (:meth:`ActuatorEstimator.finish`)."""
+        self.actuator.finish()
+
     def new_run(self) -> None:
         """A new run (a plant reset, a homing): the reports and windows of before end here.
 

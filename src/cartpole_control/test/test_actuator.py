@@ -247,3 +247,46 @@ def test_two_minutes_of_balancing_leave_the_friction_scale_where_it_was(friction
     late = [s for t, s in scales if t >= 30.0]
     assert min(late) == pytest.approx(friction, rel=0.1)
     assert max(late) == pytest.approx(friction, rel=0.1)
+
+
+def test_the_window_is_computed_after_the_command_and_called_or_not_the_run_is_the_same(
+        monkeypatch):
+    """The actuator's window (the costliest part of a cycle) is computed by between_cycles,
+    once the command is out, never inside the cycle; a loop that never calls between_cycles
+    (the next sample computes it first) gets the same commands to the last bit."""
+    from cartpole_control.manager import ControllerManager
+    from cartpole_sim.plant import Plant, Scenario
+
+    computed = {'in cycle': 0, 'between': 0}
+    take = ActuatorEstimator._take_window
+    where = ['between']
+
+    def counted(self):
+        computed[where[0]] += 1
+        take(self)
+
+    monkeypatch.setattr(ActuatorEstimator, '_take_window', counted)
+
+    def run(between: bool) -> list[float]:
+        plant = Plant(P, Scenario(noise=True, seed=2, actuator_gain=0.8))
+        manager = ControllerManager(P, sample_time=P.sample_time, real_time=False)
+        forces, force = [], 0.0
+        for _ in range(600):
+            meas = plant.measure()
+            for source, applied in plant.applied_commands():
+                manager.command_applied(source, applied)
+            manager.measured(meas.t, meas.x, meas.theta)
+            x, theta, x_dot, theta_dot = plant.true_state()
+            where[0] = 'in cycle'
+            force = manager.update_values(meas.t, x, theta, x_dot, theta_dot).force
+            where[0] = 'between'
+            if between:
+                manager.between_cycles()
+            forces.append(force)
+            plant.step(force, None, meas.t)
+        return forces
+
+    with_between = run(True)
+    assert computed['between'] > 50 and computed['in cycle'] == 0
+    assert run(False) == with_between
+    assert computed['in cycle'] > 50          # without between_cycles the next cycle does it
