@@ -154,6 +154,10 @@ class ControlContext:
     unmodelled force on the cart, the pendulum's omega_0^2 and the plant they give
     (:meth:`~cartpole_control.plant_estimate.PlantEstimate.estimated_plant`);
     updated by the manager every cycle. None outside a manager."""
+    rail_guard: 'GuardView | None' = None
+    """The manager's rail guard (:class:`~cartpole_control.rail_guard.GuardView`): the force it
+    passes unchanged at a state, which a law that plans its forces takes as its first move's
+    bounds. None outside a manager: every force passes."""
     validation_only: bool = False
     """True when the manager configures a scratch instance only to check a
     change of gains (it is never activated): do no expensive or side-effecting

@@ -94,6 +94,7 @@ class ControllerManager:
         staged = self._stager.stage(initial_parameters, self._values)
         self._values.update(staged.changes)
         self._trigger, self._feedforward, self._guard = staged.blocks
+        self._stager.rail_guard.guard = self._guard
         context = self._stager.context(self._values)
         self._names = {kind: self._values[kind] for kind in KINDS}
         self._plugins: dict[str, Controller] = {
@@ -281,6 +282,7 @@ class ControllerManager:
             guard_status = self._guard.status
             self._trigger, self._feedforward, self._guard = staged.blocks
             self._guard.status = guard_status
+            self._stager.rail_guard.guard = self._guard
             for kind, new in staged.plugins.items():
                 live = self._plugins[kind]
                 if self._active is live:
@@ -388,6 +390,8 @@ class ControllerManager:
         elif mode in _KIND_OF_MODE and self._active is None:
             self._set_mode(mode, state)  # first cycle: activate from this state
 
+        guard = self._guard  # this cycle's envelope, for the plugin (context.rail_guard) too
+        guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
         raw = feedforward = force = 0.0
         active = self._active
         if active is not None:
@@ -413,8 +417,6 @@ class ControllerManager:
                         feedforward = friction * self._feedforward(x_dot, raw) - disturbance
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
-        guard = self._guard
-        guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
         # After a trip the guard keeps hold: a cart it has stopped is braked again
         # if anything (a falling pendulum) drags it, so it never drifts into a stop.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:

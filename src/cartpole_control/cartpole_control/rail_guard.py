@@ -29,6 +29,8 @@ assumes until the plant estimate has measured it (``rail.actuator_dead_time``)."
 DISTURBANCE_MAX = 5.0
 """[N] The guard counts the estimated unmodelled force up to this: a cable or a hand
 leaning on the cart; the estimate of a push lags it by a window and is left out."""
+PASSED_ITERATIONS = 12
+"""Bisection steps of an end of :meth:`RailGuard.passed_range` (about 0.02 N on 70 N)."""
 HOLD_SPEED = 0.002
 """[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
 
@@ -228,6 +230,52 @@ class RailGuard:
             x, th, x_dot, w = x + h * v_m, th + h * w_m, x_dot + h * a2, w + h * b2
         return x
 
+    def passed_range(self, x: float, x_dot: float, theta_dot: float, low: float, high: float,
+                     theta: float = 0.0) -> tuple[float, float]:
+        """The forces in ``[low, high]`` (at the cart [N]) that :meth:`command` passes
+        unchanged from this state, as ``(lowest, highest)``; the guard's status is kept.
+
+        The stopping position grows with the force, so what the margin, the limiter and
+        the rule at rest leave is an interval; an end the guard bends is found by
+        bisection. A law that plans its forces (``mpc``) bounds its first move by it, so
+        that the force its plan predicts is the one the cart gets. Braking or stopped:
+        the guard overrides every law, ``[low, high]``.
+        """
+        status, predicted_stop = self.status, self.predicted_stop
+        if status == BRAKING or status == STOPPED:
+            return low, high
+        try:
+            ends = [self._passed_end(x, x_dot, theta_dot, theta, end, other)
+                    for end, other in ((low, high), (high, low))]
+        finally:
+            self.status, self.predicted_stop = status, predicted_stop
+        lowest, highest = ends
+        if lowest > highest:  # both ends bent past each other: the one force left
+            lowest = highest = 0.5 * (lowest + highest)
+        return lowest, highest
+
+    def _passed_end(self, x: float, x_dot: float, theta_dot: float, theta: float,
+                    end: float, other: float) -> float:
+        """The force nearest ``end``, towards ``other``, that :meth:`command` passes."""
+        bent = self.command(x, x_dot, theta_dot, end, theta)[0]
+        if bent == end:
+            return end
+        bent = min(max(bent, min(end, other)), max(end, other))
+        if self.command(x, x_dot, theta_dot, bent, theta)[0] != bent:
+            return bent  # the guard's own force (a brake): nothing between passes
+        beyond = bent + 1e-6 * (end - bent)
+        if self.command(x, x_dot, theta_dot, beyond, theta)[0] != beyond:
+            return bent  # the limiter's force: the end already
+        # At rest a push in is withheld whole (no limited force): the end between
+        passed, refused = bent, end
+        for _ in range(PASSED_ITERATIONS):
+            middle = 0.5 * (passed + refused)
+            if self.command(x, x_dot, theta_dot, middle, theta)[0] == middle:
+                passed = middle
+            else:
+                refused = middle
+        return passed
+
     # -- one cycle --------------------------------------------------------------------
     def check(self, x: float, x_dot: float, theta_dot: float, force: float) -> GuardAction:
         """Pass, withhold or override ``force`` for the state (x, x_dot, theta_dot)."""
@@ -351,3 +399,20 @@ class RailGuard:
         brake = self._brake_pos if direction > 0.0 else self._brake_neg
         magnitude = min(brake, self._mass * abs(x_dot) / self.params.sample_time)
         return -direction * magnitude
+
+
+class GuardView:
+    """The manager's rail guard as a law sees it (:attr:`.ControlContext.rail_guard`): the
+    force it passes at a state. The manager puts its current guard behind it (a change of
+    the ``rail.*`` parameters builds a new one); without one every force passes."""
+
+    def __init__(self, guard: RailGuard | None = None) -> None:
+        self.guard = guard
+
+    def passed_range(self, x: float, x_dot: float, theta_dot: float, low: float, high: float,
+                     theta: float = 0.0) -> tuple[float, float]:
+        """:meth:`RailGuard.passed_range` of the current guard."""
+        guard = self.guard
+        if guard is None:
+            return low, high
+        return guard.passed_range(x, x_dot, theta_dot, low, high, theta)

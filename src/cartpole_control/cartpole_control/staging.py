@@ -28,7 +28,7 @@ from .controller import KINDS, ControlContext, Controller, ParameterSpec
 from .feedforward import FrictionFeedforward
 from .natural_frequency import NaturalFrequencyEstimator
 from .plant_estimate import PlantEstimate
-from .rail_guard import RailGuard
+from .rail_guard import GuardView, RailGuard
 
 CONTEXT_KEYS = ('x_ref', 'feedforward.right', 'feedforward.left', 'feedforward.steepness',
                 'feedforward.velocity_band', 'rail.margin', 'rail.limit_reserve')
@@ -93,6 +93,9 @@ class Stager:
                  pendulum: NaturalFrequencyEstimator | None = None,
                  plant_estimate: PlantEstimate | None = None) -> None:
         self.plant = plant
+        self.rail_guard = GuardView()
+        """:attr:`ControlContext.rail_guard` of the contexts built: the manager puts its guard
+        behind it."""
         self.pendulum = pendulum
         self.plant_estimate = plant_estimate
         self.real_time = real_time
@@ -108,7 +111,8 @@ class Stager:
                               feedforward=friction_feedforward(values), real_time=self.real_time,
                               rail_margin=float(values['rail.margin']),
                               rail_reserve=float(values['rail.limit_reserve']),
-                              pendulum=self.pendulum, plant_estimate=self.plant_estimate)
+                              pendulum=self.pendulum, plant_estimate=self.plant_estimate,
+                              rail_guard=self.rail_guard)
 
     def blocks(self, v: Mapping[str, Any]) -> tuple[CatchTrigger, FrictionFeedforward, RailGuard]:
         """Catch trigger (6.4), feedforward (6.12), rail guard; ValueError on a bad combination."""

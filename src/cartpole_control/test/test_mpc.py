@@ -401,3 +401,30 @@ def test_the_manager_switches_lqg_to_mpc_bumplessly_and_the_integrator_starts_at
     assert out.stabilizer == 'mpc' and 'switch:stabilizer=mpc' in out.event
     assert mpc.active and mpc.integral == 0.0
     assert out.raw_force == pytest.approx(-mpc.gain[1] * 0.02, abs=1e-6)
+
+
+def test_at_rest_on_the_limiter_boundary_the_first_move_is_one_the_guard_passes():
+    """The cart at rest on the right limiter boundary, the pendulum leaning towards that stop:
+    the terminal LQR wants a push to the right, which the rail guard withholds whole (at rest
+    no push further in). With the manager's guard in its context the MPC's move (with the
+    feedforward the manager adds) is one the guard passes, so its plan starts from the force
+    the cart gets (a run of 2026-12-05 asked 37 N for 0.35 s that the guard turned to 0)."""
+    from dataclasses import replace
+    from cartpole_control.rail_guard import GuardView, RailGuard
+    guard = RailGuard(P, margin=CONTEXT.rail_margin, limit_reserve=CONTEXT.rail_reserve,
+                      actuator_dead_time=0.04)
+    state = ControllerState(0.0, P.travel - CONTEXT.rail_margin - CONTEXT.rail_reserve + 0.001,
+                            -0.02, 0.0, -0.05)
+    free = configured(budget_us=1e6)
+    free.activate(state)
+    assert free.update(state) > 5.0                     # the law alone pushes in
+    plugin = MpcStabilizer()
+    plugin.configure({'budget_us': 1e6}, replace(CONTEXT, rail_guard=GuardView(guard)))
+    plugin.activate(state)
+    u = plugin.update(state)
+    force = u + CONTEXT.feedforward.stabilizing(state.x_dot, u)
+    low, high = guard.passed_range(state.x, state.x_dot, state.theta_dot, P.force_min,
+                                   P.force_max)
+    assert high == 0.0 and low <= force <= high + 1e-6
+    assert guard.command(state.x, state.x_dot, state.theta_dot, force)[0] == \
+        pytest.approx(force, abs=1e-6)

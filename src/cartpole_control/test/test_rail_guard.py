@@ -361,3 +361,34 @@ def test_a_lagging_strong_amplifier_the_guard_allows_for_is_limited_not_tripped(
         plant.step(force)
     assert tripped == faults
     assert not plant.end_stop_contact
+
+
+@pytest.mark.parametrize('x, x_dot', [(P.x_middle, 0.0), (0.69, 0.0), (0.699, 0.0), (0.701, 0.0),
+                                      (0.65, 0.3), (0.60, 0.5), (0.10, -0.5), (0.062, 0.0),
+                                      (0.01, 0.0), (0.01, 0.05)])
+def test_the_passed_range_is_what_the_guard_passes_unchanged(x, x_dot):
+    """Both ends pass unchanged, a force a little beyond a bent end does not, and asking
+    leaves the guard's status as it was (the guard's state is the manager's)."""
+    guard = RailGuard(P, margin=0.02, limit_reserve=0.05, actuator_dead_time=0.04)
+    guard.status = LIMITED
+    low, high = guard.passed_range(x, x_dot, 0.0, P.force_min, P.force_max)
+    assert guard.status == LIMITED
+    assert P.force_min <= low <= high <= P.force_max
+    for end, other, step in ((low, P.force_min, -0.1), (high, P.force_max, 0.1)):
+        assert guard.command(x, x_dot, 0.0, end)[0] == end
+        if end != other:
+            beyond = end + step
+            assert guard.command(x, x_dot, 0.0, beyond)[0] != beyond
+
+
+def test_at_rest_near_the_limiter_boundary_a_small_push_in_passes_and_none_beyond_it():
+    """At rest 1 cm inside the limiter boundary a push towards the stop passes up to the
+    force whose stopping position is the boundary (the guard withholds a larger one whole);
+    at rest on the boundary none passes."""
+    guard = RailGuard(P, margin=0.02, limit_reserve=0.05, actuator_dead_time=0.04)
+    boundary = P.travel - 0.07
+    high = guard.passed_range(boundary - 0.01, 0.0, 0.0, P.force_min, P.force_max)[1]
+    assert 5.0 < high < P.force_max
+    assert guard.stopping_position(boundary - 0.01, 0.0, 0.0, high) == \
+        pytest.approx(boundary, abs=1e-3)
+    assert guard.passed_range(boundary + 0.001, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0

@@ -239,12 +239,19 @@ class MpcStabilizer(Controller):
         ff = self._feedforward
         return low + ff.c_left, high - ff.c_right
 
-    def _first_bounds(self, x_dot: float) -> tuple[float, float]:
-        """The raw force range of this cycle's move: the amplifier's less the feedforward.
+    def _first_bounds(self, state: ControllerState) -> tuple[float, float]:
+        """The raw force range of this cycle's move: what the amplifier delivers and the rail
+        guard passes from this state (:attr:`.ControlContext.rail_guard`: a push it would
+        withhold or bend is not the move the plan predicts), less the feedforward.
 
         A cart moving beyond the velocity band gets its kinetic friction along the velocity
         whatever the command; a cart at rest either Coulomb level."""
         low, high = self.force_limits
+        guard = self.context.rail_guard
+        if guard is not None:
+            low, high = guard.passed_range(state.x, state.x_dot, state.theta_dot, low, high,
+                                           state.theta)
+        x_dot = state.x_dot
         ff = self._feedforward
         band = ff.velocity_band
         if band > 0.0 and x_dot > band:
@@ -294,7 +301,7 @@ class MpcStabilizer(Controller):
         s[0], s[1], s[2], s[3], s[4] = error_x, state.theta_w, state.x_dot, state.theta_dot, xi
         s[PLANT_STATES:] = self._actuator_state
         self._read_amplifier()
-        first = self._first_bounds(state.x_dot)
+        first = self._first_bounds(state)
         self._bounds = first
         solution = self.qp.solve(s, first, self._later_bounds())
         self.solve_us = solution.solve_time * 1e6
