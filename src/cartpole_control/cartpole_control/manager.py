@@ -389,9 +389,11 @@ class ControllerManager:
             events.append('fall')
         elif mode in _KIND_OF_MODE and self._active is None:
             self._set_mode(mode, state)  # first cycle: activate from this state
-
         guard = self._guard  # this cycle's envelope, for the plugin (context.rail_guard) too
         guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
+        friction = values['actuator.friction']  # (6.12) scaled to the rig's friction
+        estimate.used_friction = friction = \
+            actuator.friction_compensation if friction == 'auto' else friction
         raw = feedforward = force = 0.0
         active = self._active
         if active is not None:
@@ -406,8 +408,6 @@ class ControllerManager:
                     self._fault(f'{active.name} gave a non-finite force', events)
                     raw = 0.0
                 else:
-                    friction = values['actuator.friction']  # (6.12) scaled to the rig's friction
-                    friction = actuator.friction_compensation if friction == 'auto' else friction
                     if self.mode == STABILIZING:
                         feedforward = friction * self._feedforward.stabilizing(x_dot, raw)
                     else:  # (6.12) and, in swing-up, the unmodelled force cancelled

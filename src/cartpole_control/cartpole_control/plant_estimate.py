@@ -69,6 +69,9 @@ class PlantEstimate:
         """The actuator gain G the manager divided the last command by (``actuator.gain``)."""
         self.used_delay = 0.0
         """The extra dead time the manager's last prediction covered [s] (``actuator.delay``)."""
+        self.used_friction = 1.0
+        """The scale of the friction feedforward (6.12) the manager adds this cycle
+        (``actuator.friction``)."""
         self.delay_known = False
         """The actuator's dead time is measured (or ``actuator.delay`` fixes it)."""
 

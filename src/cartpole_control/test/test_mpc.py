@@ -428,3 +428,27 @@ def test_at_rest_on_the_limiter_boundary_the_first_move_is_one_the_guard_passes(
     assert high == 0.0 and low <= force <= high + 1e-6
     assert guard.command(state.x, state.x_dot, state.theta_dot, force)[0] == \
         pytest.approx(force, abs=1e-6)
+
+
+def test_the_bounds_take_the_feedforward_as_the_manager_scales_it_to_the_rigs_friction():
+    """The manager adds the feedforward (6.12) times the friction scale it uses
+    (PlantEstimate.used_friction): with 1.5 every bound leaves 1.5 times the Coulomb levels
+    for it, so that the force at the cart, command plus feedforward, is inside the amplifier."""
+    from dataclasses import replace
+    from cartpole_control.plant_estimate import PlantEstimate
+    estimate = PlantEstimate(P, P.sample_time)
+    plugin = MpcStabilizer()
+    plugin.configure({'budget_us': 1e6}, replace(CONTEXT, plant_estimate=estimate))
+    ff = CONTEXT.feedforward
+    state = ControllerState(0.0, P.x_middle, 0.0, 0.0, 0.0)
+    plugin.activate(state)
+    plugin.update(state)
+    nominal = plugin._later_bounds(), plugin._bounds
+    estimate.used_friction = 1.5
+    plugin.update(state)
+    low, high = plugin._later_bounds()
+    assert low == pytest.approx(nominal[0][0] + 0.5 * ff.c_left)
+    assert high == pytest.approx(nominal[0][1] - 0.5 * ff.c_right)
+    coulomb = max(ff.c_left, ff.c_right)
+    assert plugin._bounds == pytest.approx((nominal[1][0] + 0.5 * coulomb,
+                                            nominal[1][1] - 0.5 * coulomb))

@@ -233,11 +233,19 @@ class MpcStabilizer(Controller):
         if estimate is not None:
             self.force_limits = estimate.force_limits()
 
+    def _coulomb(self) -> tuple[float, float]:
+        """``(c_L, c_R)`` [N] of the feedforward (6.12) the manager adds: the model's, scaled
+        as the manager scales them to the rig's friction (``PlantEstimate.used_friction``)."""
+        ff = self._feedforward
+        estimate = self.context.plant_estimate
+        scale = 1.0 if estimate is None else estimate.used_friction
+        return scale * ff.c_left, scale * ff.c_right
+
     def _later_bounds(self) -> tuple[float, float]:
         """The raw force range whatever the feedforward's sign: every step after the first."""
         low, high = self.force_limits
-        ff = self._feedforward
-        return low + ff.c_left, high - ff.c_right
+        c_left, c_right = self._coulomb()
+        return low + c_left, high - c_right
 
     def _first_bounds(self, state: ControllerState) -> tuple[float, float]:
         """The raw force range of this cycle's move: what the amplifier delivers and the rail
@@ -252,13 +260,13 @@ class MpcStabilizer(Controller):
             low, high = guard.passed_range(state.x, state.x_dot, state.theta_dot, low, high,
                                            state.theta)
         x_dot = state.x_dot
-        ff = self._feedforward
-        band = ff.velocity_band
+        band = self._feedforward.velocity_band
+        c_left, c_right = self._coulomb()
         if band > 0.0 and x_dot > band:
-            return low - ff.c_right, high - ff.c_right
+            return low - c_right, high - c_right
         if band > 0.0 and x_dot < -band:
-            return low + ff.c_left, high + ff.c_left
-        coulomb = max(ff.c_right, ff.c_left)
+            return low + c_left, high + c_left
+        coulomb = max(c_right, c_left)
         return low + coulomb, high - coulomb
 
     def on_activate(self, state: ControllerState) -> None:
@@ -313,7 +321,9 @@ class MpcStabilizer(Controller):
                 raise RuntimeError(f'no QP solved over the whole horizon ({self.qp.horizon} '
                                    f'cycles); last: {solution.reason}')
         u = solution.force
-        self._ff = self._feedforward.stabilizing(state.x_dot, u)
+        estimate = self.context.plant_estimate
+        self._ff = (1.0 if estimate is None else estimate.used_friction) * \
+            self._feedforward.stabilizing(state.x_dot, u)
         effect = -k_i * error_x
         low, high = first
         if (u >= high - 1e-9 and effect > 0.0) or (u <= low + 1e-9 and effect < 0.0):
