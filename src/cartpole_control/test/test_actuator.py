@@ -254,39 +254,32 @@ def test_the_window_is_computed_after_the_command_and_called_or_not_the_run_is_t
     """The actuator's window (the costliest part of a cycle) is computed by between_cycles,
     once the command is out, never inside the cycle; a loop that never calls between_cycles
     (the next sample computes it first) gets the same commands to the last bit."""
-    from cartpole_control.manager import ControllerManager
-    from cartpole_sim.plant import Plant, Scenario
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
+    from cartpole_sim.plant import Scenario
 
     computed = {'in cycle': 0, 'between': 0}
-    take = ActuatorEstimator._take_window
     where = ['between']
+    take, update = ActuatorEstimator._take_window, ControllerManager.update_values
 
     def counted(self):
         computed[where[0]] += 1
         take(self)
 
+    def cycle(self, *state):
+        where[0] = 'in cycle'
+        out = update(self, *state)
+        where[0] = 'between'
+        return out
+
     monkeypatch.setattr(ActuatorEstimator, '_take_window', counted)
+    monkeypatch.setattr(ControllerManager, 'update_values', cycle)
 
-    def run(between: bool) -> list[float]:
-        plant = Plant(P, Scenario(noise=True, seed=2, actuator_gain=0.8))
-        manager = ControllerManager(P, sample_time=P.sample_time, real_time=False)
-        forces, force = [], 0.0
-        for _ in range(600):
-            meas = plant.measure()
-            for source, applied in plant.applied_commands():
-                manager.command_applied(source, applied)
-            manager.measured(meas.t, meas.x, meas.theta)
-            x, theta, x_dot, theta_dot = plant.true_state()
-            where[0] = 'in cycle'
-            force = manager.update_values(meas.t, x, theta, x_dot, theta_dot).force
-            where[0] = 'between'
-            if between:
-                manager.between_cycles()
-            forces.append(force)
-            plant.step(force, None, meas.t)
-        return forces
+    def forces():
+        return run_closed_loop(P, Scenario(noise=True, seed=2, actuator_gain=0.8),
+                               duration=3.0).force
 
-    with_between = run(True)
+    with_between = forces()
     assert computed['between'] > 50 and computed['in cycle'] == 0
-    assert run(False) == with_between
+    monkeypatch.setattr(ControllerManager, 'between_cycles', lambda self: None)  # lqg: no standby
+    assert forces().tolist() == with_between.tolist()
     assert computed['in cycle'] > 50          # without between_cycles the next cycle does it

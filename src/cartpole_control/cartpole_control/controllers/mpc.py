@@ -233,12 +233,15 @@ class MpcStabilizer(Controller):
         if estimate is not None:
             self.force_limits = estimate.force_limits()
 
-    def _coulomb(self) -> tuple[float, float]:
-        """``(c_L, c_R)`` [N] of the feedforward (6.12) the manager adds: the model's, scaled
-        as the manager scales them to the rig's friction (``PlantEstimate.used_friction``)."""
-        ff = self._feedforward
+    def _friction_scale(self) -> float:
+        """The scale the manager multiplies the feedforward (6.12) by to the rig's friction
+        (``PlantEstimate.used_friction``); 1 outside a manager."""
         estimate = self.context.plant_estimate
-        scale = 1.0 if estimate is None else estimate.used_friction
+        return 1.0 if estimate is None else estimate.used_friction
+
+    def _coulomb(self) -> tuple[float, float]:
+        """``(c_L, c_R)`` [N] of the feedforward the manager adds (:meth:`_friction_scale`)."""
+        ff, scale = self._feedforward, self._friction_scale()
         return scale * ff.c_left, scale * ff.c_right
 
     def _later_bounds(self) -> tuple[float, float]:
@@ -321,9 +324,7 @@ class MpcStabilizer(Controller):
                 raise RuntimeError(f'no QP solved over the whole horizon ({self.qp.horizon} '
                                    f'cycles); last: {solution.reason}')
         u = solution.force
-        estimate = self.context.plant_estimate
-        self._ff = (1.0 if estimate is None else estimate.used_friction) * \
-            self._feedforward.stabilizing(state.x_dot, u)
+        self._ff = self._friction_scale() * self._feedforward.stabilizing(state.x_dot, u)
         effect = -k_i * error_x
         low, high = first
         if (u >= high - 1e-9 and effect > 0.0) or (u <= low + 1e-9 and effect < 0.0):
