@@ -7,14 +7,15 @@ import pytest
 from cartpole_sim.scenario_ranges import RangeTable, sample
 
 
-def replay(index, seed=0, duration=30.0, manager_parameters=None):
+def replay(index, seed=0, duration=30.0, manager_parameters=None, **options):
     """The run summary of scenario ``index`` of ``cartpole bench robustness --combined N
-    --seed seed`` (the published ranges), stopped at its first failure as the benchmark does."""
+    --seed seed`` (the published ranges), stopped at its first failure as the benchmark does;
+    ``options`` go to ``run_closed_loop`` (``ekf_config``, ``observer``)."""
     from cartpole_bringup.offline.closed_loop import run_closed_loop
 
     scenario = sample(RangeTable(), np.random.default_rng([seed, index]))
     return run_closed_loop(scenario=scenario, duration=duration, stop_on_failure=True,
-                           manager_parameters=manager_parameters).summary
+                           manager_parameters=manager_parameters, **options).summary
 
 
 @pytest.mark.slow
@@ -59,14 +60,15 @@ def test_lost_samples_no_longer_starve_the_actuator_estimate():
 def test_a_rig_with_more_friction_balances_within_target():
     """Seed 0, draw 88: cart friction x1.6. With the model's friction feedforward the balanced
     cart ran a stick-slip limit cycle beyond 10 cm (the pendulum fell); the estimated friction
-    scale sizes it. Since the actuator's windows are computed after the command (one cycle
-    later) the unscaled run of this draw holds, with a cycle 1.6 times as wide (6.0 cm
-    against 3.6 cm)."""
+    scale sizes it. Since the actuator's windows are computed after the command and the
+    encoder offset is learnt only near an equilibrium, the unscaled run of this draw holds
+    too, with a wider cycle (5.4 cm against 4.7 cm; 6.0 against 3.6 cm before the offset's
+    gate)."""
     summary = replay(88)
     assert summary['friction_scale'] > 1.3
     assert summary['success'], summary
     unscaled = replay(88, manager_parameters={'actuator.friction': 1.0})
-    assert not unscaled['success'] or unscaled['x_err_max_m'] > 1.4 * summary['x_err_max_m']
+    assert not unscaled['success'] or unscaled['x_err_max_m'] > summary['x_err_max_m']
 
 
 @pytest.mark.slow
@@ -81,3 +83,34 @@ def test_a_cart_parked_off_centre_comes_back_and_the_pendulum_is_caught():
     assert summary['success'], summary
     thesis = replay(172, manager_parameters={'pendulum_energy.k_v': 0.0})
     assert thesis['catch_time_s'] is None
+
+
+@pytest.mark.slow
+def test_a_swing_on_a_plant_unlike_the_model_is_not_taken_for_an_encoder_offset():
+    """Seed 0, draw 134: a pendulum 49 % heavier and 11 % longer, 22 ms of delay, 15 ms of
+    lag, an encoder offset of 39 mrad. The filter's offset state took up the model's error
+    of the swing-up (off by up to 50 mrad), the catch region, fed an angle that far off,
+    refused every pass until 21 s, and the run ended off target. Corrected only near an
+    equilibrium (``EkfConfig.offset_gate_*``), the offset is learnt at the hanging start
+    and kept within 5 mrad through the swing-up, and the catch comes at 3 s."""
+    import math
+
+    from cartpole_estimation.ekf_config import EkfConfig
+
+    def offset_error_in_the_swing_up(config):
+        truth = sample(RangeTable(), np.random.default_rng([0, 134])).encoder_offset
+        worst = [0.0]
+
+        def observer(measurement, estimate, output, true_state):
+            if output.mode == 'swingup' and estimate.t >= 0.3:
+                worst[0] = max(worst[0], abs(estimate.angle_offset - truth))
+        return replay(134, ekf_config=config, observer=observer), worst[0]
+
+    summary, error = offset_error_in_the_swing_up(EkfConfig())
+    assert error < 0.005
+    assert summary['catch_time_s'] < 4.0 and summary['success'], summary
+    always = EkfConfig(offset_gate_rate=math.inf, offset_gate_force=math.inf,
+                       offset_gate_angle=math.pi / 2)
+    summary, error = offset_error_in_the_swing_up(always)
+    assert error > 0.03, error
+    assert summary['catch_time_s'] is None or summary['catch_time_s'] > 10.0

@@ -82,7 +82,8 @@ def predict_covariance(pc: Packed, h: float, f21: float, f22: float, f23: float,
 
 
 def correct(s: list[float], pc: Packed, y_x: float, y_theta: float, r_x: float,
-            r_t: float) -> tuple[list[float], Packed, float, float, float, float]:
+            r_t: float, offset_fixed: bool = False
+            ) -> tuple[list[float], Packed, float, float, float, float]:
     """Measurement update (5.10)-(5.14) with H = [I_2 0] (5.18) and R = diag(r_x, r_t).
 
     Returns the corrected state, P_k|k, the innovation (5.11) (theta's
@@ -114,8 +115,11 @@ def correct(s: list[float], pc: Packed, y_x: float, y_theta: float, r_x: float,
     k21 = p02 * i01 + p12 * i11
     k30 = p03 * i00 + p13 * i01
     k31 = p03 * i01 + p13 * i11
-    k40 = p04 * i00 + p14 * i01
-    k41 = p04 * i01 + p14 * i11
+    if offset_fixed:  # b a considered state (Schmidt): kept, its covariance still exact
+        k40 = k41 = 0.0
+    else:
+        k40 = p04 * i00 + p14 * i01
+        k41 = p04 * i01 + p14 * i11
     # x_k|k = x_k|k-1 + K y~ (5.13).
     state = [s[0] + k00 * nu_x + k01 * nu_t, s[1] + k10 * nu_x + k11 * nu_t,
              s[2] + k20 * nu_x + k21 * nu_t, s[3] + k30 * nu_x + k31 * nu_t,

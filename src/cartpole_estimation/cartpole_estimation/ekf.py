@@ -6,10 +6,10 @@ pendulum angle, with the model of :mod:`cartpole_core.model` discretised
 (5.6)-(5.9) by the explicit midpoint rule (forward Euler, the thesis's (5.8),
 one parameter away), a numerical Jacobian (5.20)/(5.21), the Kalman gain
 (5.12) and the Joseph form of the covariance update (5.14)
-(:mod:`cartpole_estimation.covariance`). One call of
-:meth:`ExtendedKalmanFilter.update` per sample: the time update (5.15)/(5.16)
-under the force applied in the interval, then the measurement update
-(5.10)-(5.14). Q as a random walk per sample period with a random force on
+(:mod:`cartpole_estimation.covariance`), b corrected only near an equilibrium
+(``EkfConfig.offset_gate_*``). One :meth:`ExtendedKalmanFilter.update` per sample:
+the time update (5.15)/(5.16) under the force applied in the interval, then the
+measurement update (5.10)-(5.14). Q as a random walk per sample period with a random force on
 the cart, the offset state, the filter's friction steepness and the fault
 handling: docs/estimation.md.
 
@@ -95,6 +95,9 @@ class ExtendedKalmanFilter:
         self._m_c, self._m_p, self._l = self.params.m_c, self.params.m_p, self.params.l
         self._midpoint = cfg.discretisation == 'midpoint'
         self._q = (*cfg.q_diag, cfg.angle_offset_q if offset else 0.0)
+        self._gate_rate = cfg.offset_gate_rate
+        self._gate_sin = math.sin(cfg.offset_gate_angle)
+        self._gate_force = cfg.offset_gate_force
         # Thresholds of _check, read once per configuration.
         self._n2 = cfg.innovation_sigma * cfg.innovation_sigma
         self._x_low = -cfg.max_position_excursion
@@ -295,13 +298,17 @@ class ExtendedKalmanFilter:
                   pc[12] + q_force * g_p * g_p, pc[13], pc[14])
         self._pc = pc
 
-    def _correct(self, y_x: float, y_theta: float) -> tuple[float, float, float, float]:
-        """Measurement update (5.10)-(5.14) (:func:`~cartpole_estimation.covariance.correct`).
+    def _correct(self, y_x: float, y_theta: float, force: float) -> tuple[float, ...]:
+        """Measurement update (5.10)-(5.14) (:func:`~cartpole_estimation.covariance.correct`),
+        the offset b corrected only near an equilibrium (``EkfConfig.offset_gate_*``).
 
         Returns the innovation (5.11) and the innovation variances.
         """
-        self._s, self._pc, nu_x, nu_t, s00, s11 = correct(self._s, self._pc, y_x, y_theta,
-                                                         self._r_x, self._r_theta)
+        s = self._s
+        fixed = not (abs(s[3]) <= self._gate_rate and abs(force) <= self._gate_force
+                     and abs(math.sin(s[1] + s[4])) <= self._gate_sin)
+        self._s, self._pc, nu_x, nu_t, s00, s11 = correct(s, self._pc, y_x, y_theta,
+                                                         self._r_x, self._r_theta, fixed)
         return nu_x, nu_t, s00, s11
 
     def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
@@ -438,7 +445,7 @@ class ExtendedKalmanFilter:
         before = (self._s, self._pc)  # _predict and _correct build new ones
         for _ in range(n):
             self._predict(h, force, self._q_force)
-        nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta)
+        nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta, force)
         nu2 = nu_x * nu_x
         pushed = self._push_q_force and abs(nu_x) > self._push_innovation \
             and nu2 > self._push_ratio2 * self._nu_x_ms \
@@ -451,7 +458,7 @@ class ExtendedKalmanFilter:
             self._s, self._pc = before
             for _ in range(n):
                 self._predict(h, force, self._push_q_force)
-            nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta)
+            nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta, force)
             self.pushed_samples += 1
         self._t = t
         reason = self._check(nu_x, nu_t, s11, s22)

@@ -86,6 +86,18 @@ class EkfConfig:
     """Random walk of the offset added per sample period, on the scale of P
     (ignored without the offset state). Small: the offset is a constant of the
     encoder reset; this keeps the estimate from freezing once P_b is small."""
+    offset_gate_rate: float = 1.0
+    """The offset b is corrected only while |theta_dot| is below this [rad/s] and the
+    pendulum within ``offset_gate_angle`` of hanging or upright: near an equilibrium,
+    where the model's error on a plant unlike it (length, masses, amplifier) does not
+    lean on b. Elsewhere b is a considered state (its gain zero, its covariance kept by
+    the Joseph form). inf for the rate and the force and pi/2 for the angle: b corrected
+    always (as before 2026-12-05)."""
+    offset_gate_angle: float = 0.26
+    """... within this of hanging or upright [rad] (15 deg; at most pi/2: any angle) ..."""
+    offset_gate_force: float = 10.0
+    """... and under a force command below this [N] (a kick at full force on an
+    amplifier weaker than the model's is read as an offset otherwise)."""
     discretisation: str = 'midpoint'
     """f_k of the prediction (5.15): 'midpoint', the explicit midpoint rule
     (second order, one more model evaluation), or 'euler', forward Euler as in
@@ -139,6 +151,13 @@ class EkfConfig:
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not math.isfinite(value) or value < 0.0:
                 raise ValueError(f'{name} must be a finite number >= 0, got {value!r}')
+        for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or math.isnan(value) or value < 0.0:
+                raise ValueError(f'{name} must be a number >= 0 (inf allowed), got {value!r}')
+        if self.offset_gate_angle > 0.5 * math.pi:
+            raise ValueError(f'offset_gate_angle must be <= pi/2, got {self.offset_gate_angle!r}')
         for name in ('jacobian_step', 'friction_steepness', 'push_innovation', 'push_ratio',
                      'push_window', 'push_angle', 'max_dt',
                      'innovation_sigma', 'max_covariance', 'max_position_excursion'):
@@ -169,7 +188,8 @@ class EkfConfig:
 
 
 ROS_PARAMETERS = ('q', 'r', 'push_q_force', 'push_innovation', 'friction_steepness',
-                  'angle_offset_p0', 'angle_offset_q', 'discretisation')
+                  'angle_offset_p0', 'angle_offset_q', 'offset_gate_rate', 'offset_gate_angle',
+                  'offset_gate_force', 'discretisation')
 """The ``ekf`` node's parameters that configure the filter (the same names in a
 ``--params`` file's ``ekf`` section for ``cartpole offline``)."""
 

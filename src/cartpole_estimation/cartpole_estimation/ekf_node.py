@@ -128,6 +128,22 @@ class EkfNode(Node):
         self.declare_parameter('angle_offset_q', defaults.angle_offset_q, ParameterDescriptor(
             description='Random walk of the encoder offset per sample period, on the scale of P.',
             floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
+        gate_range = [FloatingPointRange(from_value=0.0, to_value=1.0e9)]
+        self.declare_parameter('offset_gate_rate', defaults.offset_gate_rate, ParameterDescriptor(
+            description='The encoder offset is corrected only while |theta_dot| [rad/s] is '
+                        'below this, the pendulum within offset_gate_angle of hanging or '
+                        'upright and the force command below offset_gate_force: near an '
+                        'equilibrium, where a plant unlike the model does not pass for an '
+                        'offset. 1e9 with the other two at their maximum: always.',
+            floating_point_range=gate_range))
+        self.declare_parameter('offset_gate_angle', defaults.offset_gate_angle,
+                               ParameterDescriptor(
+            description='See offset_gate_rate [rad]; pi/2: any angle.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=math.pi / 2)]))
+        self.declare_parameter('offset_gate_force', defaults.offset_gate_force,
+                               ParameterDescriptor(
+            description='See offset_gate_rate [N].',
+            floating_point_range=gate_range))
         self.declare_parameter('discretisation', defaults.discretisation, ParameterDescriptor(
             description="f_k of the prediction: 'midpoint' (explicit midpoint rule) or 'euler' "
                         '(forward Euler, thesis 5.8).'))

@@ -17,6 +17,9 @@ from cartpole_sim.plant import Plant, Scenario
 PARAMS = CartPoleParameters()
 TS = PARAMS.sample_time
 FREE_SWING = Scenario(x0=0.38, theta0=0.3)
+ALWAYS = EkfConfig(offset_gate_rate=math.inf, offset_gate_force=math.inf,
+                   offset_gate_angle=math.pi / 2)
+"""The offset corrected at every sample, not only near an equilibrium (as before 2026-12-05)."""
 
 
 def simulate(scenario=FREE_SWING, duration=10.0, force_law=None, measurement_hook=None,
@@ -66,8 +69,7 @@ def est_array(estimates):
 
 @pytest.fixture(scope='module')
 def free_swing():
-    truth, meas, estimates, ekf = simulate()
-    return truth, meas, estimates, ekf
+    return simulate()
 
 
 def test_figure_5_2_free_swing_velocities_beat_numerical_derivative(free_swing):
@@ -275,7 +277,7 @@ def test_requested_reset_and_reset_to_a_state():
     {'r_diag': (0.01, 0.0)}, {'r_diag': (0.01, float('nan'))}, {'friction_steepness': 0.0},
     {'max_dt': -1.0}, {'innovation_count': 0}, {'sample_time': 0.0}, {'q_force': -1.0},
     {'angle_offset_p0': -1.0}, {'angle_offset_q': float('inf')}, {'discretisation': 'rk4'},
-    {'angle_offset_p0': 2.0e9}])
+    {'angle_offset_p0': 2.0e9}, {'offset_gate_rate': -1.0}, {'offset_gate_force': math.nan}])
 def test_bad_config_is_refused(changes):
     with pytest.raises(ValueError):
         EkfConfig(**changes)
@@ -292,11 +294,8 @@ def test_set_noise_validates_and_keeps_the_old_values_on_error():
 
 
 def test_deterministic():
-    def law(t, m):
-        return 5.0 * math.sin(3.0 * t)
-
-    first = simulate(duration=2.0, force_law=law)[2]
-    second = simulate(duration=2.0, force_law=law)[2]
+    first, second = (simulate(duration=2.0, force_law=lambda t, m: 5.0 * math.sin(3.0 * t))[2]
+                     for _ in range(2))
     assert first == second
     assert isinstance(first[0], StateEstimate)
 
@@ -361,14 +360,17 @@ def reference_predict(acc, cfg, ts, z, p, h, force, midpoint):
     return [s4[0], s4[1] - b, s4[2], s4[3], b], f_k @ p @ f_k.T + q
 
 
-def reference_correct(cfg, s, p, y_x, y_theta):
-    """(5.10)-(5.14) with H = [I 0]: K = P H^T S^-1, Joseph form with matrices."""
+def reference_correct(cfg, s, p, y_x, y_theta, force):
+    """(5.10)-(5.14), H = [I 0], Joseph form, in matrices; b's gain zero off equilibrium."""
     h = np.hstack([np.eye(2), np.zeros((2, 3))])
     r = np.diag(cfg.r_diag)
     nu = np.array([y_x - s[0], wrap_angle(y_theta - s[1])])
     k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+    gated = not (abs(s[3]) <= cfg.offset_gate_rate and abs(force) <= cfg.offset_gate_force
+                 and abs(math.sin(s[1] + s[4])) <= math.sin(cfg.offset_gate_angle))
+    k[4] *= 0.0 if gated else 1.0
     a = np.eye(5) - k @ h
-    return list(np.array(s) + k @ nu), a @ p @ a.T + k @ r @ k.T, nu
+    return list(np.array(s) + k @ nu), a @ p @ a.T + k @ r @ k.T, nu, gated
 
 
 @pytest.mark.parametrize('cfg', [
@@ -379,25 +381,23 @@ def reference_correct(cfg, s, p, y_x, y_theta):
 def test_scalar_covariance_algebra_matches_the_matrix_form_over_a_closed_loop_run(cfg):
     """The estimates and P of a closed-loop run equal the numpy reference to round-off.
 
-    The loop: plant with encoder noise and an encoder offset, a force law acting
-    on the EKF's own estimate (energy pumping plus cart centring), missed
-    samples (a Q h/Ts step of another length, several predictions) and
-    jittered stamps. The reference filter sees the very same samples and
-    forces. States, accelerations and innovations agree to 1e-9 of their
-    range over the run; P to 1e-8 of sqrt(P_ii P_jj) (its velocity entries
-    come out of the Joseph form's cancellation: even symmetrising the
-    reference's own P each step moves them by ~1.5e-9). Without the offset
-    state (the thesis's filter) every offset entry of P stays exactly zero.
+    The loop: encoder noise and offset, a force law on the EKF's own estimate (energy
+    pumping, cart centring; b corrected near hanging, considered in the swing), missed
+    samples (a Q h/Ts step of another length, several predictions), jittered stamps; the
+    reference sees the same samples and forces. States, accelerations and innovations
+    agree to 1e-9 of their range; P to 1e-8 of sqrt(P_ii P_jj) (its velocity entries come
+    out of the Joseph form's cancellation: symmetrising the reference's own P each step
+    moves them by ~1.5e-9). Without the offset state every offset entry of P stays zero.
     """
     ekf = ExtendedKalmanFilter(PARAMS, cfg)
     model = PARAMS.replace(friction_steepness_cart=cfg.friction_steepness,
                            friction_steepness_pendulum=cfg.friction_steepness)
     acc = acceleration_function(model)
-    plant = Plant(PARAMS, Scenario(x0=0.38, theta0=math.pi - 0.4, noise=True, seed=11,
+    plant = Plant(PARAMS, Scenario(x0=0.38, theta0=math.pi - 0.1, noise=True, seed=11,
                                    encoder_offset=0.03))
     s = p = t_prev = None
     u = 0.0
-    new, ref, p_err, lengths = [], [], [], set()
+    new, ref, p_err, lengths, gates = [], [], [], set(), set()
     for k in range(2400):
         m = plant.measure()
         if k % 97 == 50:  # a lost sample: the next update bridges 2 Ts
@@ -417,7 +417,8 @@ def test_scalar_covariance_algebra_matches_the_matrix_form_over_a_closed_loop_ru
             for _ in range(n):
                 s, p = reference_predict(acc, cfg, TS, s, p, h, u,
                                          cfg.discretisation == 'midpoint')
-            s, p, nu = reference_correct(cfg, s, p, m.x, m.theta)
+            s, p, nu, gated = reference_correct(cfg, s, p, m.x, m.theta, u)
+            gates.add(gated)
         t_prev = t
         theta = s[1] + s[4]
         new.append([e.x, e.theta, e.x_dot, e.theta_dot, e.angle_offset, e.x_ddot, e.theta_ddot,
@@ -436,6 +437,7 @@ def test_scalar_covariance_algebra_matches_the_matrix_form_over_a_closed_loop_ru
         plant.step(u)
     new, ref = np.array(new), np.array(ref)
     assert {(1, True), (1, False), (2, False)} <= lengths  # every path of the time update ran
+    assert gates == {True, False}  # b corrected near an equilibrium, considered elsewhere
     assert np.ptp(ref[:, 3]) > 10.0  # the pendulum really swung (rad/s)
     scale = np.max(np.abs(ref), axis=0)
     scale[4] = max(scale[4], 1.0)    # the offset: relative to a radian (it is 0 in 'thesis')
@@ -465,10 +467,13 @@ def test_the_offset_state_finds_an_encoder_reset_off_hanging():
 
 
 def test_free_swing_without_offset_leaves_the_offset_near_zero(free_swing):
-    """No offset, a large free swing: the midpoint prediction's model error is too small to
-    be taken for an offset (forward Euler's made it about 6 mrad)."""
-    _, _, estimates, _ = free_swing
+    """No offset, a large free swing, never near an equilibrium at rest: b stays at its prior
+    (``offset_gate_*``); corrected always, the midpoint prediction's model error is still
+    too small to be taken for an offset (forward Euler's made it about 6 mrad)."""
+    assert all(e.angle_offset == 0.0 for e in free_swing[2])
+    estimates = simulate(config=ALWAYS)[2]
     assert max(abs(e.angle_offset) for e in estimates[200:]) < 0.002
+    assert max(abs(e.angle_offset) for e in estimates[:40]) > 0.01  # it was corrected
 
 
 def test_accelerations_do_not_depend_on_the_cart_position():
