@@ -122,7 +122,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
     import gymnasium
     import torch
 
-    from .imitation import collect, fit, student_arrays
+    from .imitation import collect, fit, prepare_teacher, student_arrays
 
     torch.set_num_threads(1)
     torch.manual_seed(config.seed)
@@ -136,6 +136,7 @@ def train(config: TrainConfig, out: str, log: Callable[[str], None] = print) -> 
     labels_all: list[np.ndarray] = []
     mean = var = None
     history = []
+    prepare_teacher(CartPoleParameters(**config.nominal), tuple(config.teacher), log)
     context = multiprocessing.get_context('forkserver')
     with context.Pool(config.workers) as pool:
         for r in range(config.rounds):

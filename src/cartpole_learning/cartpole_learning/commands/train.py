@@ -36,9 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='nominal plant parameters (CartPoleParameters YAML, e.g. from '
                              '`cartpole identify`): the model of the EKF, the manager and the '
                              'teacher, and the centre of the ranges; default: thesis values')
-    parser.add_argument('--teacher', default='pendulum_energy:lqg', metavar='SWINGUP:STABILIZER',
+    parser.add_argument('--teacher', default='time_optimal:lqg', metavar='SWINGUP:STABILIZER',
                         help='the laws the policy imitates, two controller plugin names '
-                             '(default pendulum_energy:lqg, the default pair)')
+                             '(default time_optimal:lqg: its minimum-time plan is solved first '
+                             'if it is not in the plan cache)')
     parser.add_argument('--duration', type=float, default=8.0, metavar='S',
                         help='simulated seconds per episode (default 8)')
 
