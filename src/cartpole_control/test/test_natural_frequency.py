@@ -48,17 +48,9 @@ def test_a_hanging_pendulum_at_rest_changes_nothing_and_gaps_restart_the_window(
     assert est.omega_sq == pytest.approx(est.nominal)
 
 
-SHORT_PENDULUM_FALLS = pytest.mark.xfail(strict=True, reason=(
-    'caught at 1.87 s at x = 0.69 m (the rail guard\'s 40 ms dead-time prior shapes the last '
-    'stroke); the catch region\'s simulation settles at 6 deg, but the EKF predicts with the '
-    'nominal 0.33 m pendulum, its estimate lags the 0.25 m one, the LQI re-solved for '
-    'omega0^2 = 38.8 overshoots to -12 deg and the limiter at 0.70 m withholds the push: '
-    'docs/robustness.md, the short pendulum'))
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize('scenario_changes', [
-    pytest.param({'parameter_scales': (('l', 0.75),)}, marks=SHORT_PENDULUM_FALLS),
+    {'parameter_scales': (('l', 0.75),)},  # fell until the offset's gate (2026-12-05)
     {'parameter_scales': (('l', 1.25),)},
     {'tip_mass': 1.25 * P.m_p},
 ], ids=['length-25%', 'length+25%', 'tip-mass+25%'])
@@ -82,8 +74,10 @@ def test_the_thesis_fixed_target_loses_the_longer_pendulum_the_adaptive_one_keep
     from cartpole_sim.plant import Scenario
 
     # the cart term of the thesis (k_v = 0): the damped one brings the cart back to x* while
-    # the pendulum circles, which rescues this run even with the fixed target
-    scenario = Scenario(noise=True, seed=0, parameter_scales=(('l', 1.1),))
+    # the pendulum circles, which rescues this run even with the fixed target. 15 % longer:
+    # at 10 % the fixed target holds too since the EKF learns the encoder offset only near
+    # an equilibrium (2026-12-05)
+    scenario = Scenario(noise=True, seed=0, parameter_scales=(('l', 1.15),))
     fixed = run_closed_loop(P, scenario, duration=25.0,
                             manager_parameters={'pendulum_energy.adaptive_target': False,
                                                 'pendulum_energy.k_v': 0.0})

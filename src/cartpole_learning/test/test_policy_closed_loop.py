@@ -13,7 +13,7 @@ def test_the_shipped_policy_swings_up_and_the_stabiliser_holds(stabilizer):
                           manager_parameters={'swingup': 'policy', 'stabilizer': stabilizer})
     s = run.summary
     assert s['success'], s
-    assert s['catch_time_s'] < 3.0  # its teacher's, pendulum_energy (2.8 s)
+    assert s['catch_time_s'] <= 1.745  # 1.5 x the minimum-time bound; its teacher's plan 1.54 s
     assert s['falls_after_catch'] == 0 and not s['impacts']
     assert s.get('policy_fallbacks', 0) == 0
     assert s['theta_amp_deg'] < 1.0
