@@ -27,6 +27,18 @@ def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
     return values
 
 
+def _check_number(name: str, value, positive: bool = False, finite: bool = True) -> None:
+    """ValueError unless ``value`` is a number (not a bool) >= 0 (> 0 if ``positive``), finite
+    if ``finite`` (else inf is allowed, NaN never)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or (not math.isfinite(value) if finite else math.isnan(value)) \
+            or (value <= 0.0 if positive else value < 0.0):
+        kind = 'a finite number' if finite else 'a number'
+        bound = '> 0' if positive else '>= 0'
+        raise ValueError(f'{name} must be {kind} {bound}{"" if finite else " (inf allowed)"}, '
+                         f'got {value!r}')
+
+
 @dataclass(frozen=True)
 class EkfConfig:
     """Tuning and safety limits of the EKF (section 5.2, 9.2.1).
@@ -147,24 +159,15 @@ class EkfConfig:
             raise ValueError(f'discretisation must be one of {list(DISCRETISATIONS)}, '
                              f'got {self.discretisation!r}')
         for name in ('q_force', 'push_q_force', 'angle_offset_p0', 'angle_offset_q'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value) or value < 0.0:
-                raise ValueError(f'{name} must be a finite number >= 0, got {value!r}')
+            _check_number(name, getattr(self, name))
         for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or math.isnan(value) or value < 0.0:
-                raise ValueError(f'{name} must be a number >= 0 (inf allowed), got {value!r}')
+            _check_number(name, getattr(self, name), finite=False)
         if self.offset_gate_angle > 0.5 * math.pi:
             raise ValueError(f'offset_gate_angle must be <= pi/2, got {self.offset_gate_angle!r}')
         for name in ('jacobian_step', 'friction_steepness', 'push_innovation', 'push_ratio',
                      'push_window', 'push_angle', 'max_dt',
                      'innovation_sigma', 'max_covariance', 'max_position_excursion'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value) or value <= 0.0:
-                raise ValueError(f'{name} must be a finite number > 0, got {value!r}')
+            _check_number(name, getattr(self, name), positive=True)
         if self.sample_time is not None and not (
                 isinstance(self.sample_time, (int, float)) and math.isfinite(self.sample_time)
                 and self.sample_time > 0.0):

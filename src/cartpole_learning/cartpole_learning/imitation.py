@@ -67,13 +67,16 @@ def prepare_teacher(nominal: CartPoleParameters, teacher: tuple[str, str] = TEAC
     rest at the left stop): ``time_optimal`` solves its plan for ``nominal`` now if it is not
     in the plan cache (seconds, said to ``progress``), so that every episode's teacher
     tracks the plan instead of swinging up with its fall-back while a background solve runs.
-    The manager's own :meth:`~cartpole_control.manager.ControllerManager.prepare`."""
+    The manager's own :meth:`~cartpole_control.manager.ControllerManager.prepare`, with the
+    gains the teacher takes (:data:`TEACHER_GAINS`), so that it prepares the teacher's plan."""
     from cartpole_control.manager import ControllerManager
     from cartpole_sim.plant import Scenario
 
     teacher_classes(teacher)  # a clear error for a bad name first
+    gains = {f'{name}.{key}': value for name in teacher
+             for key, value in TEACHER_GAINS.get(name, {}).items()}
     manager = ControllerManager(nominal, sample_time=nominal.sample_time, real_time=False,
-                                swingup=teacher[0], stabilizer=teacher[1])
+                                swingup=teacher[0], stabilizer=teacher[1], **gains)
     manager.prepare(ControllerState(0.0, *Scenario().initial_state()), progress)
 
 
