@@ -72,17 +72,21 @@ def test_a_rig_with_more_friction_balances_within_target():
 
 
 @pytest.mark.slow
-def test_a_cart_parked_off_centre_comes_back_and_the_pendulum_is_caught():
-    """Seed 0, draw 172: a short pendulum on a heavy cart and a slow amplifier. The pendulum
-    circled at E* with the cart parked far off x*, held by friction against the undamped
-    P-term of (7.32), and the catch region refused every pass for 30 s; the damped cart term
-    (k_v) brings it back and the catch comes (at 3.8 s; at 8.3 s since the actuator's windows
-    are computed after the command, their estimates one cycle later)."""
-    summary = replay(172)
+@pytest.mark.parametrize('seed, index', [(0, 172), (1, 164)])
+def test_a_cart_parked_off_centre_comes_back_and_the_pendulum_is_caught(seed, index):
+    """Seed 0, draw 172: a short pendulum on a heavy cart and a slow amplifier; seed 1, draw
+    164: a pendulum 14 % short on a cart 16 % heavy, gain 0.87. Without the damped cart term
+    the pendulum circled at E* with the cart parked far off x* (0.61-0.69 m on draw 164),
+    held by friction against the undamped P-term of (7.32), and the catch region refused
+    every pass for 30 s; k_v brings it back and the catch comes. (Draw 172's run without k_v
+    is caught at 3.8 s since the offset's gate judges the encoders' angle; draw 164 still
+    shows it.)"""
+    summary = replay(index, seed)
     assert summary['catch_time_s'] is not None and summary['catch_time_s'] < 10.0
     assert summary['success'], summary
-    thesis = replay(172, manager_parameters={'pendulum_energy.k_v': 0.0})
-    assert thesis['catch_time_s'] is None
+    if index == 164:
+        thesis = replay(index, seed, manager_parameters={'pendulum_energy.k_v': 0.0})
+        assert thesis['catch_time_s'] is None
 
 
 @pytest.mark.slow

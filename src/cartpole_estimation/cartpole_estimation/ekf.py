@@ -1,21 +1,20 @@
 """Extended Kalman Filter of the cart-pendulum state from the two encoders (chapter 5).
 
-The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34), and the pendulum
-encoder's offset b (Appendix H), from the quantised cart position and
-pendulum angle, with the model of :mod:`cartpole_core.model` discretised
-(5.6)-(5.9) by the explicit midpoint rule (forward Euler, the thesis's (5.8),
-one parameter away), a numerical Jacobian (5.20)/(5.21), the Kalman gain
-(5.12) and the Joseph form of the covariance update (5.14)
+The filter estimates ``[x, theta, x_dot, theta_dot]`` (4.34), and the pendulum encoder's
+offset b (Appendix H), from the quantised cart position and pendulum angle, with the model
+of :mod:`cartpole_core.model` discretised (5.6)-(5.9) by the explicit midpoint rule (forward
+Euler, the thesis's (5.8), one parameter away), a numerical Jacobian (5.20)/(5.21), the
+Kalman gain (5.12) and the Joseph form of the covariance update (5.14)
 (:mod:`cartpole_estimation.covariance`), b corrected only near an equilibrium
-(``EkfConfig.offset_gate_*``). One :meth:`ExtendedKalmanFilter.update` per sample:
-the time update (5.15)/(5.16) under the force applied in the interval, then the
-measurement update (5.10)-(5.14). Q as a random walk per sample period with a random force on
-the cart, the offset state, the filter's friction steepness and the fault
-handling: docs/estimation.md.
+(``EkfConfig.offset_gate_*``) and R matched to the encoders' scatter there
+(:mod:`~cartpole_estimation.measurement_noise`). One :meth:`ExtendedKalmanFilter.update`
+per sample: the time update (5.15)/(5.16) under the force applied in the interval, then the
+measurement update (5.10)-(5.14). Q as a random walk per sample period with a random force
+on the cart, the offset state, the filter's friction steepness and the fault handling:
+docs/estimation.md.
 
-No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline
-closed loop both use this module. Deterministic: the same inputs give the
-same estimates bit for bit.
+No ROS import: the node :mod:`cartpole_estimation.ekf_node` and the offline closed loop
+both use this module. Deterministic: the same inputs give the same estimates bit for bit.
 """
 from __future__ import annotations
 
@@ -28,6 +27,7 @@ from cartpole_core.model import CartPoleParameters, acceleration_function, wrap_
 
 from .covariance import correct, predict_covariance
 from .ekf_config import EkfConfig
+from .measurement_noise import MeasurementNoise
 from .state_estimate import StateEstimate
 
 __all__ = ['EkfConfig', 'StateEstimate', 'ExtendedKalmanFilter']
@@ -98,11 +98,14 @@ class ExtendedKalmanFilter:
         self._gate_rate = cfg.offset_gate_rate
         self._gate_sin = math.sin(cfg.offset_gate_angle)
         self._gate_force = cfg.offset_gate_force
+        self._gate_noise = cfg.offset_gate_noise * cfg.r_diag[1]
         # Thresholds of _check, read once per configuration.
         self._n2 = cfg.innovation_sigma * cfg.innovation_sigma
         self._x_low = -cfg.max_position_excursion
         self._x_high = self.params.travel + cfg.max_position_excursion
         self._r_x, self._r_theta = cfg.r_diag
+        self._noise = MeasurementNoise(cfg.r_diag, cfg.r_diag[1] / cfg.noise_variance_theta,
+                                       cfg.noise_window, cfg.noise_limit, self.sample_time)
         d0, d1, d2, d3 = cfg.p0_diag
         # P_0|0 in the packed symmetric layout of :attr:`_pc` (see reset()), the
         # offset's prior last and uncorrelated with the measured angle m.
@@ -201,6 +204,11 @@ class ExtendedKalmanFilter:
         return 0.0 if self._s is None else self._s[4]
 
     @property
+    def measurement_noise_factors(self) -> tuple[float, float]:
+        """R in use over ``config.r_diag``, cart and pendulum (:mod:`.measurement_noise`)."""
+        return self._noise.factors
+
+    @property
     def last_estimate(self) -> StateEstimate | None:
         return self._last
 
@@ -235,23 +243,11 @@ class ExtendedKalmanFilter:
                 (b2 - b0) * g, (b3 - b0) * g, 1.0 + (b4 - b0) * g)
 
     def transition(self, state, force: float, h: float) -> tuple[list[float], np.ndarray]:
-        """f_k and its Jacobian F_k for a step of length h, (5.8), (5.19)-(5.21).
+        """f_k and its Jacobian F_k for a step of length h [s], (5.8), (5.19)-(5.21).
 
-        Parameters
-        ----------
-        state
-            [x, theta, x_dot, theta_dot].
-        force
-            Force on the cart during the step [N].
-        h
-            Step length [s] (Ts normally).
-
-        Returns
-        -------
-        (list, ndarray)
-            x + h (f(x) + g(x) u) as a list of 4 floats, and the 4x4 F_k =
-            I + h d(f + g u)/dx by forward differences of step
-            ``config.jacobian_step``.
+        From ``state`` [x, theta, x_dot, theta_dot] under ``force`` [N]: x + h (f(x) + g(x) u)
+        as a list of 4 floats, and the 4x4 F_k = I + h d(f + g u)/dx by forward differences
+        of step ``config.jacobian_step``.
         """
         x, th, xd, thd = state
         a0, b0, f21, f22, f23, f31, f32, f33 = self._linearise(x, th, xd, thd, force, h)
@@ -300,15 +296,15 @@ class ExtendedKalmanFilter:
 
     def _correct(self, y_x: float, y_theta: float, force: float) -> tuple[float, ...]:
         """Measurement update (5.10)-(5.14) (:func:`~cartpole_estimation.covariance.correct`),
-        the offset b corrected only near an equilibrium (``EkfConfig.offset_gate_*``).
-
-        Returns the innovation (5.11) and the innovation variances.
-        """
+        b corrected only near an equilibrium (``EkfConfig.offset_gate_*``); returns the
+        innovation (5.11) and the innovation variances."""
         s = self._s
-        fixed = not (abs(s[3]) <= self._gate_rate and abs(force) <= self._gate_force
-                     and abs(math.sin(s[1] + s[4])) <= self._gate_sin)
-        self._s, self._pc, nu_x, nu_t, s00, s11 = correct(s, self._pc, y_x, y_theta,
-                                                         self._r_x, self._r_theta, fixed)
+        # The encoders' angle m, not m + b: a wrong b must not shut its own gate.
+        self._near_equilibrium = near = abs(s[3]) <= self._gate_rate \
+            and abs(force) <= self._gate_force and abs(math.sin(s[1])) <= self._gate_sin
+        noisy = self._r_theta >= self._gate_noise  # the encoder's noise outweighs the model's
+        self._s, self._pc, nu_x, nu_t, s00, s11 = correct(
+            s, self._pc, y_x, y_theta, self._r_x, self._r_theta, not (near or noisy))
         return nu_x, nu_t, s00, s11
 
     def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
@@ -464,6 +460,8 @@ class ExtendedKalmanFilter:
         reason = self._check(nu_x, nu_t, s11, s22)
         if reason:
             return self._reinitialise(t, y_x, y_theta, force, reason, warning)
+        self._r_x, self._r_theta = self._noise.update(
+            t, y_x, y_theta, self._near_equilibrium and not pushed and not self._outliers)
         return self._estimate(t, force, (nu_x, nu_t), dt, missed, False, '', warning)
 
     def _check(self, nu_x: float, nu_t: float, s11: float, s22: float) -> str:

@@ -100,7 +100,8 @@ class EkfConfig:
     encoder reset; this keeps the estimate from freezing once P_b is small."""
     offset_gate_rate: float = 1.0
     """The offset b is corrected only while |theta_dot| is below this [rad/s] and the
-    pendulum within ``offset_gate_angle`` of hanging or upright: near an equilibrium,
+    encoders' angle (m, not m + b: a wrong b must not shut its own gate) within
+    ``offset_gate_angle`` of hanging or upright: near an equilibrium,
     where the model's error on a plant unlike it (length, masses, amplifier) does not
     lean on b. Elsewhere b is a considered state (its gain zero, its covariance kept by
     the Joseph form). inf for the rate and the force and pi/2 for the angle: b corrected
@@ -110,6 +111,22 @@ class EkfConfig:
     offset_gate_force: float = 10.0
     """... and under a force command below this [N] (a kick at full force on an
     amplifier weaker than the model's is read as an offset otherwise)."""
+    offset_gate_noise: float = 4.0
+    """... unless the pendulum encoder is noisy: with R_theta at or above this times its
+    configured value (``noise_window``), b is corrected everywhere. A noisy start leaves
+    b hardly known after 0.2 s, and where the encoder's noise outweighs the model's error
+    the swing is where b is observed best (with 9-15 mrad of noise the gate alone let
+    12 of 36 grid runs swing up, b corrected everywhere 35). inf: never."""
+    noise_window: float = 1.0
+    """Time constant [s] of the mean square of the encoders' second differences near an
+    equilibrium (the offset gate's, no push) to which R is matched, never below ``r_diag``
+    (:mod:`~cartpole_estimation.measurement_noise`). 0: R fixed, the thesis's."""
+    noise_variance_theta: float = 3.0e-6
+    """The real variance of the pendulum angle [rad^2] that R_theta stands for: the scale
+    of the filter, by which the measured scatter [m^2, rad^2] compares with R (the
+    thesis's R_theta = 0.1 for an encoder of about 1.7 mrad noise and quantisation)."""
+    noise_limit: float = 1000.0
+    """R never above this times ``r_diag`` (>= 1)."""
     discretisation: str = 'midpoint'
     """f_k of the prediction (5.15): 'midpoint', the explicit midpoint rule
     (second order, one more model evaluation), or 'euler', forward Euler as in
@@ -160,10 +177,16 @@ class EkfConfig:
                              f'got {self.discretisation!r}')
         for name in ('q_force', 'push_q_force', 'angle_offset_p0', 'angle_offset_q'):
             _check_number(name, getattr(self, name))
-        for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle'):
+        for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle',
+                     'offset_gate_noise'):
             _check_number(name, getattr(self, name), finite=False)
         if self.offset_gate_angle > 0.5 * math.pi:
             raise ValueError(f'offset_gate_angle must be <= pi/2, got {self.offset_gate_angle!r}')
+        _check_number('noise_window', self.noise_window)
+        _check_number('noise_variance_theta', self.noise_variance_theta, positive=True)
+        _check_number('noise_limit', self.noise_limit)
+        if self.noise_limit < 1.0:
+            raise ValueError(f'noise_limit must be >= 1, got {self.noise_limit!r}')
         for name in ('jacobian_step', 'friction_steepness', 'push_innovation', 'push_ratio',
                      'push_window', 'push_angle', 'max_dt',
                      'innovation_sigma', 'max_covariance', 'max_position_excursion'):
@@ -192,7 +215,8 @@ class EkfConfig:
 
 ROS_PARAMETERS = ('q', 'r', 'push_q_force', 'push_innovation', 'friction_steepness',
                   'angle_offset_p0', 'angle_offset_q', 'offset_gate_rate', 'offset_gate_angle',
-                  'offset_gate_force', 'discretisation')
+                  'offset_gate_force', 'offset_gate_noise', 'noise_window', 'noise_variance_theta', 'noise_limit',
+                  'discretisation')
 """The ``ekf`` node's parameters that configure the filter (the same names in a
 ``--params`` file's ``ekf`` section for ``cartpole offline``)."""
 

@@ -131,7 +131,7 @@ class EkfNode(Node):
         gate_range = [FloatingPointRange(from_value=0.0, to_value=1.0e9)]
         self.declare_parameter('offset_gate_rate', defaults.offset_gate_rate, ParameterDescriptor(
             description='The encoder offset is corrected only while |theta_dot| [rad/s] is '
-                        'below this, the pendulum within offset_gate_angle of hanging or '
+                        'below this, the encoders\' angle within offset_gate_angle of hanging or '
                         'upright and the force command below offset_gate_force: near an '
                         'equilibrium, where a plant unlike the model does not pass for an '
                         'offset. 1e9 with the other two at their maximum: always.',
@@ -144,6 +144,24 @@ class EkfNode(Node):
                                ParameterDescriptor(
             description='See offset_gate_rate [N].',
             floating_point_range=gate_range))
+        self.declare_parameter('offset_gate_noise', defaults.offset_gate_noise,
+                               ParameterDescriptor(
+            description='With R_theta at or above this times r\'s (a noisy pendulum '
+                        'encoder, noise_window) the encoder offset is corrected everywhere. '
+                        '1e9: never.',
+            floating_point_range=gate_range))
+        self.declare_parameter('noise_window', defaults.noise_window, ParameterDescriptor(
+            description='Time constant [s] of the mean of the encoders\' scatter near an '
+                        'equilibrium to which R is matched (never below r); 0: R fixed.',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=60.0)]))
+        self.declare_parameter('noise_variance_theta', defaults.noise_variance_theta,
+                               ParameterDescriptor(
+            description='The real variance of the pendulum angle [rad^2] that r\'s R_theta '
+                        'stands for: the scale of the filter.',
+            floating_point_range=[FloatingPointRange(from_value=1.0e-12, to_value=1.0)]))
+        self.declare_parameter('noise_limit', defaults.noise_limit, ParameterDescriptor(
+            description='R is never above this times r.',
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=1.0e6)]))
         self.declare_parameter('discretisation', defaults.discretisation, ParameterDescriptor(
             description="f_k of the prediction: 'midpoint' (explicit midpoint rule) or 'euler' "
                         '(forward Euler, thesis 5.8).'))
@@ -427,6 +445,8 @@ class EkfNode(Node):
             'resets': f.resets, 'reset_reason': self._last_reset_reason,
             'missed_samples': f.missed_samples_total, 'dt': dt, **asdict(self.counts),
             'rejected_samples': f.rejected_samples, 'pushed_samples': f.pushed_samples,
+            'r_factor_x': f.measurement_noise_factors[0],
+            'r_factor_theta': f.measurement_noise_factors[1],
             'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,

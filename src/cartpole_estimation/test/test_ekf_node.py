@@ -188,6 +188,11 @@ def test_refused_q_keeps_the_old_one_with_a_reason(harness, spin_until):
     assert h.ekf.filter.config.push_innovation == 1.0e-3
     result = h.ekf.set_parameters([Parameter('push_q_force', value=0.0)])[0]
     assert result.successful and h.ekf.filter.config.push_q_force == 0.0
+    # R matched to the encoders: a limit below 1 is refused, a window of 0 fixes R
+    result = h.ekf.set_parameters([Parameter('noise_limit', value=0.5)])[0]
+    assert not result.successful and h.ekf.filter.config.noise_limit == 1000.0
+    result = h.ekf.set_parameters([Parameter('noise_window', value=0.0)])[0]
+    assert result.successful and h.ekf.filter.config.noise_window == 0.0
 
 
 def test_bad_override_is_refused_at_start(ros_context):
@@ -218,10 +223,12 @@ def test_health_topic_and_reset_service(harness, spin_until):
     values = {kv.key: kv.value for kv in status.values}
     assert status.name == 'ekf'
     for key in ('innovation_x', 'innovation_theta', 'p_x', 'p_theta', 'p_x_dot', 'p_theta_dot',
-                'resets', 'reset_reason', 'missed_samples', 'dt', 'pushed_samples'):
+                'resets', 'reset_reason', 'missed_samples', 'dt', 'pushed_samples',
+                'r_factor_x', 'r_factor_theta'):
         assert key in values
     assert float(values['resets']) == 1.0 and values['reset_reason'] == 'requested'
     assert float(values['samples']) == 6.0
+    assert float(values['r_factor_theta']) == 1.0  # noiseless samples: the configured R
 
 
 def test_diagnostics_idle_ok_then_stale_when_the_samples_stop_warn_when_dropped(
