@@ -118,9 +118,10 @@ class EkfConfig:
     the swing is where b is observed best (with 9-15 mrad of noise the gate alone let
     12 of 36 grid runs swing up, b corrected everywhere 35). inf: never."""
     noise_window: float = 1.0
-    """Time constant [s] of the mean square of the encoders' second differences near an
-    equilibrium (the offset gate's, no push) to which R is matched, never below ``r_diag``
-    (:mod:`~cartpole_estimation.measurement_noise`). 0: R fixed, the thesis's."""
+    """Time constant [s] of the mean of the encoders' scatter (neighbouring second
+    differences) near an equilibrium (the offset gate's, no push) to which R is matched,
+    never below ``r_diag`` (:mod:`~cartpole_estimation.measurement_noise`). 0: R fixed,
+    the thesis's."""
     noise_variance_theta: float = 3.0e-6
     """The real variance of the pendulum angle [rad^2] that R_theta stands for: the scale
     of the filter, by which the measured scatter [m^2, rad^2] compares with R (the
@@ -215,8 +216,8 @@ class EkfConfig:
 
 ROS_PARAMETERS = ('q', 'r', 'push_q_force', 'push_innovation', 'friction_steepness',
                   'angle_offset_p0', 'angle_offset_q', 'offset_gate_rate', 'offset_gate_angle',
-                  'offset_gate_force', 'offset_gate_noise', 'noise_window', 'noise_variance_theta', 'noise_limit',
-                  'discretisation')
+                  'offset_gate_force', 'offset_gate_noise', 'noise_window',
+                  'noise_variance_theta', 'noise_limit', 'discretisation')
 """The ``ekf`` node's parameters that configure the filter (the same names in a
 ``--params`` file's ``ekf`` section for ``cartpole offline``)."""
 

@@ -57,6 +57,8 @@ class MeasurementNoise:
         """One accepted sample at ``t`` [s] [m, rad]; returns R to use.
 
         Counted only ``near_equilibrium``, and with the three samples before it Ts apart."""
+        if self.window <= 0.0:
+            return self.used
         history = self._history
         if history and abs(t - history[-1][0] - self.sample_time) > 0.25 * self.sample_time:
             history.clear()
@@ -68,7 +70,7 @@ class MeasurementNoise:
             (_, x2, th2), (_, x1, th1), _ = history
             d2 = (y_x - 2.0 * x1 + x2, y_theta - 2.0 * th1 + th2)
         previous, self._d2 = self._d2, d2
-        if self.window <= 0.0 or not near_equilibrium or d2 is None or previous is None:
+        if not near_equilibrium or d2 is None or previous is None:
             return self.used
         self.samples += 1
         alpha = max(min(1.0, self.sample_time / self.window), 1.0 / self.samples)
