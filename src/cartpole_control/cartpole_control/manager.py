@@ -74,8 +74,7 @@ class ControllerManager:
         self.sample_time = float(sample_time)
         # Read once: the model (4.18), the actuator's limits (Appendix C), E* (6.8)
         self._acc = acceleration_function(plant)
-        self._force_min = plant.force_min
-        self._force_max = plant.force_max
+        self._force_min, self._force_max = plant.force_min, plant.force_max
         self._upright_energy = plant.upright_energy
         self._registry = checked_registry(registry)
         self._specs = parameter_specs(plant, self.sample_time, self._registry)
@@ -390,6 +389,7 @@ class ControllerManager:
         elif mode in _KIND_OF_MODE and self._active is None:
             self._set_mode(mode, state)  # first cycle: activate from this state
         guard = self._guard  # this cycle's envelope, for the plugin (context.rail_guard) too
+        guard.balancing = self.mode == STABILIZING  # its reserve then follows the speed
         guard.set_actuator(gain, estimate.disturbance, estimate.uncovered_dead_time)
         friction = values['actuator.friction']  # (6.12) scaled to the rig's friction
         estimate.used_friction = friction = \

@@ -16,7 +16,7 @@ from typing import Mapping
 from cartpole_core.model import CartPoleParameters
 
 from .controller import AUTO, KINDS, STABILIZER, SWINGUP, Controller, ParameterSpec
-from .rail_guard import ACTUATOR_DEAD_TIME
+from .rail_guard import ACTUATOR_DEAD_TIME, RESERVE_TIME
 from .registry import load_controllers
 
 logger = logging.getLogger(__name__)
@@ -126,6 +126,11 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
         ParameterSpec('rail.limit_reserve', 0.05, 'Rail guard: the limiter keeps the '
                       'stopping position this much further from the stops than the trip '
                       'test [m]', low=0.0, high=0.3),
+        ParameterSpec('rail.reserve_time', RESERVE_TIME, 'Rail guard: while the stabiliser '
+                      'balances, the limiter\'s reserve is the distance the cart covers in this '
+                      'time, at least 1 cm and at most rail.limit_reserve (an unmodelled dead time '
+                      'moves a slow cart\'s stop by little) [s]; 0 = the whole reserve at every '
+                      'speed', low=0.0, high=1.0),
         ParameterSpec('rail.actuator_dead_time', ACTUATOR_DEAD_TIME, 'Rail guard: the '
                       "actuator's dead time beyond the reported latency (a lag) that the braking "
                       'envelope assumes until the plant estimate has measured it (with actuator.delay '

@@ -33,6 +33,11 @@ PASSED_ITERATIONS = 12
 """Bisection steps of an end of :meth:`RailGuard.passed_range` (about 0.02 N on 70 N)."""
 HOLD_SPEED = 0.002
 """[m/s] After a trip, creeping towards the nearer stop faster than this is braked."""
+RESERVE_TIME = 0.1
+"""[s] While balancing, the limiter's reserve is the distance the cart covers in this time
+(``rail.reserve_time``): what an unmodelled dead time that long moves its stop."""
+RESERVE_FLOOR = 0.01
+"""[m] The least reserve while balancing (a cart at rest)."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,10 @@ class RailGuard:
     limit_reserve
         The limiter keeps the stopping position this much [m] further from
         the stops than the trip test does.
+    reserve_time
+        While :attr:`balancing`, the reserve is ``|x_dot| reserve_time``, at
+        least :data:`RESERVE_FLOOR` and at most ``limit_reserve`` [s] (0: the
+        whole reserve at every speed; :meth:`reserve`).
     actuator_dead_time
         The actuator's extra dead time [s] assumed until :meth:`set_actuator`
         reports it measured (0: the model's actuator; the manager's default is
@@ -82,7 +91,7 @@ class RailGuard:
                  max_brake_force: float = 30.0, latency: float | None = None,
                  rest_speed: float = 0.02, creep_speed: float = 0.1,
                  limit: bool = True, limit_reserve: float = 0.05,
-                 actuator_dead_time: float = 0.0) -> None:
+                 actuator_dead_time: float = 0.0, reserve_time: float = RESERVE_TIME) -> None:
         self.params = params
         self.margin = float(margin)
         self.max_brake_force = float(max_brake_force)
@@ -91,6 +100,13 @@ class RailGuard:
         self.limit = bool(limit)
         self.creep_speed = float(creep_speed)
         self.limit_reserve = float(limit_reserve)
+        self.reserve_time = float(reserve_time)
+        if not (math.isfinite(self.reserve_time) and self.reserve_time >= 0.0):
+            raise ValueError(f'reserve_time must be >= 0, got {reserve_time!r}')
+        self.balancing = False
+        """The stabiliser balances (the manager says so every cycle): the reserve follows the
+        speed (:meth:`reserve`); else, and while the swing-up runs the cart along the rail, it
+        is the whole ``limit_reserve``."""
         self.actuator_dead_time = float(actuator_dead_time)
         if not (math.isfinite(self.actuator_dead_time) and self.actuator_dead_time >= 0.0):
             raise ValueError(f'actuator_dead_time must be >= 0, got {actuator_dead_time!r}')
@@ -298,7 +314,8 @@ class RailGuard:
         limited = False
         stop = self.stopping_position(x, x_dot, theta_dot, force)
         if self.limit:
-            low, high = self.margin + self.limit_reserve, self._high - self.limit_reserve
+            reserve = self.reserve(x_dot)
+            low, high = self.margin + reserve, self._high - reserve
             right = stop > high and stop > x
             if right or stop < low and stop < x:
                 if at_rest:  # no push further in (a full one would start a brake chatter)
@@ -323,6 +340,18 @@ class RailGuard:
         brake = self._brake(x_dot)
         self.predicted_stop = self.braked_stop(x, theta, x_dot, theta_dot)
         return brake, True
+
+    def reserve(self, x_dot: float) -> float:
+        """The limiter's reserve [m] for a cart at ``x_dot``: ``limit_reserve``; while
+        :attr:`balancing`, ``|x_dot| reserve_time`` within [:data:`RESERVE_FLOOR`,
+        ``limit_reserve``]. The reserve is for what the envelope does not model, a longer
+        dead time above all, which moves a slow cart's stop by little; the whole reserve at
+        rest held a balancing cart on the boundary with its pendulum falling towards the stop
+        (a push away from it is withheld at rest there)."""
+        full = self.limit_reserve
+        if not self.balancing or self.reserve_time <= 0.0:
+            return full
+        return min(full, max(RESERVE_FLOOR, abs(x_dot) * self.reserve_time))
 
     def _in_margin(self, x: float) -> bool:
         """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""

@@ -124,7 +124,8 @@ class Stager:
                           latency=v['rail.latency'], rest_speed=v['rail.rest_speed'],
                           creep_speed=v['rail.creep_speed'], limit=v['rail.limit'],
                           limit_reserve=v['rail.limit_reserve'],
-                          actuator_dead_time=v['rail.actuator_dead_time'])
+                          actuator_dead_time=v['rail.actuator_dead_time'],
+                          reserve_time=v['rail.reserve_time'])
         return trigger, friction_feedforward(v), guard
 
     def plugin(self, kind: str, name: str, values: Mapping[str, Any],

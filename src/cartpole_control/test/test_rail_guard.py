@@ -392,3 +392,56 @@ def test_at_rest_near_the_limiter_boundary_a_small_push_in_passes_and_none_beyon
     assert guard.stopping_position(boundary - 0.01, 0.0, 0.0, high) == \
         pytest.approx(boundary, abs=1e-3)
     assert guard.passed_range(boundary + 0.001, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
+
+
+def test_while_balancing_the_reserve_follows_the_speed():
+    """The whole reserve at every speed but while balancing; then |x_dot| x 0.1 s, at least
+    1 cm, at most the reserve; rail.reserve_time 0 keeps the whole reserve."""
+    guard = RailGuard(P, margin=0.02, limit_reserve=0.05)
+    assert [guard.reserve(v) for v in (0.0, 0.2, -1.0)] == [0.05, 0.05, 0.05]
+    guard.balancing = True
+    assert [guard.reserve(v) for v in (0.0, 0.05, 0.2, -0.3, 1.0)] == \
+        pytest.approx([0.01, 0.01, 0.02, 0.03, 0.05])
+    guard.reserve_time = 0.0
+    assert guard.reserve(0.0) == 0.05
+    with pytest.raises(ValueError):
+        RailGuard(P, reserve_time=-0.1)
+
+
+def test_a_balancing_cart_at_rest_on_the_boundary_may_still_move_towards_the_stop():
+    """At rest 4 cm from the right stop, past the whole reserve's boundary (7 cm), the guard
+    withholds every push towards the stop during the swing-up; while balancing it passes
+    pushes up to the force whose stopping position is 3 cm from the stop (margin and the
+    1 cm floor), and none on that boundary."""
+    guard = RailGuard(P, margin=0.02, limit_reserve=0.05, actuator_dead_time=0.04)
+    x = P.travel - 0.04
+    assert guard.passed_range(x, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
+    guard.balancing = True
+    high = guard.passed_range(x, 0.0, 0.0, P.force_min, P.force_max)[1]
+    assert 5.0 < high < P.force_max
+    assert guard.stopping_position(x, 0.0, 0.0, high) == pytest.approx(P.travel - 0.03, abs=1e-3)
+    at_floor = P.travel - 0.03 + 0.001
+    assert guard.passed_range(at_floor, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
+
+
+@pytest.mark.parametrize('seed', [8, 17])
+def test_a_6_5_n_s_push_no_longer_parks_the_cart_on_the_boundary_to_let_the_pendulum_fall(seed):
+    """lqg, the default pair's stabiliser, after a 6.5 N s cart push (0.1 s at 65 N at 12 s):
+    with the whole reserve at rest (rail.reserve_time 0, as before 2026-12-05 night) the cart
+    came to rest on the limiter's boundary with the pendulum falling towards the stop, every
+    push after it withheld: a fall. With the reserve following the speed it is recovered and
+    the cart never touches a stop (seeds 0-35: 36 kept, 32 before)."""
+    from cartpole_bringup.offline.closed_loop import run_closed_loop
+    from cartpole_sim.plant import Push
+
+    def run(parameters):
+        result = run_closed_loop(P, Scenario(noise=True, seed=seed,
+                                             pushes=(Push(12.0, 'cart', 65.0, 0.1),)),
+                                 duration=16.0, manager_parameters=parameters,
+                                 stop_on_failure=True)
+        falls = [t for t, e in result.events if e == 'fall' and t > result.catch_time]
+        return falls, result.end_stop_contact
+
+    assert run({'stabilizer': 'lqg'}) == ([], False)
+    falls, contact = run({'stabilizer': 'lqg', 'rail.reserve_time': 0.0})
+    assert falls and not contact
