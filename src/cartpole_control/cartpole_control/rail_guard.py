@@ -347,7 +347,7 @@ class RailGuard:
         ``limit_reserve``]. The reserve is for what the envelope does not model, a longer
         dead time above all, which moves a slow cart's stop by little; the whole reserve at
         rest held a balancing cart on the boundary with its pendulum falling towards the stop
-        (a push away from it is withheld at rest there)."""
+        (at rest there every push towards that stop is withheld)."""
         full = self.limit_reserve
         if not self.balancing or self.reserve_time <= 0.0:
             return full
