@@ -294,18 +294,18 @@ class ExtendedKalmanFilter:
                   pc[12] + q_force * g_p * g_p, pc[13], pc[14])
         self._pc = pc
 
-    def _correct(self, y_x: float, y_theta: float, force: float) -> tuple[float, ...]:
+    def _correct(self, y_x: float, y_theta: float, force: float) -> tuple:
         """Measurement update (5.10)-(5.14) (:func:`~cartpole_estimation.covariance.correct`),
         b corrected only near an equilibrium (``EkfConfig.offset_gate_*``); returns the
-        innovation (5.11) and the innovation variances."""
+        innovation (5.11), the innovation variances and whether it was near one."""
         s = self._s
         # The encoders' angle m, not m + b: a wrong b must not shut its own gate.
-        self._near_equilibrium = near = abs(s[3]) <= self._gate_rate \
-            and abs(force) <= self._gate_force and abs(math.sin(s[1])) <= self._gate_sin
+        near = abs(s[3]) <= self._gate_rate and abs(force) <= self._gate_force \
+            and abs(math.sin(s[1])) <= self._gate_sin
         noisy = self._r_theta >= self._gate_noise  # the encoder's noise outweighs the model's
         self._s, self._pc, nu_x, nu_t, s00, s11 = correct(
             s, self._pc, y_x, y_theta, self._r_x, self._r_theta, not (near or noisy))
-        return nu_x, nu_t, s00, s11
+        return nu_x, nu_t, s00, s11, near
 
     def _initialise(self, t: float, y_x: float, y_theta: float, force: float,
                     reason: str, warning: str = '') -> StateEstimate:
@@ -441,7 +441,7 @@ class ExtendedKalmanFilter:
         before = (self._s, self._pc)  # _predict and _correct build new ones
         for _ in range(n):
             self._predict(h, force, self._q_force)
-        nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta, force)
+        nu_x, nu_t, s11, s22, near = self._correct(y_x, y_theta, force)
         nu2 = nu_x * nu_x
         pushed = self._push_q_force and abs(nu_x) > self._push_innovation \
             and nu2 > self._push_ratio2 * self._nu_x_ms \
@@ -454,14 +454,14 @@ class ExtendedKalmanFilter:
             self._s, self._pc = before
             for _ in range(n):
                 self._predict(h, force, self._push_q_force)
-            nu_x, nu_t, s11, s22 = self._correct(y_x, y_theta, force)
+            nu_x, nu_t, s11, s22, near = self._correct(y_x, y_theta, force)
             self.pushed_samples += 1
         self._t = t
         reason = self._check(nu_x, nu_t, s11, s22)
         if reason:
             return self._reinitialise(t, y_x, y_theta, force, reason, warning)
         self._r_x, self._r_theta = self._noise.update(
-            t, y_x, y_theta, self._near_equilibrium and not pushed and not self._outliers)
+            t, y_x, y_theta, near and not pushed and not self._outliers)
         return self._estimate(t, force, (nu_x, nu_t), dt, missed, False, '', warning)
 
     def _check(self, nu_x: float, nu_t: float, s11: float, s22: float) -> str:

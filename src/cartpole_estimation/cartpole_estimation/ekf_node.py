@@ -437,6 +437,7 @@ class EkfNode(Node):
         else:
             innovation, p_diag, dt = est.innovation, est.covariance_diagonal, est.dt
             message = 'estimating'
+        r_factor_x, r_factor_theta = f.measurement_noise_factors
         values = {
             'innovation_x': innovation[0], 'innovation_theta': innovation[1],
             'p_x': p_diag[0], 'p_theta': p_diag[1], 'p_x_dot': p_diag[2],
@@ -445,8 +446,7 @@ class EkfNode(Node):
             'resets': f.resets, 'reset_reason': self._last_reset_reason,
             'missed_samples': f.missed_samples_total, 'dt': dt, **asdict(self.counts),
             'rejected_samples': f.rejected_samples, 'pushed_samples': f.pushed_samples,
-            'r_factor_x': f.measurement_noise_factors[0],
-            'r_factor_theta': f.measurement_noise_factors[1],
+            'r_factor_x': r_factor_x, 'r_factor_theta': r_factor_theta,
             'force': self._last_force_used,
             'stamp': self._last_sample_t if self._last_sample_t is not None else 0.0,
             'longest_cycle_gap_s': self.cycle_gaps.longest,

@@ -17,7 +17,7 @@ No ROS import.
 """
 from __future__ import annotations
 
-import math
+from collections import deque
 from dataclasses import dataclass
 
 __all__ = ['MeasurementNoise']
@@ -44,7 +44,7 @@ class MeasurementNoise:
         self.variance = [r / self.scale for r in self.r]  # real, m^2 and rad^2
         self.used = tuple(self.r)
         self.samples = 0
-        self._history: list[tuple[float, float, float]] = []  # (t, y_x, y_theta), Ts apart
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=3)  # (t, y_x, y_theta)
         self._d2: tuple[float, float] | None = None  # the previous sample's second differences
 
     @property
@@ -63,8 +63,7 @@ class MeasurementNoise:
         if history and abs(t - history[-1][0] - self.sample_time) > 0.25 * self.sample_time:
             history.clear()
             self._d2 = None
-        history.append((t, y_x, y_theta))
-        del history[:-3]
+        history.append((t, y_x, y_theta))  # the last three, Ts apart
         d2 = None
         if len(history) == 3:
             (_, x2, th2), (_, x1, th1), _ = history
