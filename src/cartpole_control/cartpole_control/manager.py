@@ -333,6 +333,7 @@ class ControllerManager:
         estimate = self.plant_estimate
         if estimate.reports or estimate.samples:
             estimate.take_reports(t, self.mode == STABILIZING)
+        self._guard.measured_x_dot = x_dot  # after a trip judged beside the predicted x_dot
         guard_x, guard_theta, guard_x_dot, guard_theta_dot = x, theta, x_dot, theta_dot
         values = self._values
         horizon = values['predict.horizon']
@@ -417,8 +418,7 @@ class ControllerManager:
                         feedforward = friction * self._feedforward(x_dot, raw) - disturbance
                     force = min(max(raw + feedforward, gain * self._force_min),
                                 gain * self._force_max)
-        # After a trip the guard keeps hold: a cart it has stopped is braked again
-        # if anything (a falling pendulum) drags it, so it never drifts into a stop.
+        # After a trip the guard keeps hold: a stopped cart dragged towards a stop is braked.
         if self.mode in _KIND_OF_MODE or guard.status == BRAKING or guard.status == STOPPED:
             force, tripped = guard.command(guard_x, guard_x_dot, guard_theta_dot, force,
                                            guard_theta)

@@ -107,6 +107,11 @@ class RailGuard:
         """The stabiliser balances (the manager says so every cycle): the reserve follows the
         speed (:meth:`reserve`); else, and while the swing-up runs the cart along the rail, it
         is the whole ``limit_reserve``."""
+        self.measured_x_dot: float | None = None
+        """The estimate's x_dot [m/s] before the prediction (the manager says so every cycle).
+        After a trip the brake and the hold judge the faster of it and the predicted x_dot:
+        a prediction that takes the amplifier for stronger than it is (a gain not yet
+        measured) sees the cart at rest while it still runs towards the stop."""
         self.actuator_dead_time = float(actuator_dead_time)
         if not (math.isfinite(self.actuator_dead_time) and self.actuator_dead_time >= 0.0):
             raise ValueError(f'actuator_dead_time must be >= 0, got {actuator_dead_time!r}')
@@ -306,9 +311,9 @@ class RailGuard:
         """
         status = self.status
         if status == STOPPED:
-            return self._hold(x, x_dot), False
+            return self._hold(x, self._faster(x_dot)), False
         if status == BRAKING:
-            return self._brake(x_dot), False
+            return self._brake(self._faster(x_dot)), False
         speed = abs(x_dot)
         at_rest = speed <= self.rest_speed or speed <= self.creep_speed and self._in_margin(x)
         limited = False
@@ -337,7 +342,7 @@ class RailGuard:
             self.status = LIMITED
             return (min(force, 0.0) if towards_right else max(force, 0.0)), False
         self.status = BRAKING
-        brake = self._brake(x_dot)
+        brake = self._brake(self._faster(x_dot))
         self.predicted_stop = self.braked_stop(x, theta, x_dot, theta_dot)
         return brake, True
 
@@ -417,6 +422,11 @@ class RailGuard:
         direction = math.copysign(1.0, x_dot)
         brake = self._brake_pos if direction > 0.0 else self._brake_neg
         return -direction * min(brake, self._mass * abs(x_dot) / self.params.sample_time)
+
+    def _faster(self, x_dot: float) -> float:
+        """``x_dot`` or :attr:`measured_x_dot`, whichever is faster."""
+        measured = self.measured_x_dot
+        return x_dot if measured is None or abs(x_dot) >= abs(measured) else measured
 
     def _brake(self, x_dot: float) -> float:
         if abs(x_dot) <= self.rest_speed:

@@ -88,6 +88,27 @@ def test_no_override_in_the_middle():
             assert action.force == force and action.status == ARMED
 
 
+def test_after_a_trip_a_cart_the_prediction_sees_at_rest_but_the_estimate_sees_running_is_braked():
+    """The prediction over the commands in flight takes the amplifier for as strong as the
+    gain the manager uses (1 until measured); on a weaker one it sees the brake's work done
+    while the cart still runs. The brake and the hold judge the faster of the predicted and
+    the estimated speed (measured: a 0.4 amplifier, a 5 N s push, seeds 1 and 2 reached the
+    stop at 0.11-0.14 m/s, judged on the prediction alone)."""
+    guard = RailGuard(P, max_brake_force=30.0)
+    assert guard.check(0.2, -1.5, 0.0, 0.0).tripped
+    guard.measured_x_dot = -0.6
+    braked = guard.check(0.1, -0.001, 0.0, 0.0)  # predicted at rest, estimated at 0.6 m/s
+    assert (braked.force, braked.status) == (pytest.approx(30.0), BRAKING)
+    guard.measured_x_dot = -0.001
+    assert guard.check(0.1, -0.001, 0.0, 0.0).status == STOPPED
+    guard.measured_x_dot = -0.5  # the stopped cart runs on towards the left stop
+    assert guard.check(0.09, -0.001, 0.0, 0.0).force == pytest.approx(30.0)
+    guard.measured_x_dot = None  # the prediction alone: at rest
+    guard.reset()
+    assert guard.check(0.2, -1.5, 0.0, 0.0).tripped
+    assert guard.check(0.1, -0.001, 0.0, 0.0).status == STOPPED
+
+
 def test_moving_towards_a_stop_trips_and_brakes_against_the_motion():
     guard = RailGuard(P, max_brake_force=30.0)
     action = guard.check(0.6, 1.5, 0.0, 10.0)
