@@ -25,6 +25,7 @@ from collections import deque
 
 from cartpole_core.model import CartPoleParameters
 
+from .encoder_noise import EncoderNoise
 from .position_window import PositionWindow
 
 HALF_WINDOW = 20
@@ -84,8 +85,11 @@ sudden change (a hand, a push) passes the gate (:data:`GATE`)."""
 DISTURBANCE_MAX = 40.0
 """[N] The disturbance estimate is held inside +-this."""
 NOISE_STD = 0.004
-"""[N s^2] Standard deviation of Y's error: the friction model's error that a constant D
-does not take up, the encoders' noise (a 1 N error over the window is 0.01 N s^2)."""
+"""[N s^2] Standard deviation of Y's error beyond the encoders' measured noise: the friction
+model's error that a constant D does not take up (a 1 N error over the window is 0.01 N s^2)."""
+NOISE_GAIN = 6.0
+"""Var(Y) from the encoders' noise over (m_c + m_p)^2 sigma_x^2 + (m_p l)^2 sigma_theta^2: Y
+is a second difference of the momentum at the window's ends and centre (1 + 4 + 1)."""
 GATE = 4.0
 """An innovation beyond this many standard deviations is a change of the disturbance (a
 push, a hand), not news of the gain: it moves D alone."""
@@ -176,6 +180,8 @@ class ActuatorEstimator:
         self._gated_run = [0] * n
         self._due = False
         """The window is complete and not yet computed (:meth:`finish`)."""
+        self.noise = EncoderNoise(self.sample_time)
+        """The encoders' measured noise, which weighs each window's error (:data:`NOISE_GAIN`)."""
         self.window.clear()
         horizon = 2 * self.window.half_window + 2 + int(math.ceil(DELAY_MAX / self.sample_time)) + 8
         self._applied: deque[tuple[float, float]] = deque(maxlen=4 * horizon)
@@ -281,6 +287,7 @@ class ActuatorEstimator:
         if self._due:
             self.finish()
         self.window.clear()
+        self.noise.clear()
         self._applied.clear()
 
     def update(self, t: float, x: float, theta: float) -> None:
@@ -293,6 +300,7 @@ class ActuatorEstimator:
         """
         if self._due:
             self.finish()
+        self.noise.update(t, x, theta)
         if self.window.push(t, x, theta) and self._applied:
             self._due = True
 
@@ -367,7 +375,9 @@ class ActuatorEstimator:
         (a large, varying command) the window moves D and S alone; a gated
         innovation (a push) moves D alone.
         """
-        r = NOISE_STD * NOISE_STD
+        var_x, var_theta = self.noise.variance
+        r = NOISE_STD * NOISE_STD + NOISE_GAIN * (self._mass ** 2 * var_x
+                                                  + self._m_p_l ** 2 * var_theta)
         q_g, q_d = GAIN_WALK_STD * GAIN_WALK_STD, DISTURBANCE_WALK_STD * DISTURBANCE_WALK_STD
         q_s = FRICTION_WALK_STD * FRICTION_WALK_STD
         lam = RESIDUAL_FORGETTING
@@ -383,19 +393,24 @@ class ActuatorEstimator:
             pdd, pds, pss = pdd_all[k] + q_d, pds_all[k], pss_all[k] + q_s
             nu = y - g * phi - d * w + f * (psi + slow)
             jump = False
-            if excited and abs(phi) >= PHI_MIN:
-                if runs[k] >= GATE_PERSISTENCE:
-                    pgg = min(pgg + GAIN_REOPEN_STD * GAIN_REOPEN_STD, PGG_MAX)
-                    runs[k] = 0
+            if excited:
                 # P H^T with H = (phi, w, -psi)
                 u_g = pgg * phi + pgd * w - pgs * psi
                 u_d = pgd * phi + pdd * w - pds * psi
                 u_s = pgs * phi + pds * w - pss * psi
                 s = phi * u_g + w * u_d - psi * u_s + r
                 z2 = nu * nu / s
+                # every candidate's residual counts the same windows
+                res_all[k] = lam * res_all[k] + min(z2, GATE * GATE)
+            if excited and abs(phi) >= PHI_MIN:
+                if runs[k] >= GATE_PERSISTENCE:
+                    pgg = min(pgg + GAIN_REOPEN_STD * GAIN_REOPEN_STD, PGG_MAX)
+                    runs[k] = 0
+                    u_g = pgg * phi + pgd * w - pgs * psi
+                    s = phi * u_g + w * u_d - psi * u_s + r
+                    z2 = nu * nu / s
                 if z2 <= GATE * GATE:
                     runs[k] = 0
-                    res_all[k] = lam * res_all[k] + z2
                     k_g, k_d, k_s = u_g / s, u_d / s, u_s / s
                     rate = max(GAIN_RATE * math.sqrt(pgg) / 0.1, GAIN_RATE_MIN)
                     step = min(max(k_g * nu, -rate), rate)
@@ -413,7 +428,6 @@ class ActuatorEstimator:
                     pgg_all[k], pgd_all[k], pgs_all[k] = pgg, pgd, pgs
                     pdd_all[k], pds_all[k], pss_all[k] = pdd, pds, pss
                     continue
-                res_all[k] = lam * res_all[k] + GATE * GATE
                 runs[k] += 1
                 jump = True
             if jump:

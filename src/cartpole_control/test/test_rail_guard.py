@@ -445,7 +445,7 @@ def test_a_balancing_cart_at_rest_on_the_boundary_may_still_move_towards_the_sto
     assert guard.passed_range(at_floor, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
 
 
-@pytest.mark.parametrize('seed', [8, 17])
+@pytest.mark.parametrize('seed', [17, 30])
 def test_a_6_5_n_s_push_no_longer_parks_the_cart_on_the_boundary_to_let_the_pendulum_fall(seed):
     """lqg, the default pair's stabiliser, after a 6.5 N s cart push (0.1 s at 65 N at 12 s):
     with the whole reserve at rest (rail.reserve_time 0, as before 2026-12-05 night) the cart
