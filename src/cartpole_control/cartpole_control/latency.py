@@ -153,6 +153,34 @@ class CommandsInFlight:
         out.append((t + horizon - begin, force))
         return out
 
+    def mean_force(self, start: float, end: float, delay: float) -> float | None:
+        """The mean command the cart feels over ``[start, end]`` [N] when each acts ``delay`` [s]
+        after its sample: at time ``s`` the latest computed from a sample at or before ``s -
+        delay`` (before the first, the first); None with nothing sent or ``end <= start``."""
+        stamps, forces = self._stamps, self._forces
+        if not stamps or end <= start:
+            return None
+        a, b = start - delay, end - delay  # on the samples' time line
+        i = len(stamps) - 1
+        while i > 0 and stamps[i] > a:
+            i -= 1
+        total, begin, force = 0.0, a, forces[i]
+        for j in range(i + 1, len(stamps)):
+            if stamps[j] >= b:
+                break
+            if stamps[j] > begin:
+                total += (stamps[j] - begin) * force
+                begin = stamps[j]
+            force = forces[j]
+        if begin == a:
+            return force  # one command over the whole interval: itself, not a rounded mean
+        return (total + (b - begin) * force) / (b - a)
+
+    @property
+    def last_stamp(self) -> float | None:
+        """The stamp of the sample the latest command was computed from, None if none."""
+        return self._stamps[-1] if self._stamps else None
+
 
 AGE_WINDOW = 200
 """Received samples over which :class:`SampleAge` averages (about 1 s of a 200 Hz loop)."""

@@ -2,16 +2,16 @@
 
 Wiring only; every decision is the manager's. Each ``cartpole/state``
 (JointState, joints ``cart``/``pendulum``) runs one control cycle at once and
-publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp) and
-``cartpole/controller_status``; a repeated stamp gets the same answer again.
-With ``lockstep:=true`` a state's cycle waits (at most ``lockstep_wait``; the
-first one, while the graph discovers, up to 10 s) for the encoders' sample it
-was estimated from, so lockstep runs are the same run whatever the delivery
-order. The plugins' parameters are ROS parameters:
-validated (and the new plugin staged) in the on-set callback, queued in the
-post-set callback, swapped in between two cycles. A stale-state timer on the
-node clock faults with zero force when the states stop for ``state_timeout``
-of this process's running time. ``~/restart_swingup`` starts a new swing-up;
+publishes ``cartpole/force_command`` (``effort=[F]``, the state's stamp),
+``cartpole/force_acting`` (for the EKF) and ``cartpole/controller_status``; a
+repeated stamp gets the same answer again. With ``lockstep:=true`` a state's
+cycle waits (at most ``lockstep_wait``; the first one, while the graph
+discovers, up to 10 s) for the encoders' sample it was estimated from, so
+lockstep runs are the same run whatever the delivery order. The plugins'
+parameters are ROS parameters: validated (and the new plugin staged) in the
+on-set callback, queued in the post-set callback, swapped in between two
+cycles. A stale-state timer on the node clock faults with zero force when the
+states stop for ``state_timeout`` of this process's running time. ``~/restart_swingup`` starts a new swing-up;
 ``cartpole/plant_reset`` starts one from the first state after the reset.
 Health on ``/diagnostics`` (``controller_manager: control``); the package's
 Python loggers go to ``/rosout`` while the node lives; zero force on shutdown.
@@ -137,6 +137,8 @@ class ControllerManagerNode(Node):
 
         self._pub_force = self.create_publisher(JointState, 'cartpole/force_command',
                                                 PUBLISH_DEPTH)
+        self._pub_acting = self.create_publisher(JointState, 'cartpole/force_acting',
+                                                 PUBLISH_DEPTH)
         self._pub_status = self.create_publisher(DiagnosticArray, 'cartpole/controller_status',
                                                  PUBLISH_DEPTH)
         # Created before the state subscription: when several are ready at once, the
@@ -304,6 +306,7 @@ class ControllerManagerNode(Node):
         force.name = [CART_JOINT]
         force.effort = [out.force]
         self._pub_force.publish(force)
+        self._publish_acting(state.t, out.force, msg.header.stamp)
         self._last_command = force
         self._last_state_ns = self.get_clock().now().nanoseconds
         self._silent_ns = 0
@@ -312,6 +315,19 @@ class ControllerManagerNode(Node):
         self._publish_status(out, msg.header.stamp, 'plant_reset' if reset else '')
         self.manager.between_cycles()  # the command is out: work ahead (the MPC's catch QP)
         collect_when_idle()  # the command is out: the loop has time until the next sample
+
+    def _publish_acting(self, t: float, command: float, stamp) -> None:
+        """``cartpole/force_acting``: the force the cart feels over the next interval by the
+        plant estimate (:meth:`PlantEstimate.acting_force`; the command when it has none), within
+        the amplifier's range; what the EKF predicts with."""
+        acting = self.manager.plant_estimate.acting_force(t)
+        plant = self.manager.plant
+        msg = JointState()
+        msg.header.stamp = stamp
+        msg.name = [CART_JOINT]
+        msg.effort = [command if acting is None
+                      else min(max(acting, plant.force_min), plant.force_max)]
+        self._pub_acting.publish(msg)
 
     def _on_command_applied(self, msg: TimeReference) -> None:
         if not self.inputs.accept_stamps('cartpole/command_applied', msg.header.stamp,

@@ -107,6 +107,19 @@ class PlantEstimate:
         """The loop's latency plus the actuator's extra dead time the manager compensates [s]."""
         return self.latency.latency + self.used_delay
 
+    def acting_force(self, t: float) -> float | None:
+        """The force [N] the cart feels over ``[t, t + Ts]`` by this estimate, once the command of
+        the sample stamped ``t`` is sent: the commands in flight, each acting :attr:`dead_time`
+        after its sample, times :attr:`used_gain`. What the EKF predicts with (its
+        ``force_input`` ``acting``): the command as sent acts later and, on a weak amplifier,
+        weaker. None when no command was sent for ``t`` (an idle or faulted cycle sends zero).
+        """
+        flight = self.in_flight
+        if flight.last_stamp != t:
+            return None
+        mean = flight.mean_force(t, t + self.sample_time, self.dead_time)
+        return None if mean is None else self.used_gain * mean
+
     @property
     def uncovered_dead_time(self) -> float | None:
         """The actuator's dead time the manager's prediction leaves out [s]: the estimate

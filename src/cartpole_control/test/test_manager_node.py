@@ -46,6 +46,9 @@ class Harness:
                                       self.commands.append, 10)
         self.node.create_subscription(DiagnosticArray, '/cartpole/controller_status',
                                       self.status.append, 10)
+        self.acting = []
+        self.node.create_subscription(JointState, '/cartpole/force_acting',
+                                      self.acting.append, 10)
         self.pub = self.node.create_publisher(JointState, '/cartpole/state', 10)
         self.set_client = self.node.create_client(SetParameters, f'{target}/set_parameters')
         self.get_client = self.node.create_client(GetParameters, f'{target}/get_parameters')
@@ -151,6 +154,28 @@ def test_cycle_publishes_force_and_status_with_the_state_stamp(graph):
     assert kv['swingup_law'] == 'pendulum_energy'  # the law of the swing-up that was caught
     assert float(kv['energy_error']) == pytest.approx(
         P.upright_energy - float(kv['energy']), abs=1e-12)
+
+
+def test_each_command_comes_with_the_force_acting_by_the_plant_estimate(graph):
+    """cartpole/force_acting, for the EKF: the command itself on the model's actuator; with
+    actuator.gain 0.8 and 7.5 ms of actuator dead time (no latency reported), 0.8 times the
+    mean over the next 5 ms of the commands each acting 7.5 ms after its state."""
+    node, h = graph
+
+    def acting_of(command):
+        stamp = command.header.stamp
+        assert h.spin_until(h.executor, lambda: any(m.header.stamp == stamp for m in h.acting),
+                            5.0)
+        (msg,) = [m for m in h.acting if m.header.stamp == stamp]
+        assert msg.name == ['cart'] and len(msg.effort) == 1
+        return msg.effort[0]
+    command, _ = h.send_state(12.0, theta=0.05)
+    assert acting_of(command) == command.effort[0]
+    results = h.set(actuator__gain=0.8, actuator__delay=0.0075)
+    assert all(r.successful for r in results), [r.reason for r in results]
+    commands = [h.send_state(12.005 + 0.005 * k, theta=0.05 - 0.01 * k)[0] for k in range(3)]
+    c0, c1, c2 = (c.effort[0] for c in commands)
+    assert acting_of(commands[2]) == pytest.approx(0.8 * 0.5 * (c0 + c1))
 
 
 def test_set_parameters_service_switches_the_stabiliser_within_one_cycle(graph):

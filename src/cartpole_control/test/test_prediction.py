@@ -58,11 +58,15 @@ def test_the_prediction_saves_lqg_under_25_ms_of_delay():
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Scenario
 
+    from cartpole_estimation.ekf_config import EkfConfig
+
     scenario = Scenario(noise=True, seed=0, delay=0.025, jitter=0.005)
+    unpredicted = {'stabilizer': 'lqg', 'predict.horizon': 0.0, 'actuator.delay': 0.0,
+                   'lqg.dead_time_weight_max': 1.0}
+    # The EKF fed the command as sent (the thesis's): nothing in the loop knows the delay.
     plain = run_closed_loop(P, scenario, duration=20.0, stop_on_failure=True,
-                            manager_parameters={'stabilizer': 'lqg', 'predict.horizon': 0.0,
-                                                'actuator.delay': 0.0,
-                                                'lqg.dead_time_weight_max': 1.0})
+                            manager_parameters=unpredicted,
+                            ekf_config=EkfConfig(force_input='command'))
     predicted = run_closed_loop(P, scenario, duration=20.0,
                                 manager_parameters={'stabilizer': 'lqg',
                                                     'predict.horizon': 0.015,
@@ -75,3 +79,6 @@ def test_the_prediction_saves_lqg_under_25_ms_of_delay():
                                manager_parameters={'stabilizer': 'lqg', 'predict.horizon': 0.0,
                                                    'actuator.delay': 0.0})
     assert weighted.summary['success'] and not weighted.end_stop_contact
+    # And so does the EKF fed the force as the measured latency says it acts.
+    acting = run_closed_loop(P, scenario, duration=20.0, manager_parameters=unpredicted)
+    assert acting.summary['success'] and not acting.end_stop_contact

@@ -8,11 +8,13 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-__all__ = ['EkfConfig', 'DISCRETISATIONS', 'ROS_PARAMETERS', 'changes_from_parameters',
-           'q_parameter']
+__all__ = ['EkfConfig', 'DISCRETISATIONS', 'FORCE_INPUTS', 'ROS_PARAMETERS',
+           'changes_from_parameters', 'q_parameter']
 
 DISCRETISATIONS = ('midpoint', 'euler')
 """The prediction's f_k: the explicit midpoint rule, or forward Euler (5.8)."""
+FORCE_INPUTS = ('acting', 'command')
+"""The force the filter predicts with: as the controller manager estimates it acts, or as sent."""
 
 
 def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
@@ -136,6 +138,14 @@ class EkfConfig:
     state takes up a few mrad of it (free swing: theta_dot RMSE 0.071 rad/s
     with Euler, 0.0055 with the midpoint rule). The covariance (5.16) uses the
     Jacobian of the Euler step (5.19) either way."""
+    force_input: str = 'acting'
+    """The force the adapters (the EKF node, ``cartpole offline``) predict with: 'acting',
+    the force the controller manager estimates the cart feels over the interval
+    (``cartpole/force_acting``: its commands in flight, each acting the measured latency
+    plus the actuator's dead time after its sample, times the estimated gain), or
+    'command', the command as sent, applied at once at gain 1 (the thesis's). Without a
+    ``force_acting`` for the interval the command is used. The filter takes the force it
+    is given."""
     jacobian_step: float = 1.0e-6
     """epsilon of the forward difference (5.21)."""
     friction_steepness: float = 200.0
@@ -176,6 +186,9 @@ class EkfConfig:
         if self.discretisation not in DISCRETISATIONS:
             raise ValueError(f'discretisation must be one of {list(DISCRETISATIONS)}, '
                              f'got {self.discretisation!r}')
+        if self.force_input not in FORCE_INPUTS:
+            raise ValueError(f'force_input must be one of {list(FORCE_INPUTS)}, '
+                             f'got {self.force_input!r}')
         for name in ('q_force', 'push_q_force', 'angle_offset_p0', 'angle_offset_q'):
             _check_number(name, getattr(self, name))
         for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle',
@@ -217,7 +230,7 @@ class EkfConfig:
 ROS_PARAMETERS = ('q', 'r', 'push_q_force', 'push_innovation', 'friction_steepness',
                   'angle_offset_p0', 'angle_offset_q', 'offset_gate_rate', 'offset_gate_angle',
                   'offset_gate_force', 'offset_gate_noise', 'noise_window',
-                  'noise_variance_theta', 'noise_limit', 'discretisation')
+                  'noise_variance_theta', 'noise_limit', 'discretisation', 'force_input')
 """The ``ekf`` node's parameters that configure the filter (the same names in a
 ``--params`` file's ``ekf`` section for ``cartpole offline``)."""
 
@@ -245,8 +258,8 @@ def changes_from_parameters(values) -> dict:
             changes['q_force'] = q[4] if len(q) == 5 else 0.0
         elif name == 'r':
             changes['r_diag'] = tuple(float(v) for v in value)
-        elif name == 'discretisation':
-            changes['discretisation'] = str(value)
+        elif name in ('discretisation', 'force_input'):
+            changes[name] = str(value)
         elif name in ROS_PARAMETERS:
             changes[name] = float(value)
     return changes

@@ -1,13 +1,14 @@
 """ROS 2 node ``ekf``: the EKF of chapter 5 between the encoders and the controllers.
 
 Subscribes ``joint_states`` (the quantised positions of ``cart`` and
-``pendulum``) and ``cartpole/force_command`` (``cart`` effort), publishes
+``pendulum``), ``cartpole/force_command`` and ``cartpole/force_acting`` (``cart``
+effort; :mod:`cartpole_estimation.prediction_force`), publishes
 ``cartpole/state`` (positions and velocities, the sample's stamp) at once in
 the sample's callback, ``cartpole/ekf/health`` every ``health_period`` and
 ``ekf: estimation`` on ``/diagnostics``. The numerical work is
 :class:`cartpole_estimation.ekf.ExtendedKalmanFilter`; this module only wires
-it. With ``lockstep:=true`` a sample is estimated only once the command
-computed from the previous sample has arrived (at most ``lockstep_wait``), so
+it. With ``lockstep:=true`` a sample is estimated only once the command (and acting
+force) computed from the previous sample has arrived (at most ``lockstep_wait``), so
 the estimate does not depend on DDS's delivery order. A ``cartpole/plant_reset``
 re-initialises the filter from the first sample stamped at or after it.
 docs/estimation.md.
@@ -34,7 +35,9 @@ from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from .ekf_config import DISCRETISATIONS, ROS_PARAMETERS, changes_from_parameters, q_parameter
+from .ekf_config import (DISCRETISATIONS, FORCE_INPUTS, ROS_PARAMETERS, changes_from_parameters,
+                         q_parameter)
+from .prediction_force import PredictionForce
 
 JOINT_NAMES = ('cart', 'pendulum')
 HARDWARE_ID = 'cartpole'
@@ -54,7 +57,7 @@ class EkfNodeCounts:
     duplicate_samples: int = 0
     """Repeats of the latest sample (its estimate published again)."""
     bad_commands: int = 0
-    """``/cartpole/force_command`` dropped: no finite ``cart`` effort."""
+    """``/cartpole/force_command`` or ``/cartpole/force_acting`` dropped: no finite ``cart`` effort."""
 
 
 def _stamp_seconds(stamp) -> float:
@@ -165,6 +168,11 @@ class EkfNode(Node):
         self.declare_parameter('discretisation', defaults.discretisation, ParameterDescriptor(
             description="f_k of the prediction: 'midpoint' (explicit midpoint rule) or 'euler' "
                         '(forward Euler, thesis 5.8).'))
+        self.declare_parameter('force_input', defaults.force_input, ParameterDescriptor(
+            description="The force the prediction takes: 'acting', the manager's estimate of "
+                        'the force the cart feels (cartpole/force_acting: the commands delayed '
+                        "by the measured dead time, times the estimated gain), or 'command', "
+                        'the command as sent (the thesis).'))
         self.declare_parameter('health_period', 0.1, ParameterDescriptor(
             description='Period of /cartpole/ekf/health [s] (node clock).',
             floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)]))
@@ -192,18 +200,12 @@ class EkfNode(Node):
             {n: self.get_parameter(n).value for n in names})))
         self.inputs = InputGuard(self, RigLimits.from_parameters(
             params, stamp_tolerance=declare_stamp_tolerance(self)),
-            ('joint_states', 'cartpole/force_command'))
+            ('joint_states', 'cartpole/force_command', 'cartpole/force_acting'))
         """Judges every message before it is taken (refused_inputs in the health)."""
-        self._command_timeout = self.get_parameter('command_timeout').value
-
-        # Force command held as the plant holds it: value and the measurement
-        # time (stamp of the latest sample) at which it arrived.
-        self._force = 0.0
-        self._force_received_at: float | None = None
+        self.forces = PredictionForce(self.filter.config.force_input,
+                                      self.get_parameter('command_timeout').value)
+        """The commands and acting forces by the stamp of the sample they answer."""
         self._last_sample_t: float | None = None
-        # Commands by the stamp of the state they answer: u_{k-1} is the one
-        # stamped with sample k-1, whatever order DDS delivered them in.
-        self._force_by_stamp: dict[tuple[int, int], float] = {}
         self._last_sample_stamp: tuple[int, int] | None = None
         self._last_force_used = 0.0
         self.counts = EkfNodeCounts()
@@ -225,6 +227,7 @@ class EkfNode(Node):
                                  PLANT_RESET_QOS)
         self.create_subscription(JointState, 'joint_states', self._on_joint_states, 10)
         self.create_subscription(JointState, 'cartpole/force_command', self._on_force_command, 10)
+        self.create_subscription(JointState, 'cartpole/force_acting', self._on_force_acting, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self._health_timer = self.create_timer(self.get_parameter('health_period').value,
                                                self._publish_health)
@@ -255,6 +258,9 @@ class EkfNode(Node):
             elif p.name == 'discretisation':
                 reason = '' if p.value in DISCRETISATIONS else \
                     f'discretisation must be one of {list(DISCRETISATIONS)}, got {p.value!r}'
+            elif p.name == 'force_input':
+                reason = '' if p.value in FORCE_INPUTS else \
+                    f'force_input must be one of {list(FORCE_INPUTS)}, got {p.value!r}'
             else:
                 reason = ''
             if reason:
@@ -276,7 +282,9 @@ class EkfNode(Node):
         changes = changes_from_parameters({p.name: p.value for p in parameters})
         for p in parameters:
             if p.name == 'command_timeout':
-                self._command_timeout = float(p.value)
+                self.forces.command_timeout = float(p.value)
+            elif p.name == 'force_input':
+                self.forces.force_input = str(p.value)
             elif p.name == 'health_period':
                 self._health_timer.cancel()
                 self.destroy_timer(self._health_timer)
@@ -287,9 +295,23 @@ class EkfNode(Node):
 
     # -- inputs -------------------------------------------------------------------------
     def _on_force_command(self, msg: JointState) -> None:
-        if not self.inputs.accept(msg, COMMAND, 'cartpole/force_command'):
+        force = self._cart_effort(msg, 'cartpole/force_command')
+        if force is not None:
+            self.forces.command((msg.header.stamp.sec, msg.header.stamp.nanosec), force,
+                                self._last_sample_t)
+            self._estimate_if_ready()
+
+    def _on_force_acting(self, msg: JointState) -> None:
+        force = self._cart_effort(msg, 'cartpole/force_acting')
+        if force is not None:
+            self.forces.acting((msg.header.stamp.sec, msg.header.stamp.nanosec), force)
+            self._estimate_if_ready()
+
+    def _cart_effort(self, msg: JointState, topic: str) -> float | None:
+        """The finite ``cart`` effort of a command-like message, else None (counted, said)."""
+        if not self.inputs.accept(msg, COMMAND, topic):
             self.counts.bad_commands += 1
-            return
+            return None
         try:
             force = float(msg.effort[list(msg.name).index('cart')])
         except (ValueError, IndexError):
@@ -297,18 +319,15 @@ class EkfNode(Node):
         if not math.isfinite(force):
             self.counts.bad_commands += 1
             self.get_logger().warning(
-                f'bad /cartpole/force_command dropped (needs a finite effort for "cart"): '
+                f'bad /{topic} dropped (needs a finite effort for "cart"): '
                 f'names {list(msg.name)}, effort {list(msg.effort)}',
                 throttle_duration_sec=1.0)
-            return
-        self._force = force
-        self._force_received_at = self._last_sample_t
-        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        self._force_by_stamp[stamp] = force
-        if len(self._force_by_stamp) > 64:
-            for old in sorted(self._force_by_stamp)[:32]:
-                del self._force_by_stamp[old]
-        if self._pending_sample is not None and stamp == self._last_sample_stamp:
+            return None
+        return force
+
+    def _estimate_if_ready(self) -> None:
+        """Lockstep: the sample waiting for its prediction's force gets it once all arrived."""
+        if self._pending_sample is not None and self.forces.ready(self._last_sample_stamp):
             self._estimate_pending()
 
     def _estimate_pending(self) -> None:
@@ -323,24 +342,8 @@ class EkfNode(Node):
             self._pending_timer.cancel()
 
     def _prediction_force(self) -> float:
-        """The command held over the interval that ends at this sample, as the plant holds it.
-
-        The simulator's watchdog (and the hardware bridge's) zero a command
-        whose age at the start of a period exceeds ``command_timeout``; the
-        age here is the previous sample's stamp minus the stamp of the
-        sample that was the latest when the command arrived. When the command
-        computed from the previous sample has arrived (stamped with it), that
-        one is used: in lockstep it is exactly what the plant applied, even
-        when DDS delivers the next sample before it.
-        """
-        matched = self._force_by_stamp.get(self._last_sample_stamp)
-        if matched is not None:
-            return matched
-        if self._force_received_at is None or self._last_sample_t is None:
-            return 0.0
-        if self._last_sample_t - self._force_received_at > self._command_timeout + 1.0e-9:
-            return 0.0
-        return self._force
+        """The force over the interval that ends at this sample (:meth:`PredictionForce.for_interval`)."""
+        return self.forces.for_interval(self._last_sample_stamp, self._last_sample_t)
 
     def _on_joint_states(self, msg: JointState) -> None:
         if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
@@ -363,7 +366,7 @@ class EkfNode(Node):
             if self._pending_sample is not None:  # a newer sample: stop waiting for the old one
                 self._estimate_pending()
             if (self._last_sample_stamp is not None
-                    and self._last_sample_stamp not in self._force_by_stamp):
+                    and not self.forces.ready(self._last_sample_stamp)):
                 # The previous command is still on its way.
                 self._pending_sample = (msg, x, theta, t)
                 self._pending_timer.reset()
@@ -384,8 +387,7 @@ class EkfNode(Node):
         if self._reset_from is not None and t >= self._reset_from:
             self._reset_from = None
             self.filter.request_reset('plant reset')
-            self._force_by_stamp.clear()  # commands of the run before the reset
-            self._force_received_at = None
+            self.forces.clear()  # commands of the run before the reset
         force = self._prediction_force()
         est = self.filter.update(t, x, theta, force)
         if est.rejected:

@@ -132,7 +132,8 @@ def test_force_command_is_used_and_zeroed_when_stale(harness, spin_until):
     assert spin_until(h.executor, lambda: len(h.states) == 1, timeout=5.0)
     cmd = JointState(name=['cart'], effort=[10.0])
     h.force_pub.publish(cmd)
-    assert spin_until(h.executor, lambda: h.ekf._force == 10.0, timeout=5.0)
+    assert spin_until(h.executor, lambda: h.ekf.forces.for_interval(None, 1.0) == 10.0,
+                      timeout=5.0)  # held
     h.meas_pub.publish(joint_state(1.005, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
     assert h.ekf._last_force_used == 10.0
@@ -311,7 +312,8 @@ def test_prediction_uses_the_command_stamped_with_the_previous_sample(harness, s
     stray.header.stamp = joint_state(1.5, 0.0, 0.0).header.stamp
     h.force_pub.publish(answer)
     h.force_pub.publish(stray)  # arrives last, answers an older sample
-    assert spin_until(h.executor, lambda: h.ekf._force == 7.0, timeout=5.0)
+    assert spin_until(h.executor, lambda: h.ekf.forces.for_interval(None, 2.0) == 7.0,
+                      timeout=5.0)  # the latest held
     h.meas_pub.publish(joint_state(2.005, 0.3, math.pi))
     assert spin_until(h.executor, lambda: len(h.states) == 2, timeout=5.0)
     assert h.ekf._last_force_used == -5.0

@@ -127,6 +127,10 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     between_cycles = manager.between_cycles
     measured, applied_commands = manager.measured, plant.applied_commands
     command_applied = manager.command_applied
+    # The EKF predicts with the force the manager estimates acts (cartpole/force_acting)
+    acting_force = manager.plant_estimate.acting_force \
+        if ekf.config.force_input == 'acting' else None
+    ekf_force = 0.0
     add_row, add_mode = samples.append, modes.append
     clock = time.perf_counter if profile is not None else None
     t_plant = t_ekf = t_ctrl = 0.0
@@ -156,7 +160,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
         for source, applied in applied_commands():  # the plant's reports, as on the graph
             command_applied(source, applied)
         measured(t, meas.x, meas.theta)
-        est = ekf_update(t, meas.x, meas.theta, force)
+        est = ekf_update(t, meas.x, meas.theta, ekf_force)
         if clock:
             t2 = clock()
         x, theta, x_dot, theta_dot = est.x, est.theta, est.x_dot, est.theta_dot
@@ -166,8 +170,12 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_plant += t1 - t0
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
+        force = ekf_force = out.force
+        if acting_force is not None:
+            acting = acting_force(est.t)
+            if acting is not None:
+                ekf_force = min(max(acting, nominal.force_min), nominal.force_max)
         between_cycles()  # as the node does once the command is out
-        force = out.force
         mode = out.mode
         if out.plugin_status:
             plugin_status = out.plugin_status

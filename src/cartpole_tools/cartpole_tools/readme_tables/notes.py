@@ -12,6 +12,8 @@ TOPIC_NOTES: dict[str, str] = {
     '/cartpole/state': 'estimated position and velocity of both joints; stamp copied from the '
                        'sample',
     '/cartpole/force_command': '`cart` effort [N]; stamp = stamp of the state it was computed from',
+    '/cartpole/force_acting': '`cart` effort [N]: the force the cart feels over the next interval '
+                              "by the manager's plant estimate; the command's stamp",
     '/cartpole/controller_status': 'mode, active plugins, the swing-up law that runs '
                                    '(`swingup_law`), energy and its error, raw force, '
                                    'feedforward, force, catch/fall counts and events',
@@ -69,6 +71,10 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         'joints found by name (`cart`, `pendulum`); a message without them or with a non-finite '
         'position is dropped and counted; a repeated stamp is ignored',
     ('ekf', '/cartpole/force_command'): 'effort of `cart` [N]; held until the next one',
+    ('ekf', '/cartpole/force_acting'):
+        'effort of `cart` [N]: with `force_input` `acting` the interval after the sample of its '
+        'stamp is predicted with it instead of the command (lockstep waits for it once they '
+        'come); the same checks as the command',
     ('ekf', '/cartpole/state'):
         "`name=['cart','pendulum']`, `position=[x, theta]` (theta continuous), `velocity=[x_dot, "
         'theta_dot]`, `header.stamp` copied from the sample; published inside the '
@@ -84,6 +90,12 @@ ENDPOINT_NOTES: dict[tuple[str, str], str] = {
         '`cart`/`pendulum` position and velocity, found by name',
     ('controller_manager', '/cartpole/force_command'):
         "`name=['cart']`, `effort=[F]`, `header.stamp` = the state's stamp",
+    ('controller_manager', '/cartpole/force_acting'):
+        "right after each command, its stamp: `name=['cart']`, `effort=[F_acting]`, the force "
+        'the cart feels over the next sample interval by the plant estimate (the commands in '
+        'flight, each acting the measured latency plus the actuator\'s dead time after its '
+        'sample, times the estimated gain; the command when the cycle sent none of its own), '
+        "within the amplifier's range: what the EKF predicts with",
     ('controller_manager', '/cartpole/controller_status'):
         'every cycle: one status named `controller_manager`. Level is OK (running or idle) or '
         'ERROR (fault); `message` is the mode. KeyValues: `mode`, `swingup`, `stabilizer`, `enabled` '
