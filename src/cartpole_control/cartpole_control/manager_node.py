@@ -318,15 +318,11 @@ class ControllerManagerNode(Node):
 
     def _publish_acting(self, t: float, command: float, stamp) -> None:
         """``cartpole/force_acting``: the force the cart feels over the next interval by the
-        plant estimate (:meth:`PlantEstimate.acting_force`; the command when it has none), within
-        the amplifier's range; what the EKF predicts with."""
-        acting = self.manager.plant_estimate.acting_force(t)
-        plant = self.manager.plant
+        plant estimate (:meth:`PlantEstimate.force_for_filter`); what the EKF predicts with."""
         msg = JointState()
         msg.header.stamp = stamp
         msg.name = [CART_JOINT]
-        msg.effort = [command if acting is None
-                      else min(max(acting, plant.force_min), plant.force_max)]
+        msg.effort = [self.manager.plant_estimate.force_for_filter(t, command)]
         self._pub_acting.publish(msg)
 
     def _on_command_applied(self, msg: TimeReference) -> None:

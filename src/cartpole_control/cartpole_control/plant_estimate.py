@@ -120,6 +120,15 @@ class PlantEstimate:
         mean = flight.mean_force(t, t + self.sample_time, self.dead_time)
         return None if mean is None else self.used_gain * mean
 
+    def force_for_filter(self, t: float, command: float) -> float:
+        """What the EKF predicts the interval after the sample ``t`` with (``force_input``
+        ``acting``, ``cartpole/force_acting``): :meth:`acting_force` within the amplifier's
+        range, or ``command`` [N] when there is none."""
+        acting = self.acting_force(t)
+        if acting is None:
+            return command
+        return min(max(acting, self.plant.force_min), self.plant.force_max)
+
     @property
     def uncovered_dead_time(self) -> float | None:
         """The actuator's dead time the manager's prediction leaves out [s]: the estimate

@@ -75,6 +75,12 @@ def test_the_plant_estimate_gives_the_force_acting_over_the_next_interval():
     assert estimate.dead_time == 0.0025
     assert estimate.acting_force(0.010) == pytest.approx(0.8 * 25.0)
     assert estimate.acting_force(0.015) is None
+    # What the EKF gets: the acting force within the amplifier's range, else the command.
+    assert estimate.force_for_filter(0.010, 99.0) == pytest.approx(20.0)
+    assert estimate.force_for_filter(0.015, -3.0) == -3.0
+    estimate.used_gain = 2.0
+    estimate.in_flight.sent(0.015, 34.0)
+    assert estimate.force_for_filter(0.015, 34.0) == P.force_max
 
 
 def test_a_stamp_that_goes_back_starts_a_new_history():

@@ -146,7 +146,9 @@ class AgentLoop:
             if not result.successful:
                 raise ValueError(result.reason)
         self._aborted = False
-        force = 0.0
+        force = ekf_force = 0.0  # the EKF's: the force as it acts (cartpole/force_acting)
+        for_filter = manager.plant_estimate.force_for_filter \
+            if self.ekf_config.force_input == 'acting' else None
         drop = scenario.drop
         for _ in range(steps + 1):
             meas = plant.measure()
@@ -157,7 +159,7 @@ class AgentLoop:
                 for source, applied in plant.applied_commands():
                     manager.command_applied(source, applied)
                 manager.measured(t, meas.x, meas.theta)
-                est = ekf.update(t, meas.x, meas.theta, force)
+                est = ekf.update(t, meas.x, meas.theta, ekf_force)
                 out = manager.update_values(est.t, est.x, est.theta, est.x_dot, est.theta_dot)
                 if self._aborted:
                     self.to_env.put(('aborted',))
@@ -166,6 +168,7 @@ class AgentLoop:
                     self.to_env.put(('end', f'fault:{manager.fault_reason}', self._true_state()))
                     return
                 force = out.force
+                ekf_force = for_filter(est.t, force) if for_filter is not None else force
                 manager.between_cycles()
                 plant.step(force, None, t)
             if plant.impacts:

@@ -128,7 +128,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     measured, applied_commands = manager.measured, plant.applied_commands
     command_applied = manager.command_applied
     # The EKF predicts with the force the manager estimates acts (cartpole/force_acting)
-    acting_force = manager.plant_estimate.acting_force \
+    for_filter = manager.plant_estimate.force_for_filter \
         if ekf.config.force_input == 'acting' else None
     ekf_force = 0.0
     add_row, add_mode = samples.append, modes.append
@@ -170,11 +170,8 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_plant += t1 - t0
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
-        force = ekf_force = out.force
-        if acting_force is not None:
-            acting = acting_force(est.t)
-            if acting is not None:
-                ekf_force = min(max(acting, nominal.force_min), nominal.force_max)
+        force = out.force
+        ekf_force = for_filter(est.t, force) if for_filter is not None else force
         between_cycles()  # as the node does once the command is out
         mode = out.mode
         if out.plugin_status:
