@@ -11,8 +11,9 @@ lockstep runs are the same run whatever the delivery order. The plugins'
 parameters are ROS parameters: validated (and the new plugin staged) in the
 on-set callback, queued in the post-set callback, swapped in between two
 cycles. A stale-state timer on the node clock faults with zero force when the
-states stop for ``state_timeout`` of this process's running time. ``~/restart_swingup`` starts a new swing-up;
-``cartpole/plant_reset`` starts one from the first state after the reset.
+states stop for ``state_timeout`` of this process's running time.
+``~/restart_swingup`` starts a new swing-up; ``cartpole/plant_reset`` starts one
+from the first state after the reset.
 Health on ``/diagnostics`` (``controller_manager: control``); the package's
 Python loggers go to ``/rosout`` while the node lives; zero force on shutdown.
 Topics, parameters and guards in detail: docs/controller_manager.md.

@@ -35,8 +35,7 @@ from cartpole_core.node_runner import PLANT_RESET_QOS, PUBLISH_DEPTH, run_node
 from cartpole_core.realtime import CycleGapMeter
 
 from .ekf import EkfConfig, ExtendedKalmanFilter
-from .ekf_config import (DISCRETISATIONS, FORCE_INPUTS, ROS_PARAMETERS, changes_from_parameters,
-                         q_parameter)
+from .ekf_config import ROS_PARAMETERS, changes_from_parameters, q_parameter
 from .prediction_force import PredictionForce
 
 JOINT_NAMES = ('cart', 'pendulum')
@@ -255,13 +254,7 @@ class EkfNode(Node):
                     reason = f'q_force (the fifth entry of q) must be finite and >= 0, got {values[4]}'
             elif p.name == 'r':
                 reason = _positive_array_reason('r', p.value, 2)
-            elif p.name == 'discretisation':
-                reason = '' if p.value in DISCRETISATIONS else \
-                    f'discretisation must be one of {list(DISCRETISATIONS)}, got {p.value!r}'
-            elif p.name == 'force_input':
-                reason = '' if p.value in FORCE_INPUTS else \
-                    f'force_input must be one of {list(FORCE_INPUTS)}, got {p.value!r}'
-            else:
+            else:  # discretisation, force_input, ...: EkfConfig's own checks, below
                 reason = ''
             if reason:
                 return reason
