@@ -84,9 +84,10 @@ def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_i
     right of upright and falling right at 0.3 rad/s. To catch it the terminal LQR (the same
     weights, unconstrained, the force saturated) runs the cart 1.4 cm past the rail guard's
     limiter boundary (travel - margin - reserve = 0.699 m); the MPC stays within 3 mm of it,
-    the pendulum up, and then brings the cart back to x* (it does not stay parked there)."""
-    plugin = configured(budget_us=1e6)  # a solve slowed by a busy machine is not replaced
-    qp = plugin.qp                       # by the LQR's force: the run is reproducible
+    the pendulum up, and then brings the cart back to x* (it does not stay parked there).
+    Without the default clearance: the plan's bound is the boundary itself."""
+    plugin = configured(budget_us=1e6, rail_clearance=0.0)  # a solve slowed by a busy machine
+    qp = plugin.qp                      # is not replaced by the LQR's force: reproducible
     high = P.travel - CONTEXT.rail_margin - CONTEXT.rail_reserve - CONTEXT.x_ref
     z0 = [0.25, -0.05, 0.0, -0.3, 0.0]
     lqr = _linear_run(lambda z: -float(plugin.gain @ z), z0)
@@ -96,6 +97,22 @@ def test_the_mpc_keeps_the_cart_inside_the_guard_boundary_where_the_lqr_leaves_i
     assert mpc[:, 0].max() <= high + 0.003
     assert np.abs(mpc[:, 1]).max() < math.radians(8.0)
     assert abs(mpc[-1, 0]) < 0.02                                  # back at x* after 8 s
+
+
+def test_by_default_the_mpc_keeps_its_clearance_from_the_guard_boundary():
+    """The same catch 5 cm further in: the LQR runs the cart to 4 cm of the limiter boundary,
+    the MPC keeps its default 5 cm clearance (``mpc.rail_clearance``) and brings it back."""
+    plugin = configured(budget_us=1e6)
+    assert plugin.gains['rail_clearance'] == pytest.approx(0.05)
+    high = P.travel - CONTEXT.rail_margin - CONTEXT.rail_reserve - CONTEXT.x_ref
+    z0 = [0.20, -0.05, 0.0, -0.3, 0.0]
+    lqr = _linear_run(lambda z: -float(plugin.gain @ z), z0)
+    bounds = (P.force_min, P.force_max)
+    mpc = _linear_run(lambda z: plugin.qp.solve(z, bounds, bounds).force, z0, steps=1600)
+    assert lqr[:, 0].max() > high - 0.045
+    assert mpc[:, 0].max() <= high - 0.05 + 0.001
+    assert np.abs(mpc[:, 1]).max() < math.radians(8.0)
+    assert abs(mpc[-1, 0]) < 0.02
 
 
 @functools.lru_cache(maxsize=None)

@@ -38,6 +38,10 @@ DEFAULT_FREE_STEPS = 40
 """Steps whose forces are moves of their own (200 ms: a push's saturated braking)."""
 DEFAULT_BLOCK = 10
 """Steps a correction to the terminal LQR is held after them (50 ms)."""
+RAIL_CLEARANCE = 0.05
+"""[m] ``mpc.rail_clearance``: the plan keeps 5 cm inside the rail guard's limiter boundary, room
+for the catch's transient to come back from it (docs/robustness.md, "The MPC keeps clear of the
+guard")."""
 
 
 class MpcStabilizer(Controller):
@@ -103,15 +107,19 @@ class MpcStabilizer(Controller):
                       'constraint\'s multipliers): the guard enforces its boundary anyway, so a '
                       'plan that needs to cross it is not one the cart can follow',
                       low=1.0, high=1e9),
-        ParameterSpec('rail_tolerance', 0.005,
+        ParameterSpec('rail_tolerance', 0.02,
                       'the first part of the rail slack of the first 10 steps [m] that costs '
-                      'only 1e4 per m: a cart at rest on the boundary must first move towards '
-                      'it to come back (the pendulum leans away first); 0: rail_penalty '
+                      'only 1e4 per m: a cart at rest on the bound must first move towards '
+                      'it to come back (the pendulum leans away first); within '
+                      'rail_clearance, so the guard\'s boundary stays clear; 0: rail_penalty '
                       'throughout', low=0.0, high=0.1),
-        ParameterSpec('rail_clearance', 0.0,
+        ParameterSpec('rail_clearance', RAIL_CLEARANCE,
                       'extra distance [m] kept inside the rail guard\'s limiter boundary '
-                      '[margin + reserve, travel - margin - reserve]; negative lets the MPC '
-                      'use that much of the reserve', low=-0.1, high=0.3),
+                      '[margin + reserve, travel - margin - reserve]: a plan that parks the '
+                      'cart on the boundary with the pendulum leaning towards the stop cannot '
+                      'be followed (the guard withholds every push further in); 0: the '
+                      'boundary itself; negative lets the MPC use that much of the reserve',
+                      low=-0.1, high=0.3),
     )
 
     def __init__(self) -> None:
