@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Callable
 
 from cartpole_core.model import CartPoleParameters
 
@@ -129,6 +130,11 @@ class PlantEstimate:
             return command
         return min(max(acting, self.plant.force_min), self.plant.force_max)
 
+    def filter_force(self, force_input: str) -> Callable[[float, float], float]:
+        """``(t, command) -> force`` the EKF predicts the interval after the sample ``t`` with,
+        for its ``force_input``: :meth:`force_for_filter` for 'acting', else the command."""
+        return self.force_for_filter if force_input == 'acting' else _the_command
+
     @property
     def uncovered_dead_time(self) -> float | None:
         """The actuator's dead time the manager's prediction leaves out [s]: the estimate
@@ -201,3 +207,8 @@ class PlantEstimate:
         self.samples.clear()
         self.natural_frequency.forget_samples()
         self.actuator.forget_samples()
+
+
+def _the_command(t: float, command: float) -> float:
+    """The command as sent (``force_input`` 'command')."""
+    return command

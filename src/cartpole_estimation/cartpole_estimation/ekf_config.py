@@ -9,12 +9,18 @@ import math
 from dataclasses import dataclass
 
 __all__ = ['EkfConfig', 'DISCRETISATIONS', 'FORCE_INPUTS', 'ROS_PARAMETERS',
-           'changes_from_parameters', 'q_parameter']
+           'changes_from_parameters', 'check_force_input', 'q_parameter']
 
 DISCRETISATIONS = ('midpoint', 'euler')
 """The prediction's f_k: the explicit midpoint rule, or forward Euler (5.8)."""
 FORCE_INPUTS = ('acting', 'command')
 """The force the filter predicts with: as the controller manager estimates it acts, or as sent."""
+
+
+def check_force_input(value: str) -> None:
+    """ValueError unless ``value`` is one of :data:`FORCE_INPUTS`."""
+    if value not in FORCE_INPUTS:
+        raise ValueError(f'force_input must be one of {list(FORCE_INPUTS)}, got {value!r}')
 
 
 def _positive_tuple(name: str, value, length: int) -> tuple[float, ...]:
@@ -186,9 +192,7 @@ class EkfConfig:
         if self.discretisation not in DISCRETISATIONS:
             raise ValueError(f'discretisation must be one of {list(DISCRETISATIONS)}, '
                              f'got {self.discretisation!r}')
-        if self.force_input not in FORCE_INPUTS:
-            raise ValueError(f'force_input must be one of {list(FORCE_INPUTS)}, '
-                             f'got {self.force_input!r}')
+        check_force_input(self.force_input)
         for name in ('q_force', 'push_q_force', 'angle_offset_p0', 'angle_offset_q'):
             _check_number(name, getattr(self, name))
         for name in ('offset_gate_rate', 'offset_gate_force', 'offset_gate_angle',

@@ -334,10 +334,6 @@ class EkfNode(Node):
         else:
             self._pending_timer.cancel()
 
-    def _prediction_force(self) -> float:
-        """The force over the interval that ends at this sample (:meth:`PredictionForce.for_interval`)."""
-        return self.forces.for_interval(self._last_sample_stamp, self._last_sample_t)
-
     def _on_joint_states(self, msg: JointState) -> None:
         if not self.inputs.accept(msg, SAMPLE, 'joint_states'):
             self.counts.bad_messages += 1
@@ -381,7 +377,8 @@ class EkfNode(Node):
             self._reset_from = None
             self.filter.request_reset('plant reset')
             self.forces.clear()  # commands of the run before the reset
-        force = self._prediction_force()
+        # the force over the interval that ends at this sample
+        force = self.forces.for_interval(self._last_sample_stamp, self._last_sample_t)
         est = self.filter.update(t, x, theta, force)
         if est.rejected:
             self._drop(msg, est.rejected)

@@ -13,7 +13,7 @@ No ROS import.
 """
 from __future__ import annotations
 
-from .ekf_config import FORCE_INPUTS
+from .ekf_config import check_force_input
 
 REMEMBERED = 64
 """Commands (and acting forces) remembered by stamp; the oldest half is dropped beyond it."""
@@ -26,9 +26,7 @@ class PredictionForce:
     """Commands and acting forces by the stamp of the sample they answer (see the module docstring)."""
 
     def __init__(self, force_input: str = 'acting', command_timeout: float = 0.05) -> None:
-        if force_input not in FORCE_INPUTS:
-            raise ValueError(f'force_input must be one of {list(FORCE_INPUTS)}, '
-                             f'got {force_input!r}')
+        check_force_input(force_input)
         self.force_input = force_input
         self.command_timeout = float(command_timeout)
         self.acting_seen = False

@@ -147,8 +147,7 @@ class AgentLoop:
                 raise ValueError(result.reason)
         self._aborted = False
         force = ekf_force = 0.0  # the EKF's: the force as it acts (cartpole/force_acting)
-        for_filter = manager.plant_estimate.force_for_filter \
-            if self.ekf_config.force_input == 'acting' else None
+        for_filter = manager.plant_estimate.filter_force(self.ekf_config.force_input)
         drop = scenario.drop
         for _ in range(steps + 1):
             meas = plant.measure()
@@ -168,7 +167,7 @@ class AgentLoop:
                     self.to_env.put(('end', f'fault:{manager.fault_reason}', self._true_state()))
                     return
                 force = out.force
-                ekf_force = for_filter(est.t, force) if for_filter is not None else force
+                ekf_force = for_filter(est.t, force)
                 manager.between_cycles()
                 plant.step(force, None, t)
             if plant.impacts:

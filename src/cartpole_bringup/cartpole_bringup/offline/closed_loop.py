@@ -128,8 +128,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
     measured, applied_commands = manager.measured, plant.applied_commands
     command_applied = manager.command_applied
     # The EKF predicts with the force the manager estimates acts (cartpole/force_acting)
-    for_filter = manager.plant_estimate.force_for_filter \
-        if ekf.config.force_input == 'acting' else None
+    for_filter = manager.plant_estimate.filter_force(ekf.config.force_input)
     ekf_force = 0.0
     add_row, add_mode = samples.append, modes.append
     clock = time.perf_counter if profile is not None else None
@@ -171,7 +170,7 @@ def run_closed_loop(nominal: CartPoleParameters | None = None,
             t_ekf += t2 - t1
             t_ctrl += t3 - t2
         force = out.force
-        ekf_force = for_filter(est.t, force) if for_filter is not None else force
+        ekf_force = for_filter(est.t, force)
         between_cycles()  # as the node does once the command is out
         mode = out.mode
         if out.plugin_status:
