@@ -49,7 +49,7 @@ NODES = {
                            {'/controller_manager/restart_swingup'}),
     'recorder': ('cartpole_bringup.graph.recorder', 'RecorderNode', {'lockstep': True},
                  {'/joint_states', '/cartpole/state', '/cartpole/force_command',
-                  '/cartpole/true_state', '/cartpole/controller_status', '/cartpole/ekf/health',
+                  '/cartpole/force_acting', '/cartpole/true_state', '/cartpole/controller_status', '/cartpole/ekf/health',
                   '/cartpole/hw/health', '/cartpole/recorder/progress'}, set()),
     'viewer': ('cartpole_analysis.viewer.node', 'ViewerNode', {'port': 0},
                {'/cartpole/state', '/cartpole/controller_status', '/joint_states'}, set()),

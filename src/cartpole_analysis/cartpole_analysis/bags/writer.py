@@ -31,6 +31,7 @@ TOPICS: dict[str, str] = {
     '/joint_states': 'sensor_msgs/msg/JointState',
     '/cartpole/state': 'sensor_msgs/msg/JointState',
     '/cartpole/force_command': 'sensor_msgs/msg/JointState',
+    '/cartpole/force_acting': 'sensor_msgs/msg/JointState',
     '/cartpole/true_state': 'sensor_msgs/msg/JointState',
     '/cartpole/controller_status': 'diagnostic_msgs/msg/DiagnosticArray',
     '/cartpole/ekf/health': 'diagnostic_msgs/msg/DiagnosticArray',

@@ -1,19 +1,21 @@
 """What the recorder has of each sample: lockstep progress, repeats, and the messages it missed.
 
 Every 200 Hz topic carries the stamp of its sample (``/joint_states``, ``/cartpole/true_state``,
-``/clock``, ``/cartpole/state``, ``/cartpole/force_command``, ``/cartpole/controller_status``);
-that stamp is the sequence number the ledger counts by. No ROS; the recorder node feeds it.
+``/clock``, ``/cartpole/state``, ``/cartpole/force_command``, ``/cartpole/force_acting``,
+``/cartpole/controller_status``); that stamp is the sequence number the ledger counts by. No
+ROS; the recorder node feeds it.
 
 - **Progress** (lockstep): the oldest of the newest stamps recorded on each topic. At sample
   k's stamp the recorder holds every message up to k; the simulator steps at most
   ``recorder_window`` samples ahead, so no queue overflows on any load.
 - **Repeats** (lockstep): sample 0 is re-published until a controller answers; a message with
   its topic's last stamp is not written twice (in real time such a repeat is written).
-- **Missed** (real time): a message implies the ones it was computed from (status -> force
-  command -> estimate -> encoder sample -> ground truth). A stamp absent on a topic it implies,
-  once ``horizon_ns`` older than the newest, is a missed message; one implied before its
-  topic's first message arrived (publisher not yet discovered) counts in ``missed_at_start``.
-  Only topics that had a message are implied; a sample missed on every topic is not seen.
+- **Missed** (real time): a message implies the ones it was computed from (status and acting
+  force -> force command -> estimate -> encoder sample -> ground truth). A stamp absent on a
+  topic it implies, once ``horizon_ns`` older than the newest, is a missed message; one implied
+  before its topic's first message arrived (publisher not yet discovered) counts in
+  ``missed_at_start``. Only topics that had a message are implied; a sample missed on every
+  topic is not seen.
 Details: docs/running.md ("Recording").
 """
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 from typing import Iterable
 
 JOINT_STATES, STATE, FORCE = '/joint_states', '/cartpole/state', '/cartpole/force_command'
+ACTING = '/cartpole/force_acting'
 TRUE_STATE, STATUS, CLOCK = '/cartpole/true_state', '/cartpole/controller_status', '/clock'
 
 PROGRESS_TOPIC = '/cartpole/recorder/progress'
@@ -28,11 +31,12 @@ PROGRESS_TOPIC = '/cartpole/recorder/progress'
 every sample (std_msgs/Header); the simulator waits for it (``recorder_window``). Its
 root-namespace name; the nodes publish it relative, in their graph's namespace."""
 
-SAMPLE_TOPICS = (JOINT_STATES, TRUE_STATE, CLOCK, STATE, FORCE, STATUS)
+SAMPLE_TOPICS = (JOINT_STATES, TRUE_STATE, CLOCK, STATE, FORCE, ACTING, STATUS)
 """The topics with one message per sample, stamped with the sample's stamp."""
 
 IMPLIES: dict[str, tuple[str, ...]] = {
     FORCE: (STATE,),
+    ACTING: (FORCE,),
     STATUS: (FORCE, STATE),
     STATE: (JOINT_STATES,),
     JOINT_STATES: (TRUE_STATE,),

@@ -46,7 +46,8 @@ from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 
 JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
-          '/cartpole/force_command': COMMAND, '/cartpole/true_state': TRUTH}
+          '/cartpole/force_command': COMMAND, '/cartpole/force_acting': COMMAND,
+          '/cartpole/true_state': TRUTH}
 """The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
 
 QUEUE_DEPTH = 200

@@ -3,8 +3,8 @@
 A real :class:`cartpole_bringup.graph.recorder.RecorderNode` (its own context, never
 spun: no DDS traffic) is fed the graph's messages through its subscription callbacks,
 as its executor would hand them over: every 5 ms sample a ``/joint_states``,
-``/cartpole/true_state``, ``/clock``, ``/cartpole/state``, ``/cartpole/force_command``
-and ``/cartpole/controller_status``, and the EKF's health every 0.1 s, with stamps
+``/cartpole/true_state``, ``/clock``, ``/cartpole/state``, ``/cartpole/force_command``,
+``/cartpole/force_acting`` and ``/cartpole/controller_status``, and the EKF's health every 0.1 s, with stamps
 advancing 5 ms a sample, as fast as the writer thread writes them, with the node
 process's collector policy (:func:`cartpole_core.realtime.enter_loop`: start-up frozen,
 young generations collected between callbacks, as ``run_node`` does). Every simulated
@@ -50,6 +50,7 @@ def _messages():
                   '/clock': serialize_message(Clock()),
                   '/cartpole/state': joint(('cart', 'pendulum'), 2),
                   '/cartpole/force_command': joint(('cart',), 1),
+                  '/cartpole/force_acting': joint(('cart',), 1),
                   '/cartpole/controller_status': status(24)}
     return per_sample, {'/cartpole/ekf/health': status(12)}
 
