@@ -109,17 +109,32 @@ def test_sign_based_is_a_saturated_sign_of_u_max_as_acceleration():
     assert -1.0 < sb.acceleration(state) < 0.0                    # linear zone
 
 
-def test_pendulum_energy_integral_accumulates_the_deficit_and_is_bounded():
-    pe = make(SWINGUP, 'pendulum_energy')
-    state = consistent_state(0.0, X_REF, math.pi - 0.3, 0.0, 1.0)
+def test_pendulum_energy_integral_accumulates_the_deficit_near_e_star_and_is_bounded():
+    pe = make(SWINGUP, 'pendulum_energy', i_max=1.0)
+    state = consistent_state(0.0, X_REF, 0.3, 0.0, 1.0)        # 2 % short of E*: in the band
     pe.activate(state)
     deficit = PARAMS.upright_energy - pendulum_energy(state.theta, state.theta_dot, PARAMS)
+    assert 0.0 < deficit <= pe.gains['i_band'] * PARAMS.upright_energy
     for k in range(1, 101):
-        pe.update(consistent_state(k * 0.005, X_REF, math.pi - 0.3, 0.0, 1.0))
+        pe.update(consistent_state(k * 0.005, X_REF, 0.3, 0.0, 1.0))
     assert pe.integral == pytest.approx(100 * 0.005 * deficit)
     for k in range(101, 20001):
-        pe.update(consistent_state(k * 0.005, X_REF, math.pi - 0.3, 0.0, 1.0))
+        pe.update(consistent_state(k * 0.005, X_REF, 0.3, 0.0, 1.0))
     assert pe.integral == pe.gains['i_max']
+
+
+def test_pendulum_energy_integral_holds_far_from_e_star():
+    """Conditional integration: hanging (E_p far below E*) the integral does not wind up, and
+    with ``i_band`` 1000 (the thesis law) it does."""
+    held, thesis = make(SWINGUP, 'pendulum_energy'), make(SWINGUP, 'pendulum_energy', i_band=1000.0)
+    state = consistent_state(0.0, X_REF, math.pi - 0.3, 0.0, 1.0)
+    deficit = PARAMS.upright_energy - pendulum_energy(state.theta, state.theta_dot, PARAMS)
+    for pe in (held, thesis):
+        pe.activate(state)
+        for k in range(1, 101):
+            pe.update(consistent_state(k * 0.005, X_REF, math.pi - 0.3, 0.0, 1.0))
+    assert held.integral == 0.0
+    assert thesis.integral == pytest.approx(100 * 0.005 * deficit)
 
 
 def test_full_energy_law_gives_v2_dot_equal_to_minus_k_d_x_dot_squared():

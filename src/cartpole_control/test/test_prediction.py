@@ -61,8 +61,13 @@ def test_the_prediction_saves_lqg_under_25_ms_of_delay():
     from cartpole_estimation.ekf_config import EkfConfig
 
     scenario = Scenario(noise=True, seed=0, delay=0.025, jitter=0.005)
+    # With nothing for the dead time the loop is marginal under 25 ms and the catch decides:
+    # the swing-up's energy integral as the thesis has it (the catch 0.8 % above E*, as when
+    # this was found); with the one confined near E* (1 % below) the force as it acts alone
+    # holds seeds 0-15 in 5 of 16 (14 of 16 with the thesis's), the command as sent 0 and 0.
     unpredicted = {'stabilizer': 'lqg', 'predict.horizon': 0.0, 'actuator.delay': 0.0,
-                   'lqg.dead_time_weight_max': 1.0}
+                   'lqg.dead_time_weight_max': 1.0, 'pendulum_energy.i_band': 1000.0,
+                   'pendulum_energy.k_i': 0.02}
     # The EKF fed the command as sent (the thesis's): nothing in the loop knows the delay.
     plain = run_closed_loop(P, scenario, duration=20.0, stop_on_failure=True,
                             manager_parameters=unpredicted,

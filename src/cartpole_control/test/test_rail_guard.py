@@ -445,13 +445,13 @@ def test_a_balancing_cart_at_rest_on_the_boundary_may_still_move_towards_the_sto
     assert guard.passed_range(at_floor, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
 
 
-@pytest.mark.parametrize('seed', [17, 30])
+@pytest.mark.parametrize('seed', [8, 19])
 def test_a_6_5_n_s_push_no_longer_parks_the_cart_on_the_boundary_to_let_the_pendulum_fall(seed):
     """lqg, the default pair's stabiliser, after a 6.5 N s cart push (0.1 s at 65 N at 12 s):
     with the whole reserve at rest (rail.reserve_time 0, as before 2026-12-05 night) the cart
     came to rest on the limiter's boundary with the pendulum falling towards the stop, every
     push after it withheld: a fall. With the reserve following the speed it is recovered and
-    the cart never touches a stop (seeds 0-35: 36 kept, 32 before)."""
+    the cart never touches a stop (seeds 0-35: 36 kept, 33 with reserve_time 0)."""
     from cartpole_bringup.offline.closed_loop import run_closed_loop
     from cartpole_sim.plant import Push
 

@@ -7,7 +7,8 @@ system energy (7.11). The integral starts from zero at every activation (a
 new swing-up), is stepped on the states' stamps (:class:`StepClock`) and is
 clamped to ``+-i_max`` (anti-windup, not in the thesis: the energy error
 changes sign only after E* is reached, so an unbounded integral keeps pumping
-and overshoots). No rclpy.
+and overshoots); a law may also hold it where it should not integrate (conditional
+integration: ``pendulum_energy`` far from E*). No rclpy.
 """
 from __future__ import annotations
 
@@ -48,9 +49,13 @@ class EnergyIntegralSwingUp(Controller):
     def energy_error(self, state: ControllerState) -> float:
         """E* - E of the law's energy [J]."""
 
-    def integrate(self, state: ControllerState, error: float) -> float:
-        """Add ``error`` over the step to ``state``, clamp to +-i_max; the new integral [J s]."""
+    def integrate(self, state: ControllerState, error: float, active: bool = True) -> float:
+        """Add ``error`` over the step to ``state``, clamp to +-i_max; the new integral [J s].
+
+        While not ``active`` the step passes and the integral holds (conditional integration).
+        """
         dt = self._clock.step(state.t, self.context.sample_time)
-        i_max = self.gains['i_max']
-        self.integral = max(-i_max, min(i_max, self.integral + error * dt))
+        if active:
+            i_max = self.gains['i_max']
+            self.integral = max(-i_max, min(i_max, self.integral + error * dt))
         return self.integral

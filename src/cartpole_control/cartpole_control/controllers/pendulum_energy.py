@@ -12,7 +12,9 @@ the P-term (7.31) keeps the cart near x*. ``u`` is a cart acceleration
 [m/s^2]; it becomes a force through (7.10). Beyond the thesis, ``- k_v x_dot``
 damps the P-term's spring once the energy is near E*: without it a cart that
 drifted off x* while the pendulum circles at E* stays there (friction holds it
-against k_c (x* - x)), and the catch, rightly, never comes.
+against k_c (x* - x)), and the catch, rightly, never comes. The integral
+integrates only while the energy is within ``i_band`` of E* (conditional
+integration): wound up over a long swing-up it kept pumping past E*.
 
 Design notes: docs/controllers.md ("Design notes by module", ``cartpole_control.controllers.pendulum_energy``).
 """
@@ -37,8 +39,12 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
     parameters = (
         ParameterSpec('k_e', 1.5, 'energy gain k_e of (7.32) [m/s^2 per (J rad/s)]; thesis 0.5',
                       low=0.0, high=100.0),
-        ParameterSpec('k_i', 0.02, 'integral gain k_i on the energy error of (7.32) '
-                      '[m/s^2 per (J s rad/s)]; thesis 0.02', low=0.0, high=10.0),
+        ParameterSpec('k_i', 1.0, 'integral gain k_i on the energy error of (7.32) '
+                      '[m/s^2 per (J s rad/s)]; thesis 0.02 (with i_band 1000)',
+                      low=0.0, high=10.0),
+        ParameterSpec('i_band', 0.1, 'the integral of (7.32) integrates while |E* - E_p| is '
+                      'within this fraction of E* [1] (conditional integration, not in the thesis; '
+                      '1000: at every energy, the thesis law)', low=0.0, high=1000.0),
         ParameterSpec('k_c', 1.0, 'cart position gain k_c of (7.31)/(7.32) [1/s^2]; thesis 1',
                       low=0.0, high=100.0),
         ParameterSpec('k_v', 1.0, 'cart velocity gain k_v, the damping of the P-term while the '
@@ -66,7 +72,7 @@ class PendulumEnergySwingUp(EnergyIntegralSwingUp):
         g = self.gains
         energy, target = self._energy_and_target(state)
         error = target - energy
-        integral = self.integrate(state, error)
+        integral = self.integrate(state, error, abs(error) <= g['i_band'] * target)
         pump = (g['k_e'] * error + g['k_i'] * integral) * state.theta_dot * math.cos(state.theta)
         pump = max(-g['a_max'], min(g['a_max'], pump))
         u = pump + g['k_c'] * (self.context.x_ref - state.x)
