@@ -1,4 +1,5 @@
-"""Test plugins and helpers shared by the ControllerManager tests (test_manager*.py)."""
+"""Test plugins and helpers shared by the ControllerManager tests (test_manager*.py), and the
+swing-up gains of the thesis that the closed-loop tests pin (``THESIS_INTEGRAL``)."""
 import math
 import textwrap
 
@@ -9,6 +10,10 @@ from cartpole_core.model import CartPoleParameters
 
 P = CartPoleParameters()
 TS = P.sample_time
+
+THESIS_INTEGRAL = {'pendulum_energy.i_band': 1000.0, 'pendulum_energy.k_i': 0.02}
+"""Manager parameters for the energy integral of (7.32) as the thesis has it (integrating at
+every energy, k_i 0.02): the swing-up the closed-loop tests that pin it were found with."""
 
 
 # -- test plugins --------------------------------------------------------------------------

@@ -5,10 +5,7 @@ import numpy as np
 import pytest
 
 from cartpole_sim.scenario_ranges import RangeTable, sample
-
-THESIS_INTEGRAL = {'pendulum_energy.i_band': 1000.0, 'pendulum_energy.k_i': 0.02}
-"""The energy integral of (7.32) as the thesis has it (at every energy), the swing-up these
-draws were found with."""
+from manager_test_support import THESIS_INTEGRAL
 
 
 def replay(index, seed=0, duration=30.0, manager_parameters=None, **options):

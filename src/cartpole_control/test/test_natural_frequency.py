@@ -5,6 +5,7 @@ import pytest
 
 from cartpole_control.natural_frequency import NaturalFrequencyEstimator
 from cartpole_core.model import CartPoleParameters, accelerations, pendulum_energy
+from manager_test_support import THESIS_INTEGRAL
 
 P = CartPoleParameters()
 
@@ -79,8 +80,7 @@ def test_the_thesis_fixed_target_loses_the_longer_pendulum_the_adaptive_one_keep
     # an equilibrium (2026-12-05). And the thesis's energy integral (at every energy, k_i
     # 0.02): the one confined near E* (2026-12-06) brings even the fixed target's pendulum
     # over (caught at 2.87 s)
-    thesis = {'pendulum_energy.k_v': 0.0, 'pendulum_energy.i_band': 1000.0,
-              'pendulum_energy.k_i': 0.02}
+    thesis = {'pendulum_energy.k_v': 0.0, **THESIS_INTEGRAL}
     scenario = Scenario(noise=True, seed=0, parameter_scales=(('l', 1.15),))
     fixed = run_closed_loop(P, scenario, duration=25.0,
                             manager_parameters={'pendulum_energy.adaptive_target': False,

@@ -4,8 +4,8 @@ A real :class:`cartpole_bringup.graph.recorder.RecorderNode` (its own context, n
 spun: no DDS traffic) is fed the graph's messages through its subscription callbacks,
 as its executor would hand them over: every 5 ms sample a ``/joint_states``,
 ``/cartpole/true_state``, ``/clock``, ``/cartpole/state``, ``/cartpole/force_command``,
-``/cartpole/force_acting`` and ``/cartpole/controller_status``, and the EKF's health every 0.1 s, with stamps
-advancing 5 ms a sample, as fast as the writer thread writes them, with the node
+``/cartpole/force_acting`` and ``/cartpole/controller_status``, and the EKF's health every
+0.1 s, with stamps advancing 5 ms a sample, as fast as the writer thread writes them, with the node
 process's collector policy (:func:`cartpole_core.realtime.enter_loop`: start-up frozen,
 young generations collected between callbacks, as ``run_node`` does). Every simulated
 ``--every`` s it reads the resident memory and the Python heap (``tracemalloc``) and,
