@@ -142,6 +142,9 @@ def test_two_minutes_of_soak_pass(tmp_path):
     assert result['damage'] is None and all(t['missing'] == 0 for t in result['topics'].values()), \
         (result['damage'], result['topics'], run.stderr[-2000:])
     assert all(t['recorded'] > 3_000 for t in result['topics'].values())
+    assert set(result['topics']) == {'/joint_states', '/cartpole/true_state', '/cartpole/state',
+                                     '/cartpole/force_command', '/cartpole/force_acting',
+                                     '/cartpole/controller_status'}
     assert set(result['processes']) == {'sim', 'ekf', 'controller_manager', 'recorder',
                                         'cartpole soak'}
     assert result['memory_ok'] is None  # 110 s after settling: too short to judge

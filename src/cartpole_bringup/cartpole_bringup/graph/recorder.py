@@ -41,13 +41,13 @@ from cartpole_analysis.bags.writer import (FLUSH_PERIOD, MAX_BAG_DURATION, TOPIC
                                            cdr_stamp_ns, update_custom_data)
 from cartpole_core.namespaces import NAMESPACE_KEY, ROOT, relative
 from .progress import LockstepProgress
+from . import record_ledger as ledger
 from .record_ledger import PROGRESS_TOPIC, RecordLedger
 
 
 
-JUDGED = {'/joint_states': SAMPLE, '/cartpole/state': STATE,
-          '/cartpole/force_command': COMMAND, '/cartpole/force_acting': COMMAND,
-          '/cartpole/true_state': TRUTH}
+JUDGED = {ledger.JOINT_STATES: SAMPLE, ledger.STATE: STATE, ledger.FORCE: COMMAND,
+          ledger.ACTING: COMMAND, ledger.TRUE_STATE: TRUTH}
 """The recorded topics whose messages are judged (counted, never dropped: it is a recorder)."""
 
 QUEUE_DEPTH = 200

@@ -19,12 +19,13 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE, STATUS, TRUE_STATE
+from cartpole_bringup.graph.record_ledger import ACTING
 from cartpole_core.namespaces import relative
 from cartpole_core.node_runner import PLANT_RESET_QOS
 
 from .judge import UprightJudge
 
-COUNTED = (JOINTS, TRUE_STATE, STATE, FORCE, STATUS)
+COUNTED = (JOINTS, TRUE_STATE, STATE, FORCE, ACTING, STATUS)
 """The sample-stamped topics whose messages the bag must all hold."""
 
 
@@ -51,7 +52,7 @@ class SoakProbe(Node):
         """/diagnostics ERROR messages per status name."""
         self._last_joint_ns: int | None = None
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-        for topic in (JOINTS, STATE, FORCE):
+        for topic in (JOINTS, STATE, FORCE, ACTING):
             self.create_subscription(JointState, relative(topic), self._counter(topic), qos)
         self.create_subscription(JointState, relative(TRUE_STATE), self._on_truth, qos)
         self.create_subscription(DiagnosticArray, relative(STATUS), self._on_status, qos)
