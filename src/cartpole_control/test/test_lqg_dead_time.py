@@ -50,8 +50,9 @@ def test_the_weights_of_r_and_of_the_pendulum_by_dead_time():
 
 def test_at_the_catch_a_20_ms_dead_time_gives_the_robust_gain_and_none_the_precise_one():
     """With no dead time the configured gain stays (q's pendulum weights three times the robust
-    ones: the nominal precision); with the 20 ms the manager measured, R weighs 5 R and the
-    pendulum's weights are cut to a third: exactly the robust weights' gain at 5 R."""
+    ones: the nominal precision); with the 20 ms the manager measured, R weighs its most
+    (``DEAD_TIME_WEIGHT_MAX`` R; 5 R uncapped) and the pendulum's weights are cut to a third:
+    exactly the robust weights' gain at that R."""
     estimate, controller = manager_controller()
     precise = controller.gain.copy()
     weights = controller.gains['q']
@@ -64,7 +65,7 @@ def test_at_the_catch_a_20_ms_dead_time_gives_the_robust_gain_and_none_the_preci
     assert estimate.dead_time == pytest.approx(0.02)
     controller.activate(UPRIGHT)
     r = controller.gains['r']
-    assert controller.gain == pytest.approx(expected_gain(ROBUST_Q, 5 * r))
+    assert controller.gain == pytest.approx(expected_gain(ROBUST_Q, DEAD_TIME_WEIGHT_MAX * r))
     assert abs(controller.gain[1]) < 0.6 * abs(precise[1])
 
 

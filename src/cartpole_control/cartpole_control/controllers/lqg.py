@@ -72,9 +72,10 @@ gain is solved again at the catch."""
 DEAD_TIME_SCALE = 0.01
 """[s] The loop's measured dead time D weighs the input by R (1 + (D / this)^2) at the catch
 (docs/robustness.md, "The stabiliser's gain and the dead time")."""
-DEAD_TIME_WEIGHT_MAX = 5.0
+DEAD_TIME_WEIGHT_MAX = 2.0
 """The most the dead time multiplies R by (``lqg.dead_time_weight_max``): softer, the cart
-wanders under stiction (docs/robustness.md)."""
+wanders in a friction limit cycle on a rig with more cart friction than the model's
+(docs/robustness.md, "R at most doubled by the dead time")."""
 
 
 def dead_time_weight(r: float, dead_time: float,
@@ -84,8 +85,8 @@ def dead_time_weight(r: float, dead_time: float,
 
     The prediction over the measured latency is only as good as the model, and the
     amplifier's lag is not in it: the faster the gain, the less of that it tolerates. With
-    no dead time R stays. Why 10 ms and 5 R: docs/robustness.md ("The stabiliser's gain and
-    the dead time").
+    no dead time R stays. Why 10 ms and 2 R: docs/robustness.md ("The stabiliser's gain and
+    the dead time", "R at most doubled by the dead time").
     """
     return r * min(1.0 + (max(dead_time, 0.0) / DEAD_TIME_SCALE) ** 2, most)
 
