@@ -18,14 +18,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from cartpole_analysis.analysis.analyze import FORCE, JOINTS, STATE, STATUS, TRUE_STATE
-from cartpole_bringup.graph.record_ledger import ACTING
+from cartpole_bringup.graph.record_ledger import (ACTING, FORCE, JOINT_STATES, STATE, STATUS,
+                                                  TRUE_STATE)
 from cartpole_core.namespaces import relative
 from cartpole_core.node_runner import PLANT_RESET_QOS
 
 from .judge import UprightJudge
 
-COUNTED = (JOINTS, TRUE_STATE, STATE, FORCE, ACTING, STATUS)
+COUNTED = (JOINT_STATES, TRUE_STATE, STATE, FORCE, ACTING, STATUS)
 """The sample-stamped topics whose messages the bag must all hold."""
 
 
@@ -52,7 +52,7 @@ class SoakProbe(Node):
         """/diagnostics ERROR messages per status name."""
         self._last_joint_ns: int | None = None
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-        for topic in (JOINTS, STATE, FORCE, ACTING):
+        for topic in (JOINT_STATES, STATE, FORCE, ACTING):
             self.create_subscription(JointState, relative(topic), self._counter(topic), qos)
         self.create_subscription(JointState, relative(TRUE_STATE), self._on_truth, qos)
         self.create_subscription(DiagnosticArray, relative(STATUS), self._on_status, qos)
@@ -80,7 +80,7 @@ class SoakProbe(Node):
         def callback(msg: JointState) -> None:
             stamp = _ns(msg.header.stamp)
             self._count(topic, stamp)
-            if topic == JOINTS:
+            if topic == JOINT_STATES:
                 if self._last_joint_ns is not None and stamp > self._last_joint_ns:
                     self.longest_sample_gap_s = max(self.longest_sample_gap_s,
                                                     (stamp - self._last_joint_ns) * 1e-9)
