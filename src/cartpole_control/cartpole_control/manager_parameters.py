@@ -128,9 +128,9 @@ def manager_parameter_specs(p: CartPoleParameters, ts: float) -> list[ParameterS
                       'test [m]', low=0.0, high=0.3),
         ParameterSpec('rail.reserve_time', RESERVE_TIME, 'Rail guard: while the stabiliser '
                       'balances, the limiter\'s reserve is the distance the cart covers in this '
-                      'time, at least 1 cm and at most rail.limit_reserve (an unmodelled dead time '
-                      'moves a slow cart\'s stop by little) [s]; 0 = the whole reserve at every '
-                      'speed', low=0.0, high=1.0),
+                      'time, at most rail.limit_reserve (an unmodelled dead time moves a slow '
+                      'cart\'s stop by little; at rest the margin alone) [s]; 0 = the whole '
+                      'reserve at every speed', low=0.0, high=1.0),
         ParameterSpec('rail.actuator_dead_time', ACTUATOR_DEAD_TIME, 'Rail guard: the '
                       "actuator's dead time beyond the reported latency (a lag) that the braking "
                       'envelope assumes until the plant estimate has measured it (with actuator.delay '

@@ -36,8 +36,6 @@ HOLD_SPEED = 0.002
 RESERVE_TIME = 0.1
 """[s] While balancing, the limiter's reserve is the distance the cart covers in this time
 (``rail.reserve_time``): what an unmodelled dead time that long moves its stop."""
-RESERVE_FLOOR = 0.01
-"""[m] The least reserve while balancing (a cart at rest)."""
 
 
 @dataclass(frozen=True)
@@ -79,8 +77,8 @@ class RailGuard:
         the stops than the trip test does.
     reserve_time
         While :attr:`balancing`, the reserve is ``|x_dot| reserve_time``, at
-        least :data:`RESERVE_FLOOR` and at most ``limit_reserve`` [s] (0: the
-        whole reserve at every speed; :meth:`reserve`).
+        most ``limit_reserve`` [s] (0: the whole reserve at every speed;
+        :meth:`reserve`).
     actuator_dead_time
         The actuator's extra dead time [s] assumed until :meth:`set_actuator`
         reports it measured (0: the model's actuator; the manager's default is
@@ -348,15 +346,16 @@ class RailGuard:
 
     def reserve(self, x_dot: float) -> float:
         """The limiter's reserve [m] for a cart at ``x_dot``: ``limit_reserve``; while
-        :attr:`balancing`, ``|x_dot| reserve_time`` within [:data:`RESERVE_FLOOR`,
-        ``limit_reserve``]. The reserve is for what the envelope does not model, a longer
-        dead time above all, which moves a slow cart's stop by little; the whole reserve at
-        rest held a balancing cart on the boundary with its pendulum falling towards the stop
-        (at rest there every push towards that stop is withheld)."""
+        :attr:`balancing`, ``|x_dot| reserve_time``, at most ``limit_reserve``. The reserve
+        is for what the envelope does not model, a longer dead time above all, which moves
+        the stop of a cart at speed v by v times that time: a cart at rest needs none (its
+        envelope counts its own dead time), and any reserve at rest held a balancing cart on
+        the boundary with its pendulum falling towards the stop (at rest there every push
+        towards that stop is withheld)."""
         full = self.limit_reserve
         if not self.balancing or self.reserve_time <= 0.0:
             return full
-        return min(full, max(RESERVE_FLOOR, abs(x_dot) * self.reserve_time))
+        return min(full, abs(x_dot) * self.reserve_time)
 
     def _in_margin(self, x: float) -> bool:
         """x inside ``[0, margin)`` or ``(travel - margin, travel]`` (the estimate may be past them)."""

@@ -43,6 +43,17 @@ def test_a_catch_that_would_run_the_cart_to_the_limiter_waits_and_holds(index):
     assert summary['success'], summary
 
 
+@pytest.mark.slow
+def test_a_cart_at_rest_near_a_stop_may_still_catch_its_pendulum():
+    """Seed 2, draw 120, ``mpc``: caught at 33 deg, the catch's transient left the cart at rest
+    2.9 cm from the left stop with the pendulum leaning towards it. With 1 cm of the guard's
+    reserve at rest (before 2026-12-06, afternoon) every push towards that stop was withheld
+    and the pendulum fell 1.9 s after the catch; with none, a push whose stopping position
+    stays outside the margin passes, and the draw holds."""
+    summary = replay(120, seed=2, manager_parameters={'stabilizer': 'mpc'})
+    assert summary['falls_after_catch'] == 0 and summary['impacts'] == 0
+    assert summary['success'], summary
+
 
 @pytest.mark.slow
 def test_lost_samples_no_longer_starve_the_actuator_estimate():
@@ -81,13 +92,16 @@ def test_a_rig_with_more_friction_balances_within_target():
 def test_a_rig_with_more_friction_and_dead_time_balances_in_a_stiff_enough_loop(index):
     """Seed 4, draws 27 and 166: friction x1.48 / x1.59, 25 / 23 ms of delay, 14 / 19 ms of
     lag. With R weighed by the dead time up to 5 R at the catch the cart loop was too soft for
-    that friction: a cycle of about 4 s, 1.8 deg and 10.5 cm, off target. At most 2 R
-    (``lqg.dead_time_weight_max``) it balances within 1.5 deg and 7.7 cm."""
+    that friction: a cycle of about 4 s, 1.8-1.9 deg and 10.6-10.8 cm, off target. At most 2 R
+    (``lqg.dead_time_weight_max``) it balances within 1.6 deg and 8.8 cm (draw 27's catch
+    transient ends 3.6 cm from the left stop: 7.7 cm with the guard's 1 cm reserve at rest,
+    before 2026-12-06, afternoon)."""
     summary = replay(index, seed=4)
     assert summary['falls_after_catch'] == 0
     assert summary['success'], summary
     soft = replay(index, seed=4, manager_parameters={'lqg.dead_time_weight_max': 5.0})
-    assert soft['x_err_max_m'] > summary['x_err_max_m'] + 0.02, (soft, summary)
+    assert not soft['success'], soft
+    assert soft['x_err_max_m'] > summary['x_err_max_m'] + 0.015, (soft, summary)
 
 
 @pytest.mark.slow

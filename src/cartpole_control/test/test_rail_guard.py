@@ -416,13 +416,13 @@ def test_at_rest_near_the_limiter_boundary_a_small_push_in_passes_and_none_beyon
 
 
 def test_while_balancing_the_reserve_follows_the_speed():
-    """The whole reserve at every speed but while balancing; then |x_dot| x 0.1 s, at least
-    1 cm, at most the reserve; rail.reserve_time 0 keeps the whole reserve."""
+    """The whole reserve at every speed but while balancing; then |x_dot| x 0.1 s, at most
+    the reserve (none at rest); rail.reserve_time 0 keeps the whole reserve."""
     guard = RailGuard(P, margin=0.02, limit_reserve=0.05)
     assert [guard.reserve(v) for v in (0.0, 0.2, -1.0)] == [0.05, 0.05, 0.05]
     guard.balancing = True
     assert [guard.reserve(v) for v in (0.0, 0.05, 0.2, -0.3, 1.0)] == \
-        pytest.approx([0.01, 0.01, 0.02, 0.03, 0.05])
+        pytest.approx([0.0, 0.005, 0.02, 0.03, 0.05])
     guard.reserve_time = 0.0
     assert guard.reserve(0.0) == 0.05
     with pytest.raises(ValueError):
@@ -430,19 +430,24 @@ def test_while_balancing_the_reserve_follows_the_speed():
 
 
 def test_a_balancing_cart_at_rest_on_the_boundary_may_still_move_towards_the_stop():
-    """At rest 4 cm from the right stop, past the whole reserve's boundary (7 cm), the guard
+    """At rest 2.9 cm from the right stop, past the whole reserve's boundary (7 cm), the guard
     withholds every push towards the stop during the swing-up; while balancing it passes
-    pushes up to the force whose stopping position is 3 cm from the stop (margin and the
-    1 cm floor), and none on that boundary."""
+    pushes up to the force whose stopping position is the margin (2 cm from the stop: a cart
+    at rest has no reserve, its envelope counts the dead time), and none from the margin.
+    With 1 cm of reserve at rest (before 2026-12-06, afternoon) nothing passed 2.9 cm from a
+    stop: seed 2, draw 120 of the combined benchmark (`mpc`), the pendulum leaning towards the
+    stop the catch's transient had left the cart at, fell."""
     guard = RailGuard(P, margin=0.02, limit_reserve=0.05, actuator_dead_time=0.04)
-    x = P.travel - 0.04
+    x = P.travel - 0.029
     assert guard.passed_range(x, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
     guard.balancing = True
     high = guard.passed_range(x, 0.0, 0.0, P.force_min, P.force_max)[1]
     assert 5.0 < high < P.force_max
-    assert guard.stopping_position(x, 0.0, 0.0, high) == pytest.approx(P.travel - 0.03, abs=1e-3)
-    at_floor = P.travel - 0.03 + 0.001
-    assert guard.passed_range(at_floor, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
+    assert guard.stopping_position(x, 0.0, 0.0, high) == pytest.approx(P.travel - 0.02, abs=1e-3)
+    assert guard.passed_range(0.029, 0.0, 0.0, P.force_min, P.force_max)[0] == \
+        pytest.approx(-high, rel=0.2)  # the left stop alike
+    at_margin = P.travel - 0.02 + 0.001
+    assert guard.passed_range(at_margin, 0.0, 0.0, P.force_min, P.force_max)[1] == 0.0
 
 
 @pytest.mark.parametrize('seed', [8, 19])
