@@ -71,6 +71,35 @@ def test_tally_counts_successes_kinds_and_the_interval_per_pair():
     assert t[('s', 'x')]['interval'] == pytest.approx(list(cb.wilson_interval(3, 4)))
 
 
+def test_sign_test_matches_the_binomial_by_hand():
+    # 4 against 1: P(X <= 1 | 5, 1/2) = 6/32, doubled; 6 against 0: 2/64; 5 against 0 is
+    # not below 0.05 (2/32); a tie or no discordant draw says nothing.
+    assert cb.sign_test(4, 1) == pytest.approx(0.375)
+    assert cb.sign_test(0, 6) == pytest.approx(0.03125)
+    assert cb.sign_test(5, 0) == pytest.approx(0.0625)
+    assert cb.sign_test(3, 3) == 1.0 and cb.sign_test(0, 0) == 1.0
+
+
+def test_paired_comparison_counts_the_draws_each_pair_alone_holds():
+    drawn = cb.scenarios(RangeTable(), 8)
+    fall = {**GOOD, 'success': False, 'falls_after_catch': 1}
+    # x loses draws 0-5 and 7; y loses draw 7 only: 6 draws only y holds, none only x.
+    results = [fall] * 6 + [GOOD, fall] + [GOOD] * 7 + [fall]
+    pairs = [('s', 'x'), ('s', 'y')]
+    rows = cb.paired_comparison(cb.tally(pairs, drawn, results))
+    assert len(rows) == 1
+    row = rows[0]
+    assert (row['first_only'], row['second_only'], row['both'], row['neither']) == (0, 6, 1, 1)
+    assert row['p'] == pytest.approx(0.03125) and row['better'] == ['s', 'y']
+    # One draw fewer apart (5 against 0) is no longer shown.
+    results[5] = GOOD
+    row = cb.paired_comparison(cb.tally(pairs, drawn, results))[0]
+    assert row['second_only'] == 5 and row['better'] is None
+    text = cr.markdown_report(cb.tally(pairs, drawn, results), RangeTable(), [], 8, 0, 30.0,
+                              'the published range table', [row])
+    assert '| s + x | s + y | 0 | 5 | 2 | 1 | 0.0625 | not shown |' in text
+
+
 def test_failure_rates_bin_each_factor_and_pushes_by_impulse_over_the_pushed_runs():
     centres, rates, counts = cr.failure_rates([0.0, 0.1, 0.2, 0.3, 0.4, 1.0],
                                               [True, False, False, True, True, True])

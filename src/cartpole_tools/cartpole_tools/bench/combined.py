@@ -8,7 +8,8 @@ every pair, every worker count and on Dask. A run succeeds by the strict
 rule (:func:`.robustness.strict_success`): caught, no fall after the catch, no manager
 fault, no impact on a stop, and the run summary's end-of-run precision.
 A failure is classified by :func:`failure_kind`; the success rate comes
-with its Wilson 95 % interval (:func:`wilson_interval`).
+with its Wilson 95 % interval (:func:`wilson_interval`), and two pairs on
+the same scenarios are compared draw by draw (:func:`paired_comparison`).
 """
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ KINDS = ('impact', 'fault', 'fall', 'never caught', 'off target')
 """Failure kinds, in the order :func:`failure_kind` tests them."""
 Z95 = 1.959963984540054
 """The standard normal's 97.5 % quantile."""
+SIGNIFICANCE = 0.05
+"""A paired difference is shown when the exact test's two-sided p is below this."""
 
 
 def scenarios(table: RangeTable, n: int, seed: int = 0) -> list[Scenario]:
@@ -82,6 +85,42 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     centre = (p + z * z / (2 * n)) / denominator
     half = z / denominator * math.sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n))
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Two-sided p of the exact McNemar (sign) test on the discordant draws: the chance of
+    a split at least this uneven of ``wins + losses`` draws if either pair were as likely
+    to hold each of them (binomial, 1/2); 1 when there is none."""
+    n = wins + losses
+    if n <= 0:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(min(wins, losses) + 1)) / 2.0 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def paired_comparison(tallies: dict[tuple[str, str], dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every two pairs of :func:`tally` (on the same scenarios), draw by draw: the draws only
+    the first holds (``first_only``), only the second, both, neither, the exact McNemar p
+    (:func:`sign_test`) and the verdict. Two success rates' intervals overlap long after
+    the draws say which is better; the draws both hold or both lose say nothing of it."""
+    rows = []
+    pairs = list(tallies)
+    for i, first in enumerate(pairs):
+        for second in pairs[i + 1:]:
+            a = [k is None for k in tallies[first]['kinds']]
+            b = [k is None for k in tallies[second]['kinds']]
+            first_only = sum(1 for x, y in zip(a, b) if x and not y)
+            second_only = sum(1 for x, y in zip(a, b) if y and not x)
+            both = sum(1 for x, y in zip(a, b) if x and y)
+            p = sign_test(first_only, second_only)
+            better = None
+            if p < SIGNIFICANCE:
+                better = list(first if first_only > second_only else second)
+            rows.append({'first': list(first), 'second': list(second),
+                         'first_only': first_only, 'second_only': second_only, 'both': both,
+                         'neither': len(a) - first_only - second_only - both, 'p': p,
+                         'better': better})
+    return rows
 
 
 def tally(pairs: Sequence[tuple[str, str]], drawn: Sequence[Scenario],

@@ -58,6 +58,7 @@ def bench_combined(args: argparse.Namespace, argv: list[str], pairs: Sequence[tu
                               progress=progress)
     wall = time.perf_counter() - t0
     tallies = cb.tally(pairs, drawn, results)
+    paired = cb.paired_comparison(tallies)
     failures = cr.write_failures(out, pairs, drawn, tallies, args.duration)
     factor_values = cb.factor_table(drawn)
     figure = cr.plot_factors(tallies, factor_values, out / 'combined_factors.png')
@@ -65,13 +66,14 @@ def bench_combined(args: argparse.Namespace, argv: list[str], pairs: Sequence[tu
     report = header + (f'{len(runs)} runs ({len(pairs)} pairs x {args.combined} scenarios) in '
                        f'{wall:.0f} s wall on {where}.\n\n')
     report += cr.markdown_report(tallies, table, failures, args.combined, args.seed,
-                                 args.duration, ranges)
+                                 args.duration, ranges, paired)
     report += f'\n![failure rate by factor]({Path(figure).name})\n'
     raw = {'pairs': [list(p) for p in pairs], 'n': args.combined, 'seed': args.seed,
            'duration_s': args.duration, 'wall_s': wall, 'ranges': table.to_dict(),
            'ranges_file': None if args.ranges is None else str(args.ranges),
            'scores': {cr.pair_name(p): {k: v for k, v in t.items() if k != 'kinds'}
                       for p, t in tallies.items()},
+           'paired': paired,
            'factors': factor_values, 'failures': failures,
            'runs': [{'swingup': r.swingup, 'stabilizer': r.stabilizer,
                      'index': i % args.combined, 'kind': cb.failure_kind(res),

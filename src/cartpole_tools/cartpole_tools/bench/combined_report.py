@@ -14,7 +14,7 @@ from cartpole_sim.scenario import Scenario
 from cartpole_sim.scenario_options import save_scenario
 from cartpole_sim.scenario_ranges import RangeTable
 
-from .combined import KINDS
+from .combined import KINDS, SIGNIFICANCE
 
 BINS = 5
 """Equal-width bins of each factor in the by-factor plot."""
@@ -56,8 +56,10 @@ def write_failures(out: Path, pairs: Sequence[tuple[str, str]], drawn: Sequence[
 
 def markdown_report(tallies: dict[tuple[str, str], dict[str, Any]], table: RangeTable,
                     failures: Sequence[dict[str, Any]], n: int, seed: int,
-                    duration: float, ranges: str) -> str:
-    """The success table (rate, Wilson 95 % interval, failures by kind), the range table
+                    duration: float, ranges: str,
+                    paired: Sequence[dict[str, Any]] = ()) -> str:
+    """The success table (rate, Wilson 95 % interval, failures by kind), the paired
+    comparison of every two pairs (:func:`.combined.paired_comparison`), the range table
     and the failures with their replay commands."""
     lines = ['### Combined disturbances: strict success\n',
              f'{n} scenarios drawn from {ranges} with --seed {seed} (every factor at once, '
@@ -75,7 +77,10 @@ def markdown_report(tallies: dict[tuple[str, str], dict[str, Any]], table: Range
                      + ' | '.join(str(t['failures'][k]) for k in KINDS) + ' |')
     lines += ['', 'Failure kinds: impact (on a stop), fault (controller manager), fall (after '
               'the catch), never caught, off target (caught, no fall, but the last 10 s are '
-              'outside 2 deg or 10 cm).', '', '### The range table\n',
+              'outside 2 deg or 10 cm).', '']
+    if paired:
+        lines += paired_lines(paired)
+    lines += ['### The range table\n',
               '| factor | drawn from |', '|---|---|']
     for name, value in table.to_dict().items():
         text = f'{value[0]:g} to {value[1]:g}' if isinstance(value, list) else f'{value}'
@@ -87,6 +92,23 @@ def markdown_report(tallies: dict[tuple[str, str], dict[str, Any]], table: Range
             lines.append(f"| {f['swingup']} + {f['stabilizer']} | {f['index']} | {f['kind']} | "
                          f"`{f['replay']}` |")
     return '\n'.join(lines) + '\n'
+
+
+def paired_lines(paired: Sequence[dict[str, Any]]) -> list[str]:
+    """The paired comparison's table and how to read it."""
+    lines = ['### Pair against pair, draw by draw\n',
+             'On the same scenarios, what tells two pairs apart is the draws one holds and the '
+             'other loses; p is the exact McNemar (sign) test\'s two-sided probability of a '
+             'split at least that uneven if both were equally good. A pair is better when p < '
+             f'{SIGNIFICANCE:g}.\n',
+             '| first | second | first only | second only | both | neither | p | better |',
+             '|---|---|---|---|---|---|---|---|']
+    for row in paired:
+        better = pair_name(tuple(row['better'])) if row['better'] else 'not shown'
+        lines.append(f"| {pair_name(tuple(row['first']))} | {pair_name(tuple(row['second']))} "
+                     f"| {row['first_only']} | {row['second_only']} | {row['both']} "
+                     f"| {row['neither']} | {row['p']:.3g} | {better} |")
+    return lines + ['']
 
 
 def failure_rates(values: Sequence[float], failed: Sequence[bool], push: bool = False
