@@ -166,6 +166,7 @@ def test_combined_writes_the_report_and_every_failure_replays_to_the_same_summar
     assert (tmp_path / 'combined_factors.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     raw = json.loads((tmp_path / 'combined.json').read_text())
     assert len(raw['runs']) == 3 and len(raw['failures']) == 3
+    assert raw['paired'] == [] and 'Pair against pair' not in report  # one pair
     assert raw['ranges'] == RangeTable(push_time=(5.0, 7.0), push_share=1.0).to_dict()
     assert all(run['scenario']['pushes'] for run in raw['runs'])
     failure = raw['failures'][1]
